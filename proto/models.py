@@ -1,0 +1,216 @@
+"""Contracts shared by every side of Kiln: the bake config and the bundle manifest.
+
+The bake config is what a user writes (JSON through the API, TOML through the CLI).
+Every section is validated strictly: unknown keys and out-of-range values are refused
+with the field's path, so a typo never silently bakes with a default.
+
+Units and frames: positions and lengths are world-space metres in glTF's frame
+(+Y up, right-handed); colours are linear RGB; light intensities follow
+KHR_lights_punctual (point/spot: candela, directional: lux); sky radiance is
+linear RGB radiance (W/sr/m^2 up to a common scale).
+
+The JSON Schema of :class:`BakeConfig` is exported to ``proto/schema/bake-config.schema.json``
+(``python -m proto.export_schema``); a test keeps it in sync.
+"""
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from typing import Annotated, Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+FORMAT_VERSION = 1
+"""Bundle format version written into every manifest (see proto/bundle.md)."""
+
+MAX_PROBES = 1 << 20
+"""Upper bound on the probe count of one grid (16x32x16 = 8192 is typical)."""
+
+Vec3 = tuple[float, float, float]
+Count = Annotated[int, Field(ge=1, le=256)]
+
+
+class _Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+def _finite(v: Vec3 | None, name: str) -> Vec3 | None:
+    if v is not None and not all(math.isfinite(c) for c in v):
+        raise ValueError(f"{name} must be finite")
+    return v
+
+
+class LightConfig(_Strict):
+    """One punctual light added to the scene (KHR_lights_punctual semantics).
+
+    ``position`` is required for point and spot lights, ``direction`` (the direction
+    the light travels, world space, need not be unit) for spot and directional lights.
+    """
+
+    type: Literal["point", "spot", "directional"]
+    position: Vec3 | None = Field(None, description="world-space position, metres (point, spot)")
+    direction: Vec3 | None = Field(None, description="direction the light travels, world space (spot, directional)")
+    color: Vec3 = Field((1.0, 1.0, 1.0), description="linear RGB")
+    intensity: float = Field(1.0, ge=0.0, le=1e9, description="candela (point, spot) or lux (directional)")
+    range: float | None = Field(None, gt=0.0, description="metres; None = infinite")
+    inner_cone_angle: float = Field(0.0, ge=0.0, le=math.pi / 2, description="radians (spot)")
+    outer_cone_angle: float = Field(math.pi / 4, gt=0.0, le=math.pi / 2, description="radians (spot)")
+
+    @field_validator("color")
+    @classmethod
+    def _color_ok(cls, v: Vec3) -> Vec3:
+        if not all(math.isfinite(c) and c >= 0 for c in v):
+            raise ValueError("color components must be finite and >= 0")
+        return v
+
+    @model_validator(mode="after")
+    def _check(self) -> "LightConfig":
+        _finite(self.position, "position")
+        _finite(self.direction, "direction")
+        if self.type in ("point", "spot") and self.position is None:
+            raise ValueError(f"a {self.type} light needs a position")
+        if self.type in ("spot", "directional"):
+            if self.direction is None:
+                raise ValueError(f"a {self.type} light needs a direction")
+            if sum(c * c for c in self.direction) < 1e-12:
+                raise ValueError("direction must not be zero")
+        if self.type == "spot" and self.inner_cone_angle >= self.outer_cone_angle:
+            raise ValueError("inner_cone_angle must be below outer_cone_angle")
+        return self
+
+
+class SceneSection(_Strict):
+    """Lighting added to (or replacing) what the glTF carries."""
+
+    lights: list[LightConfig] = Field(default_factory=list, max_length=64,
+                                      description="lights added to the scene's own KHR_lights_punctual lights")
+    use_scene_lights: bool = Field(True, description="keep the lights the glTF defines")
+    sky: Vec3 = Field((0.0, 0.0, 0.0), description="uniform sky radiance seen by rays that miss, linear RGB")
+
+    @field_validator("sky")
+    @classmethod
+    def _sky_ok(cls, v: Vec3) -> Vec3:
+        if not all(math.isfinite(c) and 0 <= c <= 1e6 for c in v):
+            raise ValueError("sky components must be finite and in [0, 1e6]")
+        return v
+
+
+class Box(_Strict):
+    """An axis-aligned box, world space, metres."""
+
+    min: Vec3
+    max: Vec3
+
+    @model_validator(mode="after")
+    def _check(self) -> "Box":
+        _finite(self.min, "min")
+        _finite(self.max, "max")
+        if not all(a < b for a, b in zip(self.min, self.max)):
+            raise ValueError("box min must be below max on every axis")
+        return self
+
+
+class PlaceSection(_Strict):
+    """The probe grid (DESIGN stage 1): counts *or* spacing, over the scene bounds or a box.
+
+    With ``counts`` the grid has exactly that many probes per axis, the outermost
+    probes on the faces of the (padded) box. With ``spacing`` the counts are
+    ``ceil(extent / spacing) + 1`` per axis and the grid is centred on the box.
+    """
+
+    counts: tuple[Count, Count, Count] | None = Field((8, 8, 8), description="probes along x, y, z")
+    spacing: float | None = Field(None, gt=0.0, le=1e4, description="metres between probes")
+    box: Box | None = Field(None, description="grid box; default: the scene bounds")
+    padding: float = Field(0.0, ge=0.0, le=0.5,
+                           description="fraction of each extent added on both sides of the box")
+
+    @model_validator(mode="before")
+    @classmethod
+    def _spacing_replaces_counts(cls, data: Any) -> Any:
+        # Giving spacing alone means "no counts": the default counts must not clash with it.
+        if isinstance(data, dict) and data.get("spacing") is not None and "counts" not in data:
+            data = {**data, "counts": None}
+        return data
+
+    @model_validator(mode="after")
+    def _one_of(self) -> "PlaceSection":
+        if (self.counts is None) == (self.spacing is None):
+            raise ValueError("give exactly one of counts or spacing")
+        if self.counts is not None and math.prod(self.counts) > MAX_PROBES:
+            raise ValueError(f"at most {MAX_PROBES} probes")
+        return self
+
+
+class BakeConfig(_Strict):
+    """A bake's settings, one section per stage.
+
+    A stage's cache key is the hash of its section (and the keys of its inputs), so a
+    change to one section re-runs that stage and those after it only.
+    """
+
+    seed: int = Field(0, ge=0, le=2**31 - 1, description="seed for every random choice of the bake")
+    scene: SceneSection = Field(default_factory=SceneSection)
+    place: PlaceSection = Field(default_factory=PlaceSection)
+
+    def section_hash(self, *names: str) -> str:
+        """sha256 (hex) of the canonical JSON of the named sections (``"seed"`` allowed)."""
+        data = self.model_dump(mode="json")
+        payload = json.dumps({n: data[n] for n in names}, sort_keys=True, separators=(",", ":"))
+        return hashlib.sha256(payload.encode()).hexdigest()
+
+
+# --------------------------------------------------------------------------- manifest
+
+
+class ArtifactInfo(BaseModel):
+    """One file of a bundle. ``shape``/``dtype`` describe the decoded numpy array."""
+
+    name: str
+    file: str
+    format: Literal["ktx2", "npy", "json", "png"]
+    shape: list[int]
+    dtype: str
+    bytes: int
+    sha256: str
+    stage: str
+    description: str = ""
+    meta: dict[str, Any] = Field(default_factory=dict)
+
+
+class StageInfo(BaseModel):
+    """What one stage did: wall seconds, whether it came from cache, and its stats."""
+
+    name: str
+    seconds: float
+    cached: bool = False
+    cache_key: str
+    stats: dict[str, Any] = Field(default_factory=dict)
+
+
+class SceneSummary(BaseModel):
+    id: str
+    triangles: int
+    bounds: list[list[float]]
+    lights: int
+    materials: int
+    warnings: list[str] = Field(default_factory=list)
+
+
+class Manifest(BaseModel):
+    """``manifest.json`` of a bundle (proto/bundle.md)."""
+
+    format_version: int = FORMAT_VERSION
+    kiln_version: str
+    bake_id: str | None = None
+    scene: SceneSummary
+    config: dict[str, Any]
+    grid: dict[str, Any] = Field(default_factory=dict)
+    stages: list[StageInfo] = Field(default_factory=list)
+    artifacts: list[ArtifactInfo] = Field(default_factory=list)
+
+    def artifact(self, name: str) -> ArtifactInfo:
+        for a in self.artifacts:
+            if a.name == name:
+                return a
+        raise KeyError(name)

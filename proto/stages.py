@@ -1,0 +1,96 @@
+"""The stage table: names, order, what each reads, and how its cache key is made.
+
+Shared by the API (which plans a bake and enqueues jobs by name) and the workers (which
+map each name to its function in :mod:`workers.pipeline`). A stage's cache key is the
+sha256 of its name and version, the config sections it reads, and the keys of the stages it
+reads (the first stage reads the scene id) — so keys are known before anything runs.
+"""
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+from dataclasses import dataclass
+
+from proto.models import ArtifactInfo, BakeConfig, Manifest, SceneSummary, StageInfo
+from proto import bundle
+from proto.catalog import Catalog
+from proto.store import Store, atomic_write_bytes
+
+KILN_VERSION = "0.1.0"
+
+
+@dataclass(frozen=True)
+class StageDef:
+    name: str
+    version: int                        # bump when the stage's output for the same inputs changes
+    sections: tuple[str, ...]           # BakeConfig sections (and "seed") that the stage reads
+    inputs: tuple[str, ...]             # upstream stages whose artifacts/stats it reads
+    timeout: int = 3600                 # seconds, for the RQ job
+
+
+STAGES: tuple[StageDef, ...] = (
+    StageDef("ingest", 1, ("scene",), (), timeout=600),
+    StageDef("place", 1, ("place",), ("ingest",), timeout=600),
+)
+STAGE_BY_NAME = {s.name: s for s in STAGES}
+
+
+def plan(scene_id: str, config: BakeConfig) -> list[tuple[StageDef, str]]:
+    """Stages in run order with their cache keys (hex sha256)."""
+    keys: dict[str, str] = {}
+    out = []
+    for st in STAGES:
+        h = hashlib.sha256()
+        h.update(f"{st.name}:{st.version}:{config.section_hash(*st.sections)}".encode())
+        if not st.inputs:
+            h.update(f":scene={scene_id}".encode())
+        for dep in st.inputs:
+            h.update(f":{dep}={keys[dep]}".encode())
+        keys[st.name] = h.hexdigest()
+        out.append((st, keys[st.name]))
+    return out
+
+
+def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_id: str | None = None,
+                   cached: dict[str, bool] | None = None) -> Manifest:
+    """The bundle manifest of a bake whose stages are all in the store."""
+    stages, artifacts, grid = [], [], {}
+    for st, key in plan(scene_summary["id"], config):
+        rec = store.get_stage(key)
+        if rec is None:
+            raise RuntimeError(f"stage {st.name} is not in the store")
+        stages.append(StageInfo(name=st.name, seconds=rec["seconds"], cache_key=key,
+                                cached=(cached or {}).get(st.name, False), stats=rec["stats"]))
+        artifacts += [ArtifactInfo(**a) for a in rec["artifacts"]]
+        if st.name == "place":
+            grid = {k: rec["stats"][k] for k in ("counts", "origin", "spacing")}
+    return Manifest(kiln_version=KILN_VERSION, bake_id=bake_id, scene=SceneSummary(**scene_summary),
+                    config=config.model_dump(mode="json"), grid=grid, stages=stages, artifacts=artifacts)
+
+
+def finalize_bake(catalog: Catalog, store: Store, bake: dict) -> dict:
+    """Build the manifest of a bake whose stages are all stored, mark it succeeded; returns the manifest."""
+    config = BakeConfig.model_validate(bake["config"])
+    scene = catalog.get_scene(bake["team"], bake["scene_id"])
+    if scene is None:
+        raise RuntimeError(f"scene {bake['scene_id']} of bake {bake['id']} is not in the catalog")
+    summary = {k: scene[k] for k in ("id", "triangles", "bounds", "lights", "materials", "warnings")}
+    cached = {s["name"]: s["cached"] for s in bake.get("stages", [])}
+    manifest = build_manifest(store, summary, config, bake_id=bake["id"], cached=cached)
+    metrics = {f"stage_seconds.{s.name}": s.seconds for s in manifest.stages}
+    metrics["artifact_bytes"] = sum(a.bytes for a in manifest.artifacts)
+    catalog.set_metrics(bake["id"], metrics)
+    data = manifest.model_dump(mode="json")
+    catalog.set_bake_status(bake["id"], "succeeded", manifest=data)
+    return data
+
+
+def export_bundle(store: Store, manifest: Manifest, out_dir: str | Path) -> Path:
+    """Write the bundle (manifest.json + one file per artifact) into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    for a in manifest.artifacts:
+        data = store.read_bytes(a.sha256)
+        atomic_write_bytes(out / a.file, data)
+    bundle.write_manifest(out, manifest)
+    return out

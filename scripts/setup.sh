@@ -1,0 +1,68 @@
+#!/usr/bin/env bash
+# Idempotent setup: Debian packages (when root and missing), a venv in .venv, the project
+# and its test dependencies. Re-running it does nothing that is already done.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+# Debian packages Kiln needs at run time (EGL/Mesa for moderngl previews come with the evaluate stage).
+DEB_PACKAGES="python3-venv python3-dev libgomp1"
+
+log() { printf 'kiln setup: %s\n' "$*" >&2; }
+
+missing=()
+if command -v dpkg-query >/dev/null 2>&1; then
+  for p in $DEB_PACKAGES; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+  done
+fi
+PY=${PYTHON:-python3}
+if ! command -v "$PY" >/dev/null 2>&1; then missing+=(python3); fi
+# Only packages a venv cannot do without are fatal; with a working `python3 -m venv` (pyenv,
+# a custom build) the Debian python3-venv/-dev packages are not needed.
+need_apt=()
+for p in "${missing[@]:-}"; do
+  case "$p" in
+    python3|python3-venv) "$PY" -m venv --help >/dev/null 2>&1 || need_apt+=("$p") ;;
+    python3-dev) "$PY" -c 'import sysconfig,os,sys; sys.exit(not os.path.exists(os.path.join(sysconfig.get_paths()["include"],"Python.h")))' 2>/dev/null || need_apt+=("$p") ;;
+    "") ;;
+    *) need_apt+=("$p") ;;
+  esac
+done
+if [ ${#need_apt[@]} -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    log "installing Debian packages: ${need_apt[*]}"
+    DEBIAN_FRONTEND=noninteractive apt-get update -qq
+    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need_apt[@]}" >/dev/null
+  else
+    log "missing Debian packages: ${need_apt[*]}"
+    log "run as root: apt-get install -y ${need_apt[*]}   (then re-run this command)"
+    exit 1
+  fi
+fi
+
+"$PY" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' || {
+  log "Python 3.11 or newer is needed ($("$PY" --version 2>&1) found); set PYTHON=/path/to/python3.11"; exit 1; }
+
+if [ ! -x .venv/bin/python ]; then
+  log "creating .venv"
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.kiln-installed
+want=$(cat pyproject.toml | sha256sum | cut -d' ' -f1)
+if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! .venv/bin/python -c 'import server.cli' 2>/dev/null; then
+  log "installing Kiln and its dependencies into .venv"
+  .venv/bin/python -m pip install -q --upgrade pip >/dev/null
+  .venv/bin/python -m pip install -q -e ".[test]"
+  echo "$want" > "$stamp"
+fi
+
+# The web viewer (a later issue) builds with npm when web/package.json exists.
+if [ -f web/package.json ]; then
+  if ! command -v npm >/dev/null 2>&1; then
+    log "npm is needed to build the web viewer: apt-get install -y nodejs npm"; exit 1
+  fi
+  if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules ]; then
+    (cd web && npm ci --no-audit --no-fund --loglevel=error)
+  fi
+  (cd web && npm run --silent build)
+fi

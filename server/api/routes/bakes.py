@@ -1,0 +1,212 @@
+"""``/v1/bakes``: create (202, or done at once from cache), list, get, cancel, delete, events (SSE),
+artifacts (ETag + Range) and the bundle (one zip)."""
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+import tempfile
+import time
+from typing import Literal
+
+from fastapi import APIRouter, Depends, Query, Request, Response
+from fastapi.responses import FileResponse, StreamingResponse
+from pydantic import BaseModel, ConfigDict, Field
+
+from proto import bundle
+from proto.catalog import TERMINAL, Catalog
+from proto.models import BakeConfig, Manifest
+from proto.stages import export_bundle, finalize_bake
+from proto.store import Store
+from server import queue
+from server.api import deps
+from server.api.errors import ApiError
+
+log = logging.getLogger("kiln.api")
+router = APIRouter(prefix="/v1/bakes", tags=["bakes"])
+
+MEDIA = {"ktx2": "image/ktx2", "npy": "application/octet-stream", "json": "application/json", "png": "image/png"}
+SSE_POLL_S = 0.25
+SSE_HEARTBEAT_S = 15.0
+
+
+class BakeCreate(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    scene_id: str = Field(..., min_length=1, max_length=128)
+    config: BakeConfig = Field(default_factory=BakeConfig)
+
+
+def links(bake_id: str) -> dict:
+    base = f"/v1/bakes/{bake_id}"
+    return {"self": base, "events": f"{base}/events", "bundle": f"{base}/bundle", "artifacts": f"{base}/artifacts",
+            "cancel": f"{base}/cancel"}
+
+
+def _artifact_infos(store: Store, bake: dict) -> list[dict]:
+    """Artifacts of a bake so far: the manifest's once it succeeded, else those of finished stages."""
+    if bake.get("manifest"):
+        return bake["manifest"]["artifacts"]
+    out = []
+    for s in bake["stages"]:
+        if s["status"] == "succeeded":
+            rec = store.get_stage(s["cache_key"])
+            if rec:
+                out += rec["artifacts"]
+    return out
+
+
+def public(bake: dict, store: Store | None = None) -> dict:
+    out = {k: bake[k] for k in ("id", "scene_id", "status", "config", "created", "started", "finished", "error")}
+    out["stages"] = [{k: s[k] for k in ("name", "status", "progress", "seconds", "cached", "stats")}
+                     for s in bake["stages"]]
+    out["metrics"] = bake.get("metrics", {})
+    if store is not None:
+        out["artifacts"] = [{k: a[k] for k in ("name", "file", "format", "shape", "dtype", "bytes", "sha256", "stage")}
+                            for a in _artifact_infos(store, bake)]
+    out["links"] = links(bake["id"])
+    return out
+
+
+def _get(catalog: Catalog, team: str, bake_id: str) -> dict:
+    bake = catalog.get_bake(bake_id, team)
+    if bake is None:
+        raise ApiError(404, "bake_not_found", f"no bake {bake_id}")
+    return bake
+
+
+@router.post("", status_code=202, summary="Start a bake of a scene with a config")
+def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.team),
+                catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
+    if catalog.get_scene(team, body.scene_id) is None:
+        raise ApiError(404, "scene_not_found", f"no scene {body.scene_id}")
+    stages = queue.plan_stages(body.scene_id, body.config)
+    bake_id = catalog.create_bake(team, body.scene_id, body.config.model_dump(mode="json"), stages)
+    records = [store.get_stage(key) for _, key in stages]
+    if all(records):  # every stage is in the store: done at once
+        for (name, _), rec in zip(stages, records):
+            catalog.update_stage(bake_id, name, status="succeeded", progress=1.0, seconds=rec["seconds"],
+                                 cached=True, stats=rec["stats"], started=time.time(), finished=time.time())
+        finalize_bake(catalog, store, catalog.get_bake(bake_id))
+    else:
+        try:
+            queue.enqueue_bake(request.app.state.redis, catalog.get_bake(bake_id))
+        except Exception as e:  # Redis down: the bake is in the catalog; recovery enqueues it later
+            log.warning("could not enqueue bake %s now (%s); recovery will", bake_id, e)
+    bake = catalog.get_bake(bake_id)
+    return {"id": bake_id, "status": bake["status"], "links": links(bake_id)}
+
+
+@router.get("", summary="List bakes (filter by scene and status; paginated)")
+def list_bakes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+               scene_id: str | None = None,
+               status: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
+               limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0)):
+    items, total = catalog.list_bakes(team, scene_id, status, limit, offset)
+    full = [catalog.get_bake(b["id"]) for b in items]
+    return {"items": [public(b) for b in full if b], "total": total, "limit": limit, "offset": offset}
+
+
+@router.get("/{bake_id}", summary="A bake: status, per-stage progress, timings, error, artifacts")
+def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+             store: Store = Depends(deps.store)):
+    return public(_get(catalog, team, bake_id), store)
+
+
+@router.post("/{bake_id}/cancel", summary="Cancel a queued or running bake")
+def cancel_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
+                catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
+    bake = _get(catalog, team, bake_id)
+    if bake["status"] in TERMINAL:
+        raise ApiError(409, "bake_finished", f"the bake is already {bake['status']}")
+    _cancel(request, catalog, bake)
+    return public(catalog.get_bake(bake_id), store)
+
+
+def _cancel(request: Request, catalog: Catalog, bake: dict) -> None:
+    catalog.set_bake_status(bake["id"], "cancelled", only_from=("queued", "running"))
+    for s in bake["stages"]:
+        if s["status"] in ("pending", "retrying"):
+            catalog.update_stage(bake["id"], s["name"], status="cancelled")
+    try:
+        queue.cancel_jobs(request.app.state.redis, bake)
+    except Exception as e:
+        log.warning("could not cancel the jobs of bake %s (%s); they will skip it", bake["id"], e)
+
+
+@router.delete("/{bake_id}", status_code=204, summary="Delete a bake (cancelling it first)")
+def delete_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
+                catalog: Catalog = Depends(deps.catalog)):
+    bake = _get(catalog, team, bake_id)
+    if bake["status"] not in TERMINAL:
+        _cancel(request, catalog, bake)
+    catalog.delete_bake(bake_id)
+    zpath = request.app.state.settings.data / "bundles" / f"{bake_id}.zip"
+    zpath.unlink(missing_ok=True)
+    return Response(status_code=204)
+
+
+def _snapshot(bake: dict) -> dict:
+    return {"id": bake["id"], "status": bake["status"], "error": bake["error"],
+            "stages": [{k: s[k] for k in ("name", "status", "progress", "seconds", "cached")} for s in bake["stages"]]}
+
+
+@router.get("/{bake_id}/events", summary="Server-Sent Events: stage progress, then the final status")
+async def bake_events(bake_id: str, request: Request, team: str = Depends(deps.team),
+                      catalog: Catalog = Depends(deps.catalog)):
+    _get(catalog, team, bake_id)
+
+    async def stream():
+        last, last_sent = None, time.monotonic()
+        while True:
+            bake = await asyncio.to_thread(catalog.get_bake, bake_id, team)
+            if bake is None:
+                yield f"event: deleted\ndata: {json.dumps({'id': bake_id})}\n\n"
+                return
+            snap = _snapshot(bake)
+            if snap != last:
+                yield f"event: progress\ndata: {json.dumps(snap)}\n\n"
+                last, last_sent = snap, time.monotonic()
+            if bake["status"] in TERMINAL:
+                yield f"event: status\ndata: {json.dumps(snap)}\n\n"
+                return
+            if time.monotonic() - last_sent > SSE_HEARTBEAT_S:
+                yield ": keep-alive\n\n"
+                last_sent = time.monotonic()
+            if await request.is_disconnected():
+                return
+            await asyncio.sleep(SSE_POLL_S)
+
+    return StreamingResponse(stream(), media_type="text/event-stream",
+                             headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
+
+
+@router.get("/{bake_id}/artifacts/{name}", summary="One artifact file (ETag, Range)")
+def get_artifact(bake_id: str, name: str, request: Request, team: str = Depends(deps.team),
+                 catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
+    bake = _get(catalog, team, bake_id)
+    infos = {a["name"]: a for a in _artifact_infos(store, bake)}
+    info = infos.get(name) or next((a for a in infos.values() if a["file"] == name), None)
+    if info is None:
+        raise ApiError(404, "artifact_not_found", f"bake {bake_id} has no artifact {name!r} (yet)")
+    etag = f'"{info["sha256"]}"'
+    if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
+        return Response(status_code=304, headers={"ETag": etag})
+    return FileResponse(store.blob_path(info["sha256"]), media_type=MEDIA.get(info["format"]),
+                        filename=info["file"], content_disposition_type="inline",
+                        headers={"ETag": etag, "Cache-Control": "private, max-age=31536000, immutable"})
+
+
+@router.get("/{bake_id}/bundle", summary="The whole bundle as one zip")
+def get_bundle(bake_id: str, request: Request, team: str = Depends(deps.team),
+               catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
+    bake = _get(catalog, team, bake_id)
+    if bake["status"] != "succeeded":
+        raise ApiError(409, "bake_not_finished", f"the bake is {bake['status']}; the bundle exists once it succeeds")
+    zdir = request.app.state.settings.data / "bundles"
+    zpath = zdir / f"{bake_id}.zip"
+    if not zpath.exists():
+        with tempfile.TemporaryDirectory(dir=store.root / "tmp") as work:
+            export_bundle(store, Manifest.model_validate(bake["manifest"]), work)
+            zdir.mkdir(parents=True, exist_ok=True)
+            bundle.zip_bundle(work, zpath)
+    return FileResponse(zpath, media_type="application/zip", filename=f"kiln-bake-{bake_id}.zip")

@@ -1,0 +1,387 @@
+"""The ``kiln`` command line.
+
+Exit codes (stable, for build tools):
+
+| code | meaning |
+|---|---|
+| 0 | success |
+| 1 | internal error (a bug; the message says what) |
+| 2 | usage error (bad arguments) |
+| 3 | bad input: the scene or the config was refused (the message names the reason or field) |
+| 4 | the bake failed or was cancelled |
+| 5 | the server could not be reached or answered unexpectedly |
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INPUT, EXIT_BAKE, EXIT_SERVER = 0, 1, 2, 3, 4, 5
+
+
+class CliError(Exception):
+    def __init__(self, code: int, message: str):
+        super().__init__(message)
+        self.exit_code, self.message = code, message
+
+
+# --------------------------------------------------------------------------- config
+
+
+def load_config(path: str | None):
+    """BakeConfig from a TOML (or JSON) file; CliError(EXIT_INPUT) naming the field on error."""
+    import tomllib
+
+    from pydantic import ValidationError
+
+    from proto.models import BakeConfig
+
+    if path is None:
+        return BakeConfig()
+    p = Path(path)
+    try:
+        text = p.read_text()
+    except OSError as e:
+        raise CliError(EXIT_INPUT, f"cannot read config {path}: {e.strerror}")
+    try:
+        data = json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
+    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as e:
+        raise CliError(EXIT_INPUT, f"config {path} is not valid {'JSON' if p.suffix == '.json' else 'TOML'}: {e}")
+    try:
+        return BakeConfig.model_validate(data)
+    except ValidationError as e:
+        errs = e.errors()
+        parts = []
+        for err in errs[:5]:
+            loc = ".".join(str(x) for x in err["loc"]) or "config"
+            msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"]
+            parts.append(f"{loc}: {msg}")
+        raise CliError(EXIT_INPUT, f"invalid config {path}: " + "; ".join(parts))
+
+
+# --------------------------------------------------------------------------- progress
+
+
+class Progress:
+    """A progress bar on stderr (one step per stage), silent when stderr is not wanted."""
+
+    def __init__(self, stages: list[str], enabled: bool = True):
+        from tqdm import tqdm
+
+        self.stages = stages
+        self.bar = tqdm(total=len(stages), file=sys.stderr, unit="stage", disable=not enabled,
+                        bar_format="{l_bar}{bar}| {n:.2f}/{total} stages [{elapsed}]")
+        self.done: dict[str, float] = {}
+
+    def update(self, stage: str, fraction: float) -> None:
+        self.done[stage] = max(self.done.get(stage, 0.0), fraction)
+        self.bar.set_description(stage)
+        self.bar.n = sum(self.done.values())
+        self.bar.refresh()
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+# --------------------------------------------------------------------------- bake
+
+
+def _default_cache() -> Path:
+    base = os.environ.get("KILN_CACHE") or os.path.join(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache"), "kiln")
+    return Path(base)
+
+
+def bake_local(args) -> int:
+    from proto.stages import STAGES, export_bundle
+    from proto.store import Store
+    from workers.ingest import IngestError, ingest_file
+    from workers.pipeline import bake_local as run
+    from workers.stages.base import StageError
+
+    config = load_config(args.config)
+    if not Path(args.scene).is_file():
+        raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
+    try:
+        scene = ingest_file(args.scene, filename=Path(args.scene).name)
+    except IngestError as e:
+        raise CliError(EXIT_INPUT, f"{args.scene}: {e.code}: {e.message}")
+    store = Store(Path(args.cache) / "store")
+    prog = Progress([s.name for s in STAGES], enabled=not args.quiet)
+    try:
+        manifest = run(store, scene, config, report=prog.update)
+    except StageError as e:
+        raise CliError(EXIT_BAKE, f"bake failed: {e.code}: {e.message}")
+    finally:
+        prog.close()
+    export_bundle(store, manifest, args.out)
+    _print_result(args, manifest.model_dump(mode="json"))
+    return EXIT_OK
+
+
+def _print_result(args, manifest: dict) -> None:
+    if args.json:
+        sys.stdout.write(json.dumps(manifest, indent=1) + "\n")
+        return
+    stages = ", ".join(f"{s['name']} {s['seconds']:.2f}s{' (cached)' if s.get('cached') else ''}"
+                       for s in manifest["stages"])
+    print(f"baked scene {manifest['scene']['id'][:12]} -> {args.out} ({len(manifest['artifacts'])} artifacts; {stages})")
+
+
+def bake_remote(args) -> int:
+    import httpx
+
+    config = load_config(args.config)
+    scene = Path(args.scene)
+    if not scene.is_file():
+        raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
+    headers = {"Authorization": f"Bearer {args.api_key}"} if args.api_key else {}
+    base = args.server.rstrip("/")
+    try:
+        with httpx.Client(base_url=base, headers=headers, timeout=httpx.Timeout(60.0, connect=10.0)) as c:
+            with open(scene, "rb") as f:
+                r = c.post("/v1/scenes", content=f, headers={"X-Filename": scene.name,
+                                                             "Content-Type": "application/octet-stream"})
+            scene_body = _check(r, EXIT_INPUT)
+            r = c.post("/v1/bakes", json={"scene_id": scene_body["id"], "config": config.model_dump(mode="json")})
+            bake = _check(r, EXIT_INPUT)
+            bake_id = bake["id"]
+            prog = Progress([], enabled=not args.quiet)
+            try:
+                final = _follow(c, bake_id, prog)
+            finally:
+                prog.close()
+            if final["status"] != "succeeded":
+                err = final.get("error") or {}
+                reason = f"{err.get('stage')}: {err.get('code')}: {err.get('message')}" if err else final["status"]
+                raise CliError(EXIT_BAKE, f"bake {bake_id} {final['status']}: {reason}")
+            out = Path(args.out)
+            out.mkdir(parents=True, exist_ok=True)
+            zpath = out / f".kiln-bundle-{bake_id}.zip"
+            with c.stream("GET", f"/v1/bakes/{bake_id}/bundle") as r:
+                if r.status_code != 200:
+                    r.read()
+                    _check(r, EXIT_SERVER)
+                with open(zpath, "wb") as f:
+                    for chunk in r.iter_bytes():
+                        f.write(chunk)
+            _extract(zpath, out)
+            zpath.unlink()
+            manifest = json.loads((out / "manifest.json").read_text())
+    except httpx.HTTPError as e:
+        raise CliError(EXIT_SERVER, f"cannot talk to {base}: {e}")
+    _print_result(args, manifest)
+    return EXIT_OK
+
+
+def _check(r, code: int) -> dict:
+    if r.status_code < 400:
+        return r.json()
+    try:
+        err = r.json()["error"]
+        msg = f"{err['code']}: {err['message']}"
+    except Exception:
+        msg = f"HTTP {r.status_code}"
+    raise CliError(code if r.status_code < 500 else EXIT_SERVER, f"server refused ({r.status_code}): {msg}")
+
+
+def _follow(c, bake_id: str, prog: Progress) -> dict:
+    """Follow the bake over SSE until it ends; returns the final bake."""
+    import httpx
+
+    try:
+        with c.stream("GET", f"/v1/bakes/{bake_id}/events", timeout=httpx.Timeout(None, connect=10.0)) as r:
+            event = None
+            for line in r.iter_lines():
+                if line.startswith("event:"):
+                    event = line[6:].strip()
+                elif line.startswith("data:") and event in ("progress", "status"):
+                    snap = json.loads(line[5:])
+                    if prog.bar.total != len(snap["stages"]):
+                        prog.bar.total = len(snap["stages"])
+                    for s in snap["stages"]:
+                        prog.update(s["name"], s["progress"] if s["status"] != "succeeded" else 1.0)
+                    if event == "status":
+                        break
+    except httpx.HTTPError:
+        pass  # fall back to polling below
+    while True:
+        b = _check(c.get(f"/v1/bakes/{bake_id}"), EXIT_SERVER)
+        if b["status"] in ("succeeded", "failed", "cancelled"):
+            return b
+        time.sleep(0.5)
+
+
+def _extract(zpath: Path, out: Path) -> None:
+    import zipfile
+
+    with zipfile.ZipFile(zpath) as z:
+        for m in z.infolist():
+            name = Path(m.filename)
+            if name.is_absolute() or ".." in name.parts or len(name.parts) != 1:
+                raise CliError(EXIT_SERVER, f"the bundle holds an unexpected path {m.filename!r}")
+            from proto.store import atomic_write_bytes
+            atomic_write_bytes(out / name.name, z.read(m))
+
+
+# --------------------------------------------------------------------------- other commands
+
+
+def cmd_serve(args) -> int:
+    from server.config import is_loopback
+    from server.supervisor import serve
+
+    _refuse_open_public(args.host, is_loopback)
+    return serve(args.host, args.port, args.workers, Path(args.data), os.environ.get("REDIS_URL"))
+
+
+def _refuse_open_public(host: str, is_loopback) -> None:
+    from server.config import get_settings
+
+    try:
+        settings = get_settings()
+    except Exception as e:
+        raise CliError(EXIT_USAGE, f"bad settings: {e}")
+    if settings.open:
+        print("kiln: WARNING: no API keys configured (KILN_API_KEYS): the server is open", file=sys.stderr)
+        if not is_loopback(host):
+            raise CliError(EXIT_USAGE, f"refusing to bind {host} with no API keys; set KILN_API_KEYS=team:key,... "
+                                       "or bind 127.0.0.1")
+
+
+def cmd_api(args) -> int:
+    import uvicorn
+
+    from server.config import Settings, export_env, is_loopback
+    from server.main import create_app
+
+    _refuse_open_public(args.host, is_loopback)
+    settings = Settings(data=Path(args.data).resolve(), redis_url=os.environ.get("REDIS_URL"))
+    if not settings.redis_url:
+        raise CliError(EXIT_USAGE, "kiln api needs REDIS_URL (kiln serve starts an embedded Redis)")
+    export_env(settings)
+    uvicorn.run(create_app(settings), host=args.host, port=args.port, log_level="info")
+    return EXIT_OK
+
+
+def cmd_worker(args) -> int:
+    import socket
+
+    from rq import Queue, Worker
+
+    import workers.jobs  # noqa: F401  (imported before forking, so work-horses start warm)
+    from server.queue import QUEUE_NAME, connect
+
+    url = os.environ.get("REDIS_URL")
+    if not url:
+        raise CliError(EXIT_USAGE, "kiln worker needs REDIS_URL")
+    if args.data:
+        os.environ["KILN_DATA"] = str(Path(args.data).resolve())
+    if not os.environ.get("KILN_DATA"):
+        raise CliError(EXIT_USAGE, "kiln worker needs --data or KILN_DATA")
+    conn = connect(url)
+    w = Worker([Queue(QUEUE_NAME, connection=conn)], connection=conn,
+               name=f"kiln-{socket.gethostname()}-{os.getpid()}")
+    w.work(burst=args.burst, logging_level="WARNING")
+    return EXIT_OK
+
+
+def cmd_scenes_make(args) -> int:
+    from workers.procedural import SCENES, write_scene
+
+    if args.name not in SCENES:
+        raise CliError(EXIT_USAGE, f"unknown scene {args.name!r}; choose from {', '.join(sorted(SCENES))}")
+    write_scene(args.name, args.out)
+    print(f"wrote {args.name} to {args.out}", file=sys.stderr)
+    return EXIT_OK
+
+
+def cmd_scenes_list(args) -> int:
+    from workers.procedural import SCENES
+
+    for name, desc in sorted(SCENES.items()):
+        print(f"{name:12s} {desc}")
+    return EXIT_OK
+
+
+def cmd_schema(args) -> int:
+    from proto.export_schema import schema_text
+
+    text = schema_text()
+    if args.out:
+        Path(args.out).write_text(text)
+    else:
+        sys.stdout.write(text)
+    return EXIT_OK
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="kiln", description="Kiln: bake leak-free, relightable probe GI from glTF.")
+    sub = p.add_subparsers(dest="cmd", required=True)
+
+    s = sub.add_parser("serve", help="run the service: embedded Redis (unless REDIS_URL), workers, HTTP API + page")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument("--workers", type=int, default=2, choices=range(1, 65), metavar="N")
+    s.add_argument("--data", default=os.environ.get("KILN_DATA", "data"), help="data directory (default ./data)")
+    s.set_defaults(fn=cmd_serve)
+
+    s = sub.add_parser("api", help="run only the HTTP API (needs REDIS_URL)")
+    s.add_argument("--host", default="127.0.0.1")
+    s.add_argument("--port", type=int, default=8000)
+    s.add_argument("--data", default=os.environ.get("KILN_DATA", "data"))
+    s.set_defaults(fn=cmd_api)
+
+    s = sub.add_parser("worker", help="run one RQ worker (needs REDIS_URL)")
+    s.add_argument("--data", default=None, help="data directory (or KILN_DATA)")
+    s.add_argument("--burst", action="store_true", help="exit when the queue is empty")
+    s.set_defaults(fn=cmd_worker)
+
+    s = sub.add_parser("bake", help="bake a scene into a bundle (in-process, or through --server)")
+    s.add_argument("scene", help=".glb, .gltf or .zip")
+    s.add_argument("--config", help="bake config (TOML, or JSON by extension)")
+    s.add_argument("--out", required=True, help="output directory for the bundle")
+    s.add_argument("--json", action="store_true", help="print only the manifest as JSON on stdout")
+    s.add_argument("--server", help="bake through a Kiln server at this URL instead of in-process")
+    s.add_argument("--api-key", default=os.environ.get("KILN_API_KEY"), help="API key for --server")
+    s.add_argument("--cache", default=str(_default_cache()), help="stage cache directory (in-process bakes)")
+    s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.set_defaults(fn=lambda a: bake_remote(a) if a.server else bake_local(a))
+
+    s = sub.add_parser("scenes", help="procedural test scenes")
+    ss = s.add_subparsers(dest="scenes_cmd", required=True)
+    m = ss.add_parser("make", help="write a procedural scene as .glb")
+    m.add_argument("name")
+    m.add_argument("out")
+    m.set_defaults(fn=cmd_scenes_make)
+    ls = ss.add_parser("list", help="list the procedural scenes")
+    ls.set_defaults(fn=cmd_scenes_list)
+
+    s = sub.add_parser("schema", help="print the bake config's JSON Schema")
+    s.add_argument("--out")
+    s.set_defaults(fn=cmd_schema)
+    return p
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    try:
+        return args.fn(args)
+    except CliError as e:
+        print(f"kiln: error: {e.message}", file=sys.stderr)
+        return e.exit_code
+    except KeyboardInterrupt:
+        print("kiln: interrupted", file=sys.stderr)
+        return 130
+    except Exception as e:  # a bug: still one line, and a non-zero exit
+        print(f"kiln: internal error: {type(e).__name__}: {e}", file=sys.stderr)
+        if os.environ.get("KILN_DEBUG"):
+            raise
+        return EXIT_INTERNAL
+
+
+if __name__ == "__main__":
+    sys.exit(main())

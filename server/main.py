@@ -1,0 +1,76 @@
+"""Builds the FastAPI app: routers, error handlers, shared state, and the recovery loop."""
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from pathlib import Path
+
+from fastapi import FastAPI
+from fastapi.responses import FileResponse, RedirectResponse
+from fastapi.staticfiles import StaticFiles
+
+from proto.catalog import Catalog
+from proto.stages import KILN_VERSION
+from proto.store import Store
+from server import queue
+from server.api import errors
+from server.api.routes import bakes, ops, scenes
+from server.config import Settings, get_settings
+from server.ingest_pool import IngestPool
+
+log = logging.getLogger("kiln.api")
+STATIC = Path(__file__).parent / "static"
+WEB_DIST = Path(__file__).resolve().parents[1] / "web" / "dist"
+
+
+async def _recover_loop(app: FastAPI) -> None:
+    """Re-enqueue bakes that lost their jobs (Redis restarted, workers died), now and every few seconds."""
+    st = app.state
+    first = True
+    while True:
+        try:
+            await asyncio.to_thread(queue.recover, st.redis, st.catalog, 0.0 if first else 10.0)
+            first = False
+        except Exception as e:
+            log.debug("recovery skipped: %s", e)
+        await asyncio.sleep(st.settings.recover_interval_s)
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+
+    @contextlib.asynccontextmanager
+    async def lifespan(app: FastAPI):
+        settings.data.mkdir(parents=True, exist_ok=True)
+        app.state.settings = settings
+        app.state.catalog = Catalog(settings.data / "kiln.db")
+        app.state.store = Store(settings.data / "store")
+        if not settings.redis_url:
+            raise RuntimeError("REDIS_URL is not set (kiln serve starts an embedded Redis and sets it)")
+        app.state.redis = queue.connect(settings.redis_url)
+        app.state.ingest_pool = IngestPool()
+        if settings.open:
+            log.warning("no API keys configured (KILN_API_KEYS): the server is open to anyone who can reach it")
+        task = asyncio.create_task(_recover_loop(app))
+        try:
+            yield
+        finally:
+            task.cancel()
+            app.state.ingest_pool.shutdown()
+
+    app = FastAPI(title="Kiln", version=KILN_VERSION, lifespan=lifespan,
+                  description="Bake service for leak-free, relightable probe global illumination.")
+    errors.install(app)
+    app.include_router(ops.router)
+    app.include_router(scenes.router)
+    app.include_router(bakes.router)
+
+    if (WEB_DIST / "index.html").exists():
+        app.mount("/app", StaticFiles(directory=WEB_DIST, html=True), name="web")
+
+    @app.get("/", include_in_schema=False)
+    def index():
+        return FileResponse(STATIC / "index.html")
+
+    return app

@@ -1,0 +1,111 @@
+"""The queue client: enqueue a bake as a chain of RQ jobs (by name), cancel, and recover lost bakes.
+
+Routes enqueue jobs by their import path (``workers.jobs.run_stage``) so the API process
+never imports stage code. Job ids are ``<bake>-<attempt>-<stage>``: a bake re-enqueued by
+recovery gets fresh ids, and its old jobs (if any survive) find the bake already moved on.
+"""
+from __future__ import annotations
+
+import logging
+import time
+
+import redis
+from rq import Queue, Retry
+from rq.exceptions import NoSuchJobError
+from rq.job import Job, JobStatus
+
+from proto.catalog import Catalog
+from proto.models import BakeConfig
+from proto.stages import STAGE_BY_NAME, plan
+
+log = logging.getLogger("kiln.queue")
+
+QUEUE_NAME = "kiln"
+RETRIES = 2
+"""Extra attempts of a stage job after a crash (a killed worker, an unexpected exception)."""
+LIVE = {JobStatus.QUEUED, JobStatus.STARTED, JobStatus.DEFERRED, JobStatus.SCHEDULED}
+
+
+def connect(url: str) -> redis.Redis:
+    return redis.Redis.from_url(url, socket_connect_timeout=5, socket_timeout=30, health_check_interval=10)
+
+
+def job_ids(bake: dict) -> list[str]:
+    a = bake["attempt"]
+    return [f"{bake['id']}-{a}-{s['name']}" for s in bake["stages"]] + [f"{bake['id']}-{a}-finish"]
+
+
+def enqueue_bake(conn: redis.Redis, bake: dict) -> list[str]:
+    """Enqueue the stages of ``bake`` that have not succeeded, then ``finish_bake``; returns job ids."""
+    q = Queue(QUEUE_NAME, connection=conn)
+    a, prev, ids = bake["attempt"], None, []
+    for s in bake["stages"]:
+        if s["status"] == "succeeded":
+            continue
+        st = STAGE_BY_NAME[s["name"]]
+        prev = q.enqueue("workers.jobs.run_stage", bake["id"], st.name, job_id=f"{bake['id']}-{a}-{st.name}",
+                         depends_on=prev, job_timeout=st.timeout, retry=Retry(max=RETRIES),
+                         result_ttl=3600, failure_ttl=7 * 86400, description=f"bake {bake['id']} stage {st.name}")
+        ids.append(prev.id)
+    job = q.enqueue("workers.jobs.finish_bake", bake["id"], job_id=f"{bake['id']}-{a}-finish", depends_on=prev,
+                    job_timeout=600, retry=Retry(max=RETRIES), result_ttl=3600, failure_ttl=7 * 86400)
+    ids.append(job.id)
+    return ids
+
+
+def live_jobs(conn: redis.Redis, bake: dict) -> list[str]:
+    out = []
+    for jid in job_ids(bake):
+        try:
+            st = Job.fetch(jid, connection=conn).get_status()
+        except NoSuchJobError:
+            continue
+        if st in LIVE:
+            out.append(jid)
+    return out
+
+
+def cancel_jobs(conn: redis.Redis, bake: dict) -> None:
+    """Cancel the bake's queued/deferred jobs; a running stage notices through its progress callback."""
+    for jid in job_ids(bake):
+        try:
+            job = Job.fetch(jid, connection=conn)
+            if job.get_status() in (JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED):
+                job.cancel()
+        except NoSuchJobError:
+            continue
+        except Exception:  # cancelling is best effort: the catalog status is what counts
+            log.exception("cancelling job %s", jid)
+
+
+def queue_depth(conn: redis.Redis) -> int:
+    return len(Queue(QUEUE_NAME, connection=conn))
+
+
+def recover(conn: redis.Redis, catalog: Catalog, grace_s: float = 10.0) -> list[str]:
+    """Re-enqueue bakes left queued or running with no live job (lost Redis state, crashed workers).
+
+    Bakes created less than ``grace_s`` ago are left alone (their jobs may be being enqueued).
+    Returns the ids of the bakes re-enqueued.
+    """
+    out = []
+    now = time.time()
+    for bake in catalog.bakes_with_status(("queued", "running")):
+        if now - bake["created"] < grace_s:
+            continue
+        bake = catalog.get_bake(bake["id"])
+        if bake is None or live_jobs(conn, bake):
+            continue
+        bake["attempt"] = catalog.bump_attempt(bake["id"])
+        for s in bake["stages"]:
+            if s["status"] != "succeeded":
+                catalog.update_stage(bake["id"], s["name"], status="pending", progress=0.0)
+                s["status"] = "pending"
+        enqueue_bake(conn, bake)
+        log.warning("re-enqueued bake %s (attempt %d): it had no live job", bake["id"], bake["attempt"])
+        out.append(bake["id"])
+    return out
+
+
+def plan_stages(scene_id: str, config: BakeConfig) -> list[tuple[str, str]]:
+    return [(st.name, key) for st, key in plan(scene_id, config)]

@@ -1,0 +1,170 @@
+"""The ``kiln`` CLI as a build tool calls it: real processes, exit codes, stdout/stderr contracts.
+Also ``kiln serve`` end to end: embedded Redis, workers, HTTP, and Ctrl-C leaving no orphans."""
+from __future__ import annotations
+
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import httpx
+import psutil
+import pytest
+
+from proto import bundle
+from tests.conftest import shared_path
+
+KILN = [sys.executable, "-m", "server.cli"]
+
+
+def kiln(*args, cwd=None, env=None, timeout=120):
+    e = dict(os.environ, **(env or {}))
+    return subprocess.run([*KILN, *map(str, args)], capture_output=True, text=True, cwd=cwd, env=e, timeout=timeout)
+
+
+def test_scenes_make_and_list(tmp_path):
+    r = kiln("scenes", "list")
+    assert r.returncode == 0 and "two-rooms" in r.stdout and "sealed-box" in r.stdout
+    r = kiln("scenes", "make", "sealed-box", tmp_path / "s.glb")
+    assert r.returncode == 0 and (tmp_path / "s.glb").read_bytes()[:4] == b"glTF"
+    r = kiln("scenes", "make", "nope", tmp_path / "x.glb")
+    assert r.returncode == 2 and "unknown scene" in r.stderr and not (tmp_path / "x.glb").exists()
+
+
+def test_bake_local_json_and_cache(tmp_path, scene_files):
+    cache = tmp_path / "cache"
+    cfg = tmp_path / "bake.toml"
+    cfg.write_text('[place]\ncounts = [4, 3, 5]\n[scene]\nsky = [0.5, 0.5, 0.5]\n'
+                   '[[scene.lights]]\ntype = "directional"\ndirection = [0, -1, 0]\nintensity = 2.0\n')
+    r = kiln("bake", scene_files["two-rooms"], "--config", cfg, "--out", tmp_path / "out", "--json",
+             "--cache", cache)
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads(r.stdout)  # stdout is only the manifest
+    assert [s["name"] for s in manifest["stages"]] == ["ingest", "place"]
+    assert all(s["cached"] is False for s in manifest["stages"])
+    assert "stages" in r.stderr  # the progress bar went to stderr
+    arts = {a["name"]: a for a in manifest["artifacts"]}
+    assert arts["probe_positions"]["shape"] == [5, 3, 4, 3] and arts["probe_positions"]["format"] == "ktx2"
+    m, arrays = bundle.open_bundle(tmp_path / "out")
+    assert arrays["lights"]["sky"] == [0.5, 0.5, 0.5]
+    assert [l["type"] for l in arrays["lights"]["lights"]] == ["point", "directional"]
+    assert m.scene.triangles == manifest["scene"]["triangles"]
+    # again: every stage from cache, identical artifacts
+    r2 = kiln("bake", scene_files["two-rooms"], "--config", cfg, "--out", tmp_path / "out2", "--json",
+              "--cache", cache)
+    m2 = json.loads(r2.stdout)
+    assert all(s["cached"] for s in m2["stages"])
+    assert [a["sha256"] for a in m2["artifacts"]] == [a["sha256"] for a in manifest["artifacts"]]
+
+
+def test_bake_local_real_scene(tmp_path):
+    scene = shared_path("scenes", "cornell-box-mcguire-khr-lights", "CornellBox-Original.gltf")
+    # a .gltf with an external .bin is uploaded as a zip; locally the CLI reads the folder's zip too
+    import zipfile
+    z = tmp_path / "cornell.zip"
+    with zipfile.ZipFile(z, "w") as f:
+        for p in scene.parent.iterdir():
+            if p.suffix in (".gltf", ".bin"):
+                f.write(p, p.name)
+    r = kiln("bake", z, "--out", tmp_path / "out", "--json", "--cache", tmp_path / "c", "--quiet")
+    assert r.returncode == 0, r.stderr
+    m = json.loads(r.stdout)
+    assert m["scene"]["lights"] == 1 and m["scene"]["triangles"] >= 30
+    assert m["grid"]["counts"] == [8, 8, 8]
+
+
+@pytest.mark.parametrize("make_input, code, words", [
+    (lambda d: d / "missing.glb", 3, "no such file"),
+    (lambda d: (d / "bad.glb").write_bytes(b"not a model at all") and d / "bad.glb", 3, "not_gltf"),
+])
+def test_bake_bad_scene_exit_codes(tmp_path, make_input, code, words):
+    r = kiln("bake", make_input(tmp_path), "--out", tmp_path / "out", "--cache", tmp_path / "c")
+    assert r.returncode == code
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("kiln: error:") and words in lines[0]
+    assert r.stdout == ""
+
+
+def test_bake_bad_config_names_the_field(tmp_path, scene_files):
+    cfg = tmp_path / "bad.toml"
+    cfg.write_text("[place]\ncounts = [4, 4]\n")
+    r = kiln("bake", scene_files["cornell"], "--config", cfg, "--out", tmp_path / "o", "--cache", tmp_path / "c")
+    assert r.returncode == 3 and "place.counts" in r.stderr
+    cfg.write_text("[plaec]\ncounts = [4, 4, 4]\n")
+    r = kiln("bake", scene_files["cornell"], "--config", cfg, "--out", tmp_path / "o", "--cache", tmp_path / "c")
+    assert r.returncode == 3 and "plaec: unknown field" in r.stderr
+    cfg.write_text("[place\n")
+    r = kiln("bake", scene_files["cornell"], "--config", cfg, "--out", tmp_path / "o", "--cache", tmp_path / "c")
+    assert r.returncode == 3 and "not valid TOML" in r.stderr
+    r = kiln("bake", scene_files["cornell"])
+    assert r.returncode == 2  # --out is required
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):
+    port = _free_port()
+    env = dict(os.environ, PYTHONUNBUFFERED="1")
+    env.pop("REDIS_URL", None)
+    env.pop("KILN_API_KEYS", None)
+    proc = subprocess.Popen([*KILN, "serve", "--port", str(port), "--workers", "2", "--data", tmp_path / "data"],
+                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    url = f"http://127.0.0.1:{port}"
+    try:
+        deadline = time.monotonic() + 60
+        while True:
+            try:
+                if httpx.get(url + "/healthz", timeout=2).json()["status"] == "ok":
+                    break
+            except httpx.HTTPError:
+                pass
+            assert proc.poll() is None, proc.stdout.read()
+            assert time.monotonic() < deadline, "server did not come up"
+            time.sleep(0.2)
+        kids = psutil.Process(proc.pid).children(recursive=True)
+        names = " ".join(" ".join(k.cmdline()) for k in kids)
+        assert "redis-server" in names and names.count("server.cli worker") >= 2
+
+        r = kiln("bake", scene_files["cornell"], "--server", url, "--out", tmp_path / "out", "--json")
+        assert r.returncode == 0, r.stderr
+        m = json.loads(r.stdout)
+        assert m["bake_id"] and [s["name"] for s in m["stages"]] == ["ingest", "place"]
+        _, arrays = bundle.open_bundle(tmp_path / "out")
+        assert arrays["probe_positions"].shape == (8, 8, 8, 3)
+        # bad input through the server: a one-line reason, exit 3
+        bad = tmp_path / "bad.glb"
+        bad.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (10**9).to_bytes(4, "little") + b"\x00" * 40)
+        r = kiln("bake", bad, "--server", url, "--out", tmp_path / "o2")
+        assert r.returncode == 3 and "truncated_glb" in r.stderr, r.stderr
+        # the minimal page is served
+        assert "Upload a scene" in httpx.get(url + "/").text
+    finally:
+        proc.send_signal(signal.SIGINT)  # Ctrl-C
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            raise
+    time.sleep(0.5)
+    alive = [k for k in kids if k.is_running() and k.status() != psutil.STATUS_ZOMBIE]
+    assert not alive, f"orphans left running: {[k.cmdline() for k in alive]}"
+    assert proc.returncode in (0, 130)  # 130: the conventional status after Ctrl-C (uvicorn re-raises SIGINT)
+
+
+def test_serve_refuses_open_public_bind(tmp_path):
+    env = {"KILN_API_KEYS": ""}
+    r = kiln("serve", "--host", "0.0.0.0", "--data", tmp_path / "d", env=env, timeout=30)
+    assert r.returncode == 2 and "refusing to bind" in r.stderr
+
+
+def test_bake_server_unreachable(tmp_path, scene_files):
+    r = kiln("bake", scene_files["cornell"], "--server", f"http://127.0.0.1:{_free_port()}", "--out", tmp_path / "o")
+    assert r.returncode == 5 and "cannot talk to" in r.stderr

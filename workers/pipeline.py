@@ -1,0 +1,91 @@
+"""The bake pipeline: which stages run in which order, their cache keys, and running one.
+
+Each stage's output is keyed by a hash of its name and version, the config sections it
+reads, and the keys of the stages it reads (the first stage reads the scene id). Keys are
+known before anything runs, so a bake whose every stage is in the store finishes at once,
+and a config that changes only a later stage's section re-runs only that stage and those
+after it (DESIGN "Data flow").
+
+Both the RQ jobs (:mod:`workers.jobs`) and the CLI's in-process bake call
+:func:`execute_stage`; neither holds any math.
+"""
+from __future__ import annotations
+
+import tempfile
+import time
+from pathlib import Path
+from typing import Callable
+
+from proto import bundle
+from proto.models import ArtifactInfo, BakeConfig, Manifest
+from proto.stages import STAGE_BY_NAME, build_manifest, export_bundle, plan  # noqa: F401 (re-exported)
+from proto.store import Store
+from workers.scene import NormalizedScene
+from workers.stages.base import LazyArtifacts, StageContext, StageOutput
+from workers.stages.ingest import run_ingest
+from workers.stages.place import run_place
+
+RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
+    "ingest": run_ingest,
+    "place": run_place,
+}
+assert set(RUNNERS) == set(STAGE_BY_NAME), "every stage in proto.stages needs a runner"
+
+
+def load_scene(store: Store, scene_id: str) -> NormalizedScene:
+    return NormalizedScene.from_bytes(store.read_bytes(scene_id))
+
+
+def _lazy(store: Store, record: dict) -> LazyArtifacts:
+    loaders = {}
+    for a in record["artifacts"]:
+        info = ArtifactInfo(**a)
+        loaders[info.name] = (lambda info=info: bundle.load_artifact(store.blob_path(info.sha256), info))
+    return LazyArtifacts(record.get("stats", {}), loaders)
+
+
+def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
+                  report: Callable[[float], None] = lambda f: None) -> tuple[dict, bool]:
+    """Run one stage (or take it from the store). Returns ``(stage record, cached)``.
+
+    Upstream stages must already be in the store. The record is
+    ``{"stage", "cache_key", "seconds", "stats", "artifacts": [ArtifactInfo dicts]}``.
+    """
+    keys = {st.name: key for st, key in plan(scene_id, config)}
+    st = STAGE_BY_NAME[stage]
+    key = keys[stage]
+    rec = store.get_stage(key)
+    if rec is not None:
+        return rec, True
+    inputs = {}
+    for dep in st.inputs:
+        dep_rec = store.get_stage(keys[dep])
+        if dep_rec is None:
+            raise RuntimeError(f"stage {stage} needs {dep}, which is not in the store")
+        inputs[dep] = _lazy(store, dep_rec)
+    ctx = StageContext(config=config, scene_loader=lambda: load_scene(store, scene_id), inputs=inputs, report=report)
+    t0 = time.perf_counter()
+    out = RUNNERS[stage](ctx)
+    seconds = time.perf_counter() - t0
+    infos = []
+    with tempfile.TemporaryDirectory(dir=store.root / "tmp") as tmp:
+        for art in out.artifacts:
+            info = bundle.write_artifact(tmp, art.name, art.data, stage, format=art.format,
+                                         vk_format=art.vk_format, description=art.description, meta=art.meta)
+            store.put_file(Path(tmp) / info.file, move=True)
+            infos.append(info.model_dump())
+    rec = {"stage": stage, "cache_key": key, "seconds": seconds, "stats": out.stats, "artifacts": infos}
+    store.put_stage(key, rec)
+    return rec, False
+
+
+def bake_local(store: Store, scene: NormalizedScene, config: BakeConfig,
+               report: Callable[[str, float], None] = lambda s, f: None) -> Manifest:
+    """Run every stage in this process (the CLI's ``kiln bake`` without a server)."""
+    scene_id = store.put_bytes(scene.to_bytes())
+    cached = {}
+    for st, _ in plan(scene_id, config):
+        report(st.name, 0.0)
+        _, cached[st.name] = execute_stage(store, scene_id, config, st.name, lambda f, s=st.name: report(s, f))
+        report(st.name, 1.0)
+    return build_manifest(store, scene.summary(scene_id), config, cached=cached)

@@ -1,0 +1,89 @@
+"""What a stage function takes and returns.
+
+A stage is a plain function ``run(ctx: StageContext) -> StageOutput``: arrays in, arrays
+out. It never touches Redis, HTTP or the catalog; the pipeline stores what it returns.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from proto.models import BakeConfig
+from workers.scene import NormalizedScene
+
+
+class StageError(Exception):
+    """A deterministic failure of a stage caused by its input (bad scene, impossible config).
+
+    Retrying cannot help, so jobs record it on the bake and do not retry.
+    """
+
+    def __init__(self, code: str, message: str):
+        super().__init__(message)
+        self.code = code
+        self.message = message
+
+
+class Cancelled(Exception):
+    """Raised from ``report`` when the bake was cancelled; the stage unwinds without storing."""
+
+
+@dataclass
+class Artifact:
+    """One output array (or JSON dict) of a stage, in the bundle format (proto/bundle.md)."""
+
+    name: str
+    data: np.ndarray | dict
+    format: str = "ktx2"           # "ktx2" | "npy" | "json"
+    vk_format: int | None = None   # KTX2 only; inferred from dtype/channels when None
+    description: str = ""
+    meta: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class StageOutput:
+    artifacts: list[Artifact]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+@dataclass
+class StageContext:
+    """What a stage sees: the scene, the config, its upstream stages' outputs, a progress callback.
+
+    ``inputs[stage][artifact]`` loads lazily; ``report(fraction)`` takes 0..1 and may raise
+    :class:`Cancelled`.
+    """
+
+    config: BakeConfig
+    scene_loader: Callable[[], NormalizedScene]
+    inputs: dict[str, "LazyArtifacts"]
+    report: Callable[[float], None]
+    _scene: NormalizedScene | None = None
+
+    @property
+    def scene(self) -> NormalizedScene:
+        if self._scene is None:
+            self._scene = self.scene_loader()
+        return self._scene
+
+
+class LazyArtifacts:
+    """Mapping artifact name -> array/dict, loaded from the store on first access."""
+
+    def __init__(self, stats: dict, loaders: dict[str, Callable[[], Any]]):
+        self.stats = stats
+        self._loaders = loaders
+        self._cache: dict[str, Any] = {}
+
+    def __getitem__(self, name: str) -> Any:
+        if name not in self._cache:
+            self._cache[name] = self._loaders[name]()
+        return self._cache[name]
+
+    def __contains__(self, name: str) -> bool:
+        return name in self._loaders
+
+    def names(self) -> list[str]:
+        return sorted(self._loaders)
