@@ -1,0 +1,141 @@
+"""Spherical harmonics (workers/kernels/sh.py): basis, projection, irradiance (RH01)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from workers.kernels.sampling import fibonacci_sphere, random_rotation, rotated_directions
+from workers.kernels.sh import (
+    SH_BAND_CONVOLUTION,
+    sh_basis,
+    sh_irradiance,
+    sh_project,
+)
+
+SEEDS = [0, 1, 2]
+
+
+def _random_dirs(rng, n):
+    d = rng.standard_normal((n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _pattern(n, seed):
+    return rotated_directions(n, random_rotation(np.random.default_rng(seed))).astype(np.float64)
+
+
+def test_basis_matches_threejs_constants():
+    x, y, z = 0.48, -0.6, 0.64  # unit
+    expected = [
+        0.282095,
+        0.488603 * y,
+        0.488603 * z,
+        0.488603 * x,
+        1.092548 * x * y,
+        1.092548 * y * z,
+        0.315392 * (3 * z * z - 1),
+        1.092548 * x * z,
+        0.546274 * (x * x - y * y),
+    ]
+    np.testing.assert_allclose(sh_basis(np.array([x, y, z])), expected, atol=2e-6)
+    np.testing.assert_allclose(sh_basis(np.array([x, y, z]), order=1), expected[:4], atol=2e-6)
+
+
+def test_irradiance_matches_threejs_get_irradiance_at():
+    # three.js SphericalHarmonics3.getIrradianceAt folds Â_l into the basis constants
+    rng = np.random.default_rng(3)
+    c = rng.standard_normal((9, 1))
+    x, y, z = 0.48, -0.6, 0.64
+    k = [0.886227, 2 * 0.511664 * y, 2 * 0.511664 * z, 2 * 0.511664 * x, 2 * 0.429043 * x * y,
+         2 * 0.429043 * y * z, 0.743125 * z * z - 0.247708, 2 * 0.429043 * x * z, 0.429043 * (x * x - y * y)]
+    np.testing.assert_allclose(sh_irradiance(c, np.array([x, y, z])), np.array(k) @ c, atol=1e-5)
+
+
+def test_basis_is_orthonormal():
+    d = fibonacci_sphere(20000).astype(np.float64)
+    y = sh_basis(d)
+    gram = y.T @ y * (4 * np.pi / len(d))
+    np.testing.assert_allclose(gram, np.eye(9), atol=1e-3)
+
+
+@pytest.mark.parametrize("n_rays", [64, 256, 1024])
+@pytest.mark.parametrize("order", [1, 2])
+@pytest.mark.parametrize("seed", SEEDS)
+def test_constant_radiance_gives_pi_l(n_rays, order, seed):
+    rng = np.random.default_rng(seed)
+    radiance = rng.uniform(0.1, 10, size=(5, 1, 3))  # 5 probes, RGB
+    d = _pattern(n_rays, seed)
+    coeffs = sh_project(d, np.broadcast_to(radiance, (5, n_rays, 3)), order=order)
+    assert coeffs.shape == (5, (order + 1) ** 2, 3)
+    normals = _random_dirs(rng, 200)
+    e = sh_irradiance(coeffs[:, None], normals[None, :, :])  # (5, 200, 3)
+    tol = {64: 2e-2, 256: 5e-3, 1024: 1e-3}[n_rays]
+    np.testing.assert_allclose(e, np.pi * np.broadcast_to(radiance, e.shape), rtol=tol)
+
+
+def _cosine_lobe_irradiance(cos_gamma):
+    """Exact E(n) for radiance max(0, ω·a): (2/3)((π − γ) cos γ + sin γ), γ = angle(n, a)."""
+    g = np.arccos(np.clip(cos_gamma, -1, 1))
+    return (2 / 3) * ((np.pi - g) * np.cos(g) + np.sin(g))
+
+
+def _truncated_lobe_irradiance(cos_gamma, order):
+    """The same, band-limited: Σ_{l ≤ order} Â_l² (2l + 1)/(4π) P_l(cos γ) (RH01 eq 8)."""
+    p = [np.ones_like(cos_gamma), cos_gamma, (3 * cos_gamma**2 - 1) / 2]
+    return sum(SH_BAND_CONVOLUTION[l] ** 2 * (2 * l + 1) / (4 * np.pi) * p[l] for l in range(order + 1))
+
+
+@pytest.mark.parametrize("seed", SEEDS)
+@pytest.mark.parametrize("order", [1, 2])
+def test_clamped_cosine_lobe(seed, order):
+    rng = np.random.default_rng(seed)
+    a = _random_dirs(rng, 1)[0]
+    d = _pattern(4096, seed)
+    radiance = np.maximum(0.0, d @ a)[:, None]
+    coeffs = sh_project(d, radiance, order=order)
+    # the lobe's coefficients are Â_l · Y_lm(a) (RH01: max(cos, 0) = Σ_l Â_l Y_l0 ...)
+    band = np.array([0, 1, 1, 1, 2, 2, 2, 2, 2])[: coeffs.shape[0]]
+    np.testing.assert_allclose(coeffs[:, 0], SH_BAND_CONVOLUTION[band] * sh_basis(a, order=order), atol=2e-4)
+    normals = np.concatenate([_random_dirs(rng, 300), [a, -a]])
+    e = sh_irradiance(coeffs, normals)[:, 0]
+    cos_gamma = normals @ a
+    np.testing.assert_allclose(e, _truncated_lobe_irradiance(cos_gamma, order), atol=1e-3)
+    if order == 2:  # L2 is within 0.0164 of the exact irradiance everywhere (max 2π/3)
+        np.testing.assert_allclose(e, _cosine_lobe_irradiance(cos_gamma), atol=0.018)
+
+
+def test_project_weights():
+    rng = np.random.default_rng(4)
+    d = _pattern(128, 4)
+    v = rng.uniform(0, 1, (2, 128, 3))
+    default = sh_project(d, v)
+    np.testing.assert_allclose(sh_project(d, v, weights=4 * np.pi / 128), default)
+    np.testing.assert_allclose(sh_project(d, v, weights=np.full(128, 4 * np.pi / 128)), default)
+    w = rng.uniform(0, 1, (2, 128))  # per-probe weights
+    got = sh_project(d, v, weights=w)
+    for p in range(2):
+        np.testing.assert_allclose(got[p], sh_basis(d).T @ (v[p] * w[p][:, None]))
+
+
+def test_irradiance_broadcasting():
+    rng = np.random.default_rng(6)
+    c = rng.standard_normal((9, 3))
+    n = _random_dirs(rng, 10)
+    e = sh_irradiance(c, n)
+    assert e.shape == (10, 3)
+    cp = rng.standard_normal((4, 9, 3))
+    np_ = _random_dirs(rng, 4)
+    ep = sh_irradiance(cp, np_)
+    assert ep.shape == (4, 3)
+    np.testing.assert_allclose(ep[2], sh_irradiance(cp[2], np_[2]))
+
+
+def test_validation():
+    with pytest.raises(ValueError):
+        sh_project(np.ones((4, 3)), np.ones((5, 1)))
+    with pytest.raises(ValueError):
+        sh_project(np.ones((4, 3)), np.full((4, 1), np.nan))
+    with pytest.raises(ValueError):
+        sh_irradiance(np.ones((5, 1)), np.ones(3))
+    with pytest.raises(ValueError):
+        sh_basis(np.ones(3), order=3)

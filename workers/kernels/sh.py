@@ -1,0 +1,183 @@
+"""Real spherical harmonics up to L2: basis, Monte Carlo projection of radiance, irradiance.
+
+Probe radiance is projected onto SH per probe (DESIGN stage 2: the volume-texture form that
+leaking probe GI and MD need) and shaded as irradiance with the clamped-cosine convolution of
+Ramamoorthi & Hanrahan 2001 (eq 7-8 there): E(n) = Σ_lm Â_l L_lm Y_lm(n).
+
+Coefficient order and constants (three.js ``SphericalHarmonics3``; x, y, z are the components
+of a unit direction in world space, glTF frame +Y up; the GLSL in proto/glsl uses the same):
+
+====  =====  ==================================  ===========================
+ k    (l,m)   Y_k(x, y, z)                        constant
+====  =====  ==================================  ===========================
+ 0    (0, 0)  c0                                  c0 = 1/(2√π)      = 0.282095
+ 1    (1,-1)  c1 · y                              c1 = √(3/(4π))    = 0.488603
+ 2    (1, 0)  c1 · z
+ 3    (1, 1)  c1 · x
+ 4    (2,-2)  c2 · x y                            c2 = ½√(15/π)     = 1.092548
+ 5    (2,-1)  c2 · y z
+ 6    (2, 0)  c3 · (3 z² − 1)                     c3 = ¼√(5/π)      = 0.315392
+ 7    (2, 1)  c2 · x z
+ 8    (2, 2)  c4 · (x² − y²)                      c4 = ¼√(15/π)     = 0.546274
+====  =====  ==================================  ===========================
+
+L1 uses k = 0..3 (4 coefficients), L2 all 9. The basis is orthonormal on the sphere:
+∫ Y_k Y_j dω = δ_kj.
+
+Cosine-lobe convolution (Ramamoorthi & Hanrahan 2001, eq 8): Â0 = π, Â1 = 2π/3, Â2 = π/4, so
+that constant radiance L gives E = π·L. Folded constants as in three.js ``getIrradianceAt``:
+π·c0 = 0.886227, (2π/3)·c1 = 1.023328, (π/4)·c2 = 0.858086, (π/4)·c3 = 0.247708,
+(π/4)·c4 = 0.429043.
+
+Consumers: stages/light (projection), stages/evaluate and proto/glsl (irradiance).
+
+References
+----------
+.. [RH01] R. Ramamoorthi, P. Hanrahan, "An Efficient Representation for Irradiance
+   Environment Maps", SIGGRAPH 2001.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = [
+    "SH_C0",
+    "SH_C1",
+    "SH_C2",
+    "SH_C3",
+    "SH_C4",
+    "SH_BAND_CONVOLUTION",
+    "sh_count",
+    "sh_basis",
+    "sh_project",
+    "sh_irradiance",
+]
+
+SH_C0 = 0.5 / np.sqrt(np.pi)  # 0.282095, Y00
+SH_C1 = np.sqrt(3.0 / (4.0 * np.pi))  # 0.488603, band 1
+SH_C2 = 0.5 * np.sqrt(15.0 / np.pi)  # 1.092548, xy, yz, xz
+SH_C3 = 0.25 * np.sqrt(5.0 / np.pi)  # 0.315392, (3z² − 1)
+SH_C4 = 0.25 * np.sqrt(15.0 / np.pi)  # 0.546274, (x² − y²)
+
+# Â_l, the clamped-cosine kernel per band (RH01 eq 8): π, 2π/3, π/4.
+SH_BAND_CONVOLUTION = np.array([np.pi, 2.0 * np.pi / 3.0, np.pi / 4.0])
+
+_BAND_OF_COEFF = np.array([0, 1, 1, 1, 2, 2, 2, 2, 2])
+
+
+def sh_count(order: int) -> int:
+    """Number of coefficients of SH up to band ``order`` (1 -> 4, 2 -> 9)."""
+    if order not in (1, 2):
+        raise ValueError(f"SH order must be 1 or 2, got {order}")
+    return (order + 1) ** 2
+
+
+def _order_of(count: int) -> int:
+    if count == 4:
+        return 1
+    if count == 9:
+        return 2
+    raise ValueError(f"SH coefficient count must be 4 (L1) or 9 (L2), got {count}")
+
+
+def sh_basis(dirs, order: int = 2) -> np.ndarray:
+    """Real SH basis functions evaluated at directions, in the order of the module table.
+
+    Parameters
+    ----------
+    dirs : (..., 3) array_like of float
+        Unit directions, world space (not renormalized: pass unit vectors).
+    order : {1, 2}
+        Highest band.
+
+    Returns
+    -------
+    y : (..., 4) or (..., 9) float64
+    """
+    d = np.asarray(dirs, dtype=np.float64)
+    if d.shape[-1:] != (3,):
+        raise ValueError(f"sh_basis: dirs must have shape (..., 3), got {d.shape}")
+    return _sh_basis(d, sh_count(order))
+
+
+def _sh_basis(d: np.ndarray, count: int) -> np.ndarray:
+    x, y, z = d[..., 0], d[..., 1], d[..., 2]
+    cols = [np.full_like(x, SH_C0), SH_C1 * y, SH_C1 * z, SH_C1 * x]
+    if count == 9:
+        cols += [SH_C2 * x * y, SH_C2 * y * z, SH_C3 * (3.0 * z * z - 1.0), SH_C2 * x * z, SH_C4 * (x * x - y * y)]
+    return np.stack(cols, axis=-1)
+
+
+def sh_project(dirs, values, weights=None, order: int = 2) -> np.ndarray:
+    """Monte Carlo projection of radiance samples onto SH: L_k ≈ Σ_r w_r · L(ω_r) · Y_k(ω_r).
+
+    Parameters
+    ----------
+    dirs : (R, 3) array_like of float
+        Unit sample directions, world space (e.g. a rotated Fibonacci pattern).
+    values : (..., R, C) array_like of float
+        Radiance per sample and channel (e.g. (P, R, 3) linear RGB, W·sr⁻¹·m⁻² or
+        scene units). Must be finite.
+    weights : None, float, (R,) or (..., R) array_like
+        Solid-angle weight of each sample in steradians. None means uniformly distributed
+        samples: 4π / R (right for :func:`workers.kernels.sampling.fibonacci_sphere`).
+    order : {1, 2}
+        Highest band: 4 or 9 coefficients.
+
+    Returns
+    -------
+    coeffs : (..., 4 | 9, C) float64
+        In the order of the module table. Shade with :func:`sh_irradiance`.
+    """
+    d = np.asarray(dirs, dtype=np.float64)
+    v = np.asarray(values, dtype=np.float64)
+    if d.ndim != 2 or d.shape[1] != 3:
+        raise ValueError(f"sh_project: dirs must have shape (R, 3), got {d.shape}")
+    r_count = d.shape[0]
+    if v.ndim < 2 or v.shape[-2] != r_count:
+        raise ValueError(f"sh_project: values must have shape (..., {r_count}, C) to match dirs, got {v.shape}")
+    if not np.all(np.isfinite(v)):
+        raise ValueError("sh_project: values must be finite")
+    if weights is None:
+        w = np.full(r_count, 4.0 * np.pi / r_count)  # uniform sphere sampling: 4π/R sr each
+    else:
+        w = np.asarray(weights, dtype=np.float64)
+        if w.ndim == 0:
+            w = np.full(r_count, float(w))
+        if w.shape[-1:] != (r_count,):
+            raise ValueError(f"sh_project: weights must be a scalar or have shape (..., {r_count}), got {w.shape}")
+    return _sh_project(d, v, w, sh_count(order))
+
+
+def _sh_project(d, v, w, count):
+    y = _sh_basis(d, count)  # (R, K)
+    return np.matmul(y.T, v * w[..., None])  # Σ_r Y_k(ω_r) · w_r · L(ω_r)
+
+
+def sh_irradiance(coeffs, normals) -> np.ndarray:
+    """Irradiance E(n) = Σ_k Â_l(k) · L_k · Y_k(n) from radiance SH (RH01 eq 7-8).
+
+    Parameters
+    ----------
+    coeffs : (..., 4 | 9, C) array_like of float
+        Radiance SH from :func:`sh_project` (L1 or L2, detected from the size of axis -2).
+    normals : (..., 3) array_like of float
+        Unit surface normals, world space. Leading dimensions broadcast with those of
+        ``coeffs`` (e.g. coeffs (9, C) with normals (N, 3), or coeffs (P, 9, C) with (P, 3)).
+
+    Returns
+    -------
+    irradiance : (..., C) float64
+        E in the units of the radiance times sr (W·m⁻² for W·sr⁻¹·m⁻²). Constant radiance L
+        gives π·L for every normal. Not clamped: L2 ringing can make it slightly negative.
+    """
+    c = np.asarray(coeffs, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    if c.ndim < 2:
+        raise ValueError(f"sh_irradiance: coeffs must have shape (..., 4 | 9, C), got {c.shape}")
+    count = c.shape[-2]
+    _order_of(count)  # validates 4 or 9
+    if n.shape[-1:] != (3,):
+        raise ValueError(f"sh_irradiance: normals must have shape (..., 3), got {n.shape}")
+    y = _sh_basis(n, count) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:count]]  # Â_l · Y_k(n)
+    return np.einsum("...k,...kc->...c", y, c)
