@@ -142,6 +142,42 @@ class PlaceSection(_Strict):
         return self
 
 
+class TraceSection(_Strict):
+    """Probe rays, relocation and classification (DDGI-P §2.3, §5 Fig 7, §6 Fig 10; stages relocate + trace)."""
+
+    rays_per_probe: int = Field(256, ge=16, le=4096, description="rays per probe, spherical Fibonacci pattern")
+    relocate_iterations: int = Field(5, ge=0, le=20, description="iterations of the DDGI-P Fig 7 optimizer")
+    max_offset: float = Field(0.45, ge=0.0, le=0.5, description="relocation limit, fraction of the spacing per axis")
+    backface_fraction: float = Field(0.25, gt=0.0, lt=1.0,
+                                     description="a probe seeing more backfaces than this is inside geometry")
+    depth_texels: int = Field(16, ge=4, le=64, description="octahedral depth-moment map size per probe (+1 border)")
+    depth_sharpness: float = Field(50.0, ge=1.0, le=200.0,
+                                   description="exponent of the max(0, cos) weight of depth moments (RTXGI default 50)")
+
+
+class LightSection(_Strict):
+    """Multi-bounce probe irradiance (DDGI-I §3.4-3.5; stage light)."""
+
+    bounces: int | None = Field(None, ge=1, le=256, description="a fixed number of bounces; default: until converged")
+    max_bounces: int = Field(64, ge=1, le=256, description="cap when iterating to convergence")
+    tolerance: float = Field(0.005, gt=0.0, le=0.5,
+                             description="stop when the irradiance changes by less than this fraction in a bounce")
+    irradiance_texels: int = Field(8, ge=4, le=32, description="octahedral irradiance map size per probe (+1 border)")
+    sh_order: Literal[1, 2] = Field(2, description="spherical-harmonics order of the per-probe SH output")
+    self_shadow_bias: float = Field(0.3, ge=0.0, le=2.0, description="B of DDGI-P eq 2")
+
+
+class VisibilitySection(_Strict):
+    """The visibility field θ of MD §3.4 step 1 (stage visibility)."""
+
+    samples_per_cell: int = Field(8, ge=1, le=32, description="refined-grid samples per cell axis (S)")
+    rays: int = Field(1, ge=1, le=64, description="occlusion rays per sample and probe: 1 = binary, more = soft")
+    jitter: float = Field(0.05, ge=0.0, le=0.5,
+                          description="radius of the jittered ray targets around a probe, fraction of the spacing")
+    slabs: int | None = Field(None, ge=1, le=1024,
+                              description="RQ jobs the field is split into (z slabs); default: one per 4 cell layers")
+
+
 class BakeConfig(_Strict):
     """A bake's settings, one section per stage.
 
@@ -152,6 +188,9 @@ class BakeConfig(_Strict):
     seed: int = Field(0, ge=0, le=2**31 - 1, description="seed for every random choice of the bake")
     scene: SceneSection = Field(default_factory=SceneSection)
     place: PlaceSection = Field(default_factory=PlaceSection)
+    trace: TraceSection = Field(default_factory=TraceSection)
+    light: LightSection = Field(default_factory=LightSection)
+    visibility: VisibilitySection = Field(default_factory=VisibilitySection)
 
     def section_hash(self, *names: str) -> str:
         """sha256 (hex) of the canonical JSON of the named sections (``"seed"`` allowed)."""

@@ -31,6 +31,8 @@ class StageDef:
 STAGES: tuple[StageDef, ...] = (
     StageDef("ingest", 1, ("scene",), (), timeout=600),
     StageDef("place", 1, ("place",), ("ingest",), timeout=600),
+    StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
+    StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 
@@ -61,7 +63,8 @@ def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_i
             raise RuntimeError(f"stage {st.name} is not in the store")
         stages.append(StageInfo(name=st.name, seconds=rec["seconds"], cache_key=key,
                                 cached=(cached or {}).get(st.name, False), stats=rec["stats"]))
-        artifacts += [ArtifactInfo(**a) for a in rec["artifacts"]]
+        # internal artifacts (e.g. cached ray hits) feed later stages but are not part of the bundle
+        artifacts += [ArtifactInfo(**a) for a in rec["artifacts"] if not a.get("meta", {}).get("internal")]
         if st.name == "place":
             grid = {k: rec["stats"][k] for k in ("counts", "origin", "spacing")}
     return Manifest(kiln_version=KILN_VERSION, bake_id=bake_id, scene=SceneSummary(**scene_summary),

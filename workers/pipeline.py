@@ -24,10 +24,14 @@ from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput
 from workers.stages.ingest import run_ingest
 from workers.stages.place import run_place
+from workers.stages.relocate import run_relocate
+from workers.stages.trace import run_trace
 
 RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "ingest": run_ingest,
     "place": run_place,
+    "relocate": run_relocate,
+    "trace": run_trace,
 }
 assert set(RUNNERS) == set(STAGE_BY_NAME), "every stage in proto.stages needs a runner"
 

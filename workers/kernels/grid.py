@@ -1,0 +1,84 @@
+"""The probe grid's conventions, shared by every stage and sampler (numpy only).
+
+Grid: ``counts = (nx, ny, nz)`` probes, probe (i, j, k) at ``origin + spacing * (i, j, k)`` before
+relocation (world space, metres). Arrays of probes are flattened in C order from (nz, ny, nx), so
+probe (i, j, k) has index ``p = i + nx * (j + ny * k)`` and ``volume.reshape(-1, ...)[p]`` is it.
+
+Probe states (DDGI-P §6, offline subset): ``OFF`` (still inside geometry after relocation: never
+used), ``ACTIVE`` (a surface within one cell: it shades surfaces), ``SLEEPING`` (nothing near).
+
+Atlases (proto/bundle.md): per-probe octahedral maps with borders, (P, n, n, C), are packed into a
+2D texture of (ny * n) rows and (nz * nx * n) columns; probe (i, j, k)'s tile starts at row
+``j * n`` and column ``(k * nx + i) * n``.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+OFF, ACTIVE, SLEEPING = 0, 1, 2
+STATE_NAMES = {OFF: "off", ACTIVE: "active", SLEEPING: "sleeping"}
+
+
+def probe_count(counts) -> int:
+    nx, ny, nz = (int(c) for c in counts)
+    return nx * ny * nz
+
+
+def probe_grid_indices(counts) -> np.ndarray:
+    """(P, 3) int64 grid indices (i, j, k) of every probe, in flattened order."""
+    nx, ny, nz = (int(c) for c in counts)
+    k, j, i = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
+    return np.stack([i.ravel(), j.ravel(), k.ravel()], axis=1)
+
+
+def base_positions(counts, origin, spacing) -> np.ndarray:
+    """(P, 3) float64 un-relocated probe positions, world space."""
+    return np.asarray(origin, np.float64) + probe_grid_indices(counts) * np.asarray(spacing, np.float64)
+
+
+def cell_coords(points, counts, origin, spacing) -> tuple[np.ndarray, np.ndarray]:
+    """Base cell (the cage's min corner) and trilinear fractions of world points.
+
+    points : (N, 3) world space. Returns ``base (N, 3) int64`` clamped to [0, n - 2] (0 on an axis
+    with one probe) and ``alpha (N, 3) float64`` in [0, 1] (0 on a one-probe axis). Points outside the
+    grid clamp to its border cells (as a clamped texture would).
+    """
+    counts = np.asarray(counts, np.int64)
+    spacing = np.asarray(spacing, np.float64)
+    safe = np.where(spacing > 0, spacing, 1.0)
+    g = (np.asarray(points, np.float64) - np.asarray(origin, np.float64)) / safe
+    g = np.where(spacing > 0, g, 0.0)
+    hi = np.maximum(counts - 2, 0)
+    base = np.clip(np.floor(g), 0, hi).astype(np.int64)
+    alpha = np.clip(g - base, 0.0, 1.0)
+    alpha = np.where(counts > 1, alpha, 0.0)
+    return base, alpha
+
+
+def cage_indices(base, counts) -> np.ndarray:
+    """(N, 8) flattened indices of the 8 cage probes; corner c has offset (c & 1, c >> 1 & 1, c >> 2 & 1)."""
+    counts = np.asarray(counts, np.int64)
+    nx, ny, _ = counts
+    out = np.empty((base.shape[0], 8), np.int64)
+    for c in range(8):
+        off = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
+        ijk = np.minimum(base + off, counts - 1)
+        out[:, c] = ijk[:, 0] + nx * (ijk[:, 1] + ny * ijk[:, 2])
+    return out
+
+
+def pack_atlas(maps: np.ndarray, counts) -> np.ndarray:
+    """(P, n, n, C) per-probe maps -> (ny * n, nz * nx * n, C) atlas (see module doc)."""
+    nx, ny, nz = (int(c) for c in counts)
+    P, n, m, C = maps.shape
+    assert P == nx * ny * nz and n == m
+    a = maps.reshape(nz, ny, nx, n, n, C).transpose(1, 3, 0, 2, 4, 5)  # (ny, n, nz, nx, n, C)
+    return np.ascontiguousarray(a.reshape(ny * n, nz * nx * n, C))
+
+
+def unpack_atlas(atlas: np.ndarray, counts, n: int) -> np.ndarray:
+    """Inverse of :func:`pack_atlas`."""
+    nx, ny, nz = (int(c) for c in counts)
+    C = atlas.shape[-1]
+    a = atlas.reshape(ny, n, nz, nx, n, C).transpose(2, 0, 3, 1, 4, 5)  # (nz, ny, nx, n, n, C)
+    return np.ascontiguousarray(a.reshape(nx * ny * nz, n, n, C))

@@ -1,0 +1,107 @@
+"""Stage ``trace``: the final probe rays — classification, depth moments, and cached hits.
+
+From the relocated positions, ``rays_per_probe`` rays per probe on a spherical Fibonacci pattern
+under a seeded random rotation (DDGI-I §3.2; one rotation for all probes, as DDGI per frame).
+
+- **Classification** (DDGI-P §6.1-6.2, Fig 10, offline subset): OFF when more than
+  ``backface_fraction`` of the rays still hit back faces (inside geometry after relocation);
+  ACTIVE when the closest front face is nearer than one cell diagonal (a surface within the probe's
+  cells: it shades surfaces); SLEEPING otherwise. (Fig 10 compares with the probe spacing; we use
+  the cell diagonal because a probe shades every point of its 8 cells.)
+- **Depth moments** (DDGI-I §3.5 eq 2, DDGI-P §4.1): per probe an octahedral ``depth_texels``²
+  map of the weighted mean of distance and distance², weight ``max(0, cos)^depth_sharpness``,
+  back-face hits shortened by 80%, misses at ``max_distance`` (the diagonal of the scene bounds
+  joined with the grid box); plus the 1-texel border (octahedral.add_border).
+- **Hits** (internal, for the light and PRT stages): per ray the distance, triangle, barycentrics
+  and back-face flag, so later stages re-shade without re-tracing.
+
+Outputs: ``probe_states`` (nz, ny, nx, 1) uint8 volume (0 OFF, 1 ACTIVE, 2 SLEEPING);
+``depth_moments`` 2D atlas (ny·(n+2), nz·nx·(n+2), 2) float32 (grid.pack_atlas); internal
+``ray_directions`` (R, 3) float32, ``ray_hits`` (P, R, 4) float32 (t (inf on miss), u, v, backface)
+and ``ray_tri`` (P, R) int32.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
+from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.sampling import fibonacci_sphere, random_rotation
+from workers.raycast import RayCaster
+from workers.stages.base import Artifact, StageContext, StageOutput
+from workers.stages.relocate import double_sided_triangles, trace_probes
+
+STAGE_SEED_TAG = 0x7ACE
+
+BACKFACE_SHORTEN = 0.2
+"""Back-face hit distances are multiplied by this (shortened by 80%, DDGI-P §4.1)."""
+
+
+def max_ray_distance(bounds, counts, origin, spacing) -> float:
+    """Diagonal of the scene bounds joined with the grid box, metres: the distance recorded for misses."""
+    lo = np.minimum(np.asarray(bounds[0]), np.asarray(origin))
+    hi = np.maximum(np.asarray(bounds[1]), np.asarray(origin) + np.asarray(spacing) * (np.asarray(counts) - 1))
+    return float(max(np.linalg.norm(hi - lo), 1e-3))
+
+
+def classify(t: np.ndarray, back: np.ndarray, cell_diagonal: float, backface_fraction: float) -> np.ndarray:
+    """(P,) uint8 states from the final rays (DDGI-P Fig 10). t, back : (P, R)."""
+    R = t.shape[1]
+    inside = back.sum(axis=1) / R > backface_fraction
+    closest_front = np.where(back, np.inf, t).min(axis=1)
+    states = np.where(closest_front < cell_diagonal, ACTIVE, SLEEPING).astype(np.uint8)
+    states[inside] = OFF
+    return states
+
+
+def depth_moments(t: np.ndarray, back: np.ndarray, dirs: np.ndarray, n: int, sharpness: float,
+                  max_distance: float) -> np.ndarray:
+    """(P, n+2, n+2, 2) float32 mean distance and mean squared distance per octahedral texel, with border."""
+    d = np.where(np.isfinite(t), t, max_distance)
+    d = np.minimum(np.where(back, d * BACKFACE_SHORTEN, d), max_distance)     # DDGI-P §4.1
+    values = np.stack([d, d * d], axis=-1).astype(np.float32)               # eq 2: l and l²
+    maps = accumulate_octahedral(dirs, values, oct_texel_directions(n), sharpness)
+    return add_border(maps).astype(np.float32)
+
+
+def run_trace(ctx: StageContext) -> StageOutput:
+    sec = ctx.config.trace
+    place = ctx.inputs["place"].stats
+    counts, origin, spacing = place["counts"], np.asarray(place["origin"]), np.asarray(place["spacing"])
+    nx, ny, nz = counts
+    scene = ctx.scene
+    positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float64)
+    caster = RayCaster(scene.triangles)
+    rng = np.random.default_rng([ctx.config.seed, STAGE_SEED_TAG])
+    dirs = (fibonacci_sphere(sec.rays_per_probe).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
+    t, tri, u, v, back, ray_seconds = trace_probes(caster, positions, dirs, double_sided_triangles(scene))
+    ctx.report(0.5)
+    diag = float(np.linalg.norm(spacing))
+    states = classify(t, back, diag if diag > 0 else np.inf, sec.backface_fraction)
+    dmax = max_ray_distance(ctx.inputs["ingest"].stats["bounds"], counts, origin, spacing)
+    depth = depth_moments(t, back, dirs, sec.depth_texels, sec.depth_sharpness, dmax)
+    ctx.report(0.9)
+    hits = np.stack([t, u, v, back.astype(np.float32)], axis=-1).astype(np.float32)
+    internal = {"internal": True}
+    stats = {
+        "probes": int(positions.shape[0]), "rays": int(t.size), "ray_seconds": ray_seconds,
+        "rays_per_second": t.size / ray_seconds if ray_seconds > 0 else None,
+        "off": int((states == OFF).sum()), "active": int((states == ACTIVE).sum()),
+        "sleeping": int((states == SLEEPING).sum()), "max_distance": dmax,
+        "hit_fraction": float((tri >= 0).mean()) if tri.size else 0.0,
+    }
+    n2 = sec.depth_texels + 2
+    return StageOutput(
+        artifacts=[
+            Artifact("probe_states", states.reshape(nz, ny, nx, 1),
+                     description="probe states: 0 off, 1 active, 2 sleeping", meta={"states": ["off", "active", "sleeping"]}),
+            Artifact("depth_moments", pack_atlas(depth, counts),
+                     description="octahedral mean distance and squared distance per probe, with border, metres",
+                     meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax}),
+            Artifact("ray_directions", dirs, format="npy", description="final probe ray directions", meta=internal),
+            Artifact("ray_hits", hits, format="npy", description="per probe ray: t, u, v, backface", meta=internal),
+            Artifact("ray_tri", tri.astype(np.int32), format="npy", description="per probe ray: triangle or -1",
+                     meta=internal),
+        ],
+        stats=stats,
+    )
