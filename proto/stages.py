@@ -8,11 +8,11 @@ reads (the first stage reads the scene id) — so keys are known before anything
 from __future__ import annotations
 
 import hashlib
+from dataclasses import dataclass, replace
 from pathlib import Path
-from dataclasses import dataclass
 
-from proto.models import ArtifactInfo, BakeConfig, Manifest, SceneSummary, StageInfo
 from proto import bundle
+from proto.models import ArtifactInfo, BakeConfig, Manifest, SceneSummary, StageInfo
 from proto.catalog import Catalog
 from proto.store import Store, atomic_write_bytes
 
@@ -26,6 +26,11 @@ class StageDef:
     sections: tuple[str, ...]           # BakeConfig sections (and "seed") that the stage reads
     inputs: tuple[str, ...]             # upstream stages whose artifacts/stats it reads
     timeout: int = 3600                 # seconds, for the RQ job
+    shards_from: str | None = None      # "section.field" giving a shard count: the stage fans out
+    # set on the expanded entries of a sharded stage (see expand):
+    shard: int | None = None            # this entry is shard `shard` of `shard_count` of `parent`
+    shard_count: int | None = None
+    parent: str | None = None
 
 
 STAGES: tuple[StageDef, ...] = (
@@ -37,13 +42,54 @@ STAGES: tuple[StageDef, ...] = (
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 
 
+def shard_count(config: BakeConfig, st: StageDef) -> int:
+    section, field = st.shards_from.split(".")
+    return int(getattr(getattr(config, section), field))
+
+
+def expand(config: BakeConfig) -> list[StageDef]:
+    """The stages of a bake in run order, a sharded stage as its shards followed by its join.
+
+    Shard ``i`` of stage ``s`` is named ``s.i``; the join keeps the name ``s`` and reads every shard.
+    """
+    out: list[StageDef] = []
+    for st in STAGES:
+        if st.shards_from is None:
+            out.append(st)
+            continue
+        n = shard_count(config, st)
+        names = tuple(f"{st.name}.{i}" for i in range(n))
+        out += [replace(st, name=nm, shard=i, shard_count=n, parent=st.name) for i, nm in enumerate(names)]
+        out.append(replace(st, inputs=st.inputs + names))
+    return out
+
+
+def dependencies(stages: list[StageDef]) -> dict[str, list[str]]:
+    """Which stages' jobs each stage's job waits for: the previous stage of the chain; a shard waits
+    for the stage before its group, a join for all its shards."""
+    deps: dict[str, list[str]] = {}
+    prev: str | None = None
+    for st in stages:
+        if st.shard is not None:
+            deps[st.name] = [prev] if prev else []
+        elif st.shards_from is not None:
+            deps[st.name] = [s.name for s in stages if s.parent == st.name]
+            prev = st.name
+        else:
+            deps[st.name] = [prev] if prev else []
+            prev = st.name
+    return deps
+
+
 def plan(scene_id: str, config: BakeConfig) -> list[tuple[StageDef, str]]:
-    """Stages in run order with their cache keys (hex sha256)."""
+    """Stages in run order (shards expanded) with their cache keys (hex sha256)."""
     keys: dict[str, str] = {}
     out = []
-    for st in STAGES:
+    for st in expand(config):
         h = hashlib.sha256()
         h.update(f"{st.name}:{st.version}:{config.section_hash(*st.sections)}".encode())
+        if st.shard is not None:
+            h.update(f":shard={st.shard}/{st.shard_count}".encode())
         if not st.inputs:
             h.update(f":scene={scene_id}".encode())
         for dep in st.inputs:

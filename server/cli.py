@@ -96,7 +96,7 @@ def _default_cache() -> Path:
 
 
 def bake_local(args) -> int:
-    from proto.stages import STAGES, export_bundle
+    from proto.stages import expand, export_bundle
     from proto.store import Store
     from workers.ingest import IngestError, ingest_file
     from workers.pipeline import bake_local as run
@@ -110,7 +110,7 @@ def bake_local(args) -> int:
     except IngestError as e:
         raise CliError(EXIT_INPUT, f"{args.scene}: {e.code}: {e.message}")
     store = Store(Path(args.cache) / "store")
-    prog = Progress([s.name for s in STAGES], enabled=not args.quiet)
+    prog = Progress([s.name for s in expand(config)], enabled=not args.quiet)
     try:
         manifest = run(store, scene, config, report=prog.update)
     except StageError as e:

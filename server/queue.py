@@ -16,7 +16,7 @@ from rq.job import Job, JobStatus
 
 from proto.catalog import Catalog
 from proto.models import BakeConfig
-from proto.stages import STAGE_BY_NAME, plan
+from proto.stages import dependencies, expand, plan
 
 log = logging.getLogger("kiln.queue")
 
@@ -36,21 +36,29 @@ def job_ids(bake: dict) -> list[str]:
 
 
 def enqueue_bake(conn: redis.Redis, bake: dict) -> list[str]:
-    """Enqueue the stages of ``bake`` that have not succeeded, then ``finish_bake``; returns job ids."""
+    """Enqueue the stages of ``bake`` that have not succeeded, then ``finish_bake``; returns job ids.
+
+    Each job depends on the jobs of the stages it waits for (``proto.stages.dependencies``): the
+    chain, with a sharded stage's shards side by side and its join after all of them.
+    """
     q = Queue(QUEUE_NAME, connection=conn)
-    a, prev, ids = bake["attempt"], None, []
+    config = BakeConfig.model_validate(bake["config"])
+    stages = {st.name: st for st in expand(config)}
+    deps = dependencies(list(stages.values()))
+    a, jobs = bake["attempt"], {}
     for s in bake["stages"]:
         if s["status"] == "succeeded":
             continue
-        st = STAGE_BY_NAME[s["name"]]
-        prev = q.enqueue("workers.jobs.run_stage", bake["id"], st.name, job_id=f"{bake['id']}-{a}-{st.name}",
-                         depends_on=prev, job_timeout=st.timeout, retry=Retry(max=RETRIES),
-                         result_ttl=3600, failure_ttl=7 * 86400, description=f"bake {bake['id']} stage {st.name}")
-        ids.append(prev.id)
-    job = q.enqueue("workers.jobs.finish_bake", bake["id"], job_id=f"{bake['id']}-{a}-finish", depends_on=prev,
-                    job_timeout=600, retry=Retry(max=RETRIES), result_ttl=3600, failure_ttl=7 * 86400)
-    ids.append(job.id)
-    return ids
+        st = stages[s["name"]]
+        after = [jobs[d] for d in deps[st.name] if d in jobs]
+        jobs[st.name] = q.enqueue(
+            "workers.jobs.run_stage", bake["id"], st.name, job_id=f"{bake['id']}-{a}-{st.name}",
+            depends_on=after or None, job_timeout=st.timeout, retry=Retry(max=RETRIES),
+            result_ttl=3600, failure_ttl=7 * 86400, description=f"bake {bake['id']} stage {st.name}")
+    job = q.enqueue("workers.jobs.finish_bake", bake["id"], job_id=f"{bake['id']}-{a}-finish",
+                    depends_on=list(jobs.values()) or None, job_timeout=600, retry=Retry(max=RETRIES),
+                    result_ttl=3600, failure_ttl=7 * 86400)
+    return [j.id for j in jobs.values()] + [job.id]
 
 
 def live_jobs(conn: redis.Redis, bake: dict) -> list[str]:

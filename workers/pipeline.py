@@ -33,7 +33,10 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "relocate": run_relocate,
     "trace": run_trace,
 }
+SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {}
+"""Runners of the shards of sharded stages (``StageDef.shards_from``), by stage name."""
 assert set(RUNNERS) == set(STAGE_BY_NAME), "every stage in proto.stages needs a runner"
+assert all(STAGE_BY_NAME[n].shards_from for n in SHARD_RUNNERS)
 
 
 def load_scene(store: Store, scene_id: str) -> NormalizedScene:
@@ -55,8 +58,9 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
     Upstream stages must already be in the store. The record is
     ``{"stage", "cache_key", "seconds", "stats", "artifacts": [ArtifactInfo dicts]}``.
     """
-    keys = {st.name: key for st, key in plan(scene_id, config)}
-    st = STAGE_BY_NAME[stage]
+    planned = plan(scene_id, config)
+    keys = {st.name: key for st, key in planned}
+    st = next(s for s, _ in planned if s.name == stage)
     key = keys[stage]
     rec = store.get_stage(key)
     if rec is not None:
@@ -67,9 +71,10 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
         if dep_rec is None:
             raise RuntimeError(f"stage {stage} needs {dep}, which is not in the store")
         inputs[dep] = _lazy(store, dep_rec)
-    ctx = StageContext(config=config, scene_loader=lambda: load_scene(store, scene_id), inputs=inputs, report=report)
+    ctx = StageContext(config=config, scene_loader=lambda: load_scene(store, scene_id), inputs=inputs, report=report,
+                       shard=st.shard, shard_count=st.shard_count)
     t0 = time.perf_counter()
-    out = RUNNERS[stage](ctx)
+    out = (SHARD_RUNNERS[st.parent] if st.shard is not None else RUNNERS[st.name])(ctx)
     seconds = time.perf_counter() - t0
     infos = []
     with tempfile.TemporaryDirectory(dir=store.root / "tmp") as tmp:

@@ -11,6 +11,8 @@ import numpy as np
 import pytest
 
 from proto import bundle
+from proto.models import BakeConfig
+from proto.stages import expand
 
 
 def _gltf_from_glb(glb: bytes) -> bytes:
@@ -107,7 +109,7 @@ def test_bake_lifecycle_artifacts_bundle_and_cache(running, scene_files):
     assert r.json()["links"]["events"] == f"/v1/bakes/{bid}/events"
     b = running.wait_bake(bid)
     assert b["status"] == "succeeded", b
-    assert [s["name"] for s in b["stages"]] == ["ingest", "place"]
+    assert [s["name"] for s in b["stages"]] == [st.name for st in expand(BakeConfig.model_validate(cfg))]
     assert all(s["status"] == "succeeded" and s["progress"] == 1.0 and s["seconds"] >= 0 for s in b["stages"])
     assert b["stages"][1]["stats"]["counts"] == [6, 3, 4]
     assert b["started"] and b["finished"] >= b["started"]
@@ -124,6 +126,7 @@ def test_bake_lifecycle_artifacts_bundle_and_cache(running, scene_files):
     r = c.get(f"/v1/bakes/{bid}/artifacts/probe_positions", headers={"Range": "bytes=10-99"})
     assert r.status_code == 206 and r.content == full[10:100]
     assert c.get(f"/v1/bakes/{bid}/artifacts/nope").status_code == 404
+    assert c.get(f"/v1/bakes/{bid}/artifacts/ray_hits").status_code == 404  # internal: not in the bundle
 
     # the bundle zip opens and holds the grid
     r = c.get(f"/v1/bakes/{bid}/bundle")
@@ -146,7 +149,7 @@ def test_bake_lifecycle_artifacts_bundle_and_cache(running, scene_files):
     r = c.post("/v1/bakes", json={"scene_id": sid, "config": {"place": {"spacing": 1.0}}})
     b3 = running.wait_bake(r.json()["id"])
     assert b3["status"] == "succeeded"
-    assert [s["cached"] for s in b3["stages"]] == [True, False]
+    assert b3["stages"][0]["cached"] and not any(s["cached"] for s in b3["stages"][1:])
 
     # list with filters and pagination
     lst = c.get("/v1/bakes", params={"scene_id": sid, "status": "succeeded", "limit": 2}).json()

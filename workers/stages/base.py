@@ -60,6 +60,8 @@ class StageContext:
     scene_loader: Callable[[], NormalizedScene]
     inputs: dict[str, "LazyArtifacts"]
     report: Callable[[float], None]
+    shard: int | None = None          # for a shard of a sharded stage: its index and the shard count
+    shard_count: int | None = None
     _scene: NormalizedScene | None = None
 
     @property

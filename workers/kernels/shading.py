@@ -1,0 +1,319 @@
+"""Surface attributes at ray hits and direct light from punctual lights (numpy; no I/O).
+
+The light stage (DESIGN.md "Bake stages" 2, DDGI-I §3.4) shades every probe ray's hit as
+
+    L_out = emission + albedo / π · (E_direct + E_indirect)
+
+with ``E_direct`` from :func:`direct_irradiance` (this module) and ``E_indirect`` from the previous
+bounce's probes (:func:`workers.kernels.ddgi.sample_irradiance`). This module supplies the hit's
+surface attributes (:func:`surface_at_hits`) and ``E_direct``.
+
+Conventions
+-----------
+- World space, metres, glTF frame (+Y up, right-handed), counter-clockwise front faces.
+- Barycentrics as :class:`workers.raycast.Hits`: ``x = (1 - u - v)·v0 + u·v1 + v·v2``.
+- Colours are linear RGB. Textures are stored sRGB-encoded uint8 (glTF base colour and emissive
+  textures are sRGB, glTF 2.0 §3.9.2/§3.9.3); each texel is decoded to linear *before* bilinear
+  filtering, as a GPU sampler of an ``*_SRGB`` format does.
+- Texture coordinates: glTF UV (0, 0) is the first texel of the image's first row (top-left),
+  u runs along columns, v along rows. Texel (row r, col c) of an H x W image is centred at
+  ``u = (c + 0.5)/W, v = (r + 0.5)/H``. Wrap mode REPEAT on both axes (the glTF default sampler);
+  the material's sampler settings and the alpha channel are not used.
+- Light units (KHR_lights_punctual): point and spot ``intensity`` in candela (lm/sr), directional
+  in lux (lm/m²); ``color`` is a linear RGB multiplier. Irradiance is returned in lux·colour, i.e.
+  W/m²-like units consistent with the light intensities; a Lambertian surface then reflects
+  radiance ``albedo/π · E``.
+
+Consumers: stages/light (ray shading), stages/evaluate (reference path tracer), stages/prt
+(direct light at measurement points). Inverse: none.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["srgb_to_linear", "SRGB_TO_LINEAR_LUT", "surface_at_hits", "sample_texture", "direct_irradiance"]
+
+# Points per chunk of direct_irradiance: bounds the float64 temporaries (~60 doubles per point)
+# and the shadow-ray batch, whatever the number of points.
+DIRECT_CHUNK = 1 << 17
+
+
+def srgb_to_linear(c) -> np.ndarray:
+    """sRGB electro-optical transfer (IEC 61966-2-1): encoded [0, 1] -> linear [0, 1], float64.
+
+    ``c / 12.92`` for ``c <= 0.04045``, else ``((c + 0.055) / 1.055) ** 2.4``.
+    """
+    c = np.asarray(c, dtype=np.float64)
+    return np.where(c <= 0.04045, c / 12.92, ((c + 0.055) / 1.055) ** 2.4)
+
+
+# uint8 code -> linear value, float64 (256,): texels are decoded by table lookup.
+SRGB_TO_LINEAR_LUT = srgb_to_linear(np.arange(256) / 255.0)
+
+
+def _unit_rows(a: np.ndarray) -> np.ndarray:
+    """Rows scaled to unit length; zero rows stay zero."""
+    n = np.linalg.norm(a, axis=-1, keepdims=True)
+    return np.divide(a, n, out=np.zeros_like(a), where=n > 0)
+
+
+def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
+    """Bilinear, REPEAT-wrapped lookup of an sRGB-encoded texture, decoded to linear RGB.
+
+    Parameters
+    ----------
+    texture : (H, W, C>=3) uint8
+        sRGB-encoded texels (the scene's ``textures[i]``); only RGB is read.
+    uv : (N, 2) float
+        glTF texture coordinates (see module doc: v = 0 is the image's first row).
+
+    Returns
+    -------
+    rgb : (N, 3) float64, linear. Each of the 4 texels is decoded sRGB -> linear, then they are
+    weighted bilinearly (texel centres at ``(index + 0.5) / size``), so at a texel centre the
+    result is exactly that texel's decoded colour.
+    """
+    tex = np.asarray(texture)
+    if tex.ndim == 2:
+        tex = tex[:, :, None]
+    h, w = tex.shape[:2]
+    rgb = tex[:, :, :3] if tex.shape[2] >= 3 else np.repeat(tex[:, :, :1], 3, axis=2)
+    uv = np.asarray(uv, dtype=np.float64)
+    x = uv[:, 0] * w - 0.5  # continuous column index, texel centres at integers
+    y = uv[:, 1] * h - 0.5  # continuous row index
+    x0f, y0f = np.floor(x), np.floor(y)
+    fx, fy = (x - x0f)[:, None], (y - y0f)[:, None]
+    x0 = np.mod(x0f, w).astype(np.intp)  # REPEAT wrap
+    y0 = np.mod(y0f, h).astype(np.intp)
+    x1 = (x0 + 1) % w
+    y1 = (y0 + 1) % h
+    lut = SRGB_TO_LINEAR_LUT
+
+    def texel(r, c):
+        return lut[rgb[r, c]]  # (N, 3) linear
+
+    top = texel(y0, x0) * (1.0 - fx) + texel(y0, x1) * fx
+    bottom = texel(y1, x0) * (1.0 - fx) + texel(y1, x1) * fx
+    return top * (1.0 - fy) + bottom * fy
+
+
+def surface_at_hits(scene, tri, u, v) -> dict:
+    """Surface attributes at ray hits (the G-buffer of DDGI-I §3.3 "surfels").
+
+    Parameters
+    ----------
+    scene : workers.scene.NormalizedScene
+    tri : (N,) int
+        Hit triangle index, -1 for a miss (``Hits.tri``).
+    u, v : (N,) float
+        Barycentrics (``Hits.u``, ``Hits.v``): ``x = (1 - u - v)·v0 + u·v1 + v·v2``.
+
+    Returns
+    -------
+    dict of arrays (misses are all zeros / False):
+
+    - ``position`` (N, 3) float32: world-space hit point, metres.
+    - ``normal`` (N, 3) float32: interpolated vertex normal, unit (the geometric normal where the
+      interpolation is degenerate). Not flipped toward the ray: callers flip for backface hits.
+    - ``geo_normal`` (N, 3) float32: unit ``(v1 - v0) × (v2 - v0)`` (CCW front face); zero for a
+      degenerate triangle.
+    - ``albedo`` (N, 3) float32: linear base colour = ``base_color[:3]`` × texture (bilinear,
+      REPEAT, sRGB -> linear per texel) at the interpolated ``uv0``.
+    - ``emission`` (N, 3) float32: linear emitted radiance = ``emissive`` (already × strength) ×
+      emissive texture (same sampling).
+    - ``double_sided`` (N,) bool: the material's ``double_sided``.
+
+    Textures are sampled one texture at a time over all hits that use it (vectorized).
+    """
+    tri = np.asarray(tri).astype(np.int64, copy=False).ravel()
+    u = np.asarray(u, dtype=np.float64).ravel()
+    v = np.asarray(v, dtype=np.float64).ravel()
+    n = tri.shape[0]
+    if u.shape != (n,) or v.shape != (n,):
+        raise ValueError(f"surface_at_hits: tri, u, v must have the same length, got {tri.shape}, {u.shape}, {v.shape}")
+    n_tri = scene.n_triangles
+    if n and tri.max(initial=-1) >= n_tri:
+        raise ValueError(f"surface_at_hits: triangle index {int(tri.max())} out of range for {n_tri} triangles")
+
+    out = {
+        "position": np.zeros((n, 3), np.float32),
+        "normal": np.zeros((n, 3), np.float32),
+        "geo_normal": np.zeros((n, 3), np.float32),
+        "albedo": np.zeros((n, 3), np.float32),
+        "emission": np.zeros((n, 3), np.float32),
+        "double_sided": np.zeros(n, bool),
+    }
+    hit = np.flatnonzero(tri >= 0)
+    if hit.size == 0:
+        return out
+    t = tri[hit]
+    b = np.stack([1.0 - u[hit] - v[hit], u[hit], v[hit]], axis=1)[:, :, None]  # (H, 3, 1) barycentric weights
+
+    verts = np.asarray(scene.triangles)[t].astype(np.float64)  # (H, 3, 3)
+    out["position"][hit] = (b * verts).sum(axis=1)
+    geo = _unit_rows(np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0]))
+    out["geo_normal"][hit] = geo
+    nrm = _unit_rows((b * np.asarray(scene.normals)[t].astype(np.float64)).sum(axis=1))
+    bad = ~np.any(nrm != 0, axis=1)
+    nrm[bad] = geo[bad]
+    out["normal"][hit] = nrm
+    uv = (b * np.asarray(scene.uv0)[t].astype(np.float64)).sum(axis=1)  # (H, 2)
+
+    mats = scene.materials
+    mat = np.asarray(scene.material)[t].astype(np.int64)
+    base = np.array([m["base_color"][:3] for m in mats], np.float64).reshape(-1, 3)
+    emis = np.array([m.get("emissive", [0, 0, 0]) for m in mats], np.float64).reshape(-1, 3)
+    dsided = np.array([bool(m.get("double_sided", False)) for m in mats], bool)
+
+    def tex_ids(key):
+        return np.array([-1 if m.get(key) is None else int(m[key]) for m in mats], np.int64)
+
+    albedo = base[mat]
+    emission = emis[mat]
+    for key, values in (("base_color_texture", albedo), ("emissive_texture", emission)):
+        tid = tex_ids(key)[mat]
+        for k in np.unique(tid[tid >= 0]):  # one texture at a time, all its hits at once
+            sel = np.flatnonzero(tid == k)
+            values[sel] *= sample_texture(scene.textures[int(k)], uv[sel])
+    out["albedo"][hit] = albedo
+    out["emission"][hit] = emission
+    out["double_sided"][hit] = dsided[mat]
+    return out
+
+
+# ---------------------------------------------------------------------------------------- direct light
+def _spot_cosines(light) -> tuple[float, float]:
+    inner = light.get("inner_cone_angle")
+    outer = light.get("outer_cone_angle")
+    inner = 0.0 if inner is None else float(inner)
+    outer = math.pi / 4 if outer is None else float(outer)
+    return math.cos(inner), math.cos(outer)
+
+
+def _light_arrays(light):
+    color = np.asarray(light.get("color", [1.0, 1.0, 1.0]), np.float64) * float(light.get("intensity", 1.0))
+    rng = light.get("range")
+    rng = float(rng) if rng is not None and np.isfinite(rng) and rng > 0 else None
+    return color, rng
+
+
+def direct_irradiance(points, normals, lights, caster, eps: float) -> np.ndarray:
+    """Irradiance from punctual lights with shadow rays (KHR_lights_punctual; DDGI-I §3.4.2).
+
+    For each light and point x with unit normal n (world space):
+
+    - point / spot at position p: ``l = (p - x)/d``, ``d = |p - x|``::
+
+          E = color · I · max(0, n·l) / d² · W(d) · A(l)
+
+      ``W(d) = clamp(1 - (d/range)⁴, 0, 1)²`` when the light has a range (else 1), and for a spot
+      ``A = t²``, ``t = clamp((cos θ - cos θ_outer) / max(1e-3, cos θ_inner - cos θ_outer), 0, 1)``,
+      ``cos θ = direction · (-l)`` (the KHR_lights_punctual reference implementation; the 1e-3 floor
+      only matters for cones whose inner and outer angles nearly coincide). Point lights: A = 1.
+    - directional with travel direction ω: ``E = color · I · max(0, n·(-ω))``.
+
+    Shadows: a ray from ``o = x + eps·n`` toward the light, occluded in ``[0, tfar]`` with
+    ``tfar = |p - o| - 2·eps`` (point, spot; direction ``(p - o)/|p - o|``) or ``inf`` (directional,
+    direction ``-ω``). Only points with a non-zero unshadowed contribution cast rays.
+
+    Parameters
+    ----------
+    points : (N, 3) float
+        Shading points, world space, metres.
+    normals : (N, 3) float
+        Unit normals, facing the side being lit (flip them for back-face hits on double-sided
+        surfaces before calling). Zero rows get zero irradiance.
+    lights : list of dict
+        The scene's lights (see :mod:`workers.scene`).
+    caster : RayCaster or None
+        ``occluded(origins, dirs, tfar)`` provider; ``None`` disables shadows.
+    eps : float
+        Shadow-ray offset along the normal, metres (scale it with the scene).
+
+    Returns
+    -------
+    E : (N, 3) float32, linear RGB irradiance (lux × colour). Work proceeds in chunks of
+    :data:`DIRECT_CHUNK` points, so memory stays bounded for millions of points.
+    """
+    pts = np.asarray(points, dtype=np.float64)
+    nrm = np.asarray(normals, dtype=np.float64)
+    if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
+        raise ValueError(f"direct_irradiance: points and normals must both be (N, 3), got {pts.shape}, {nrm.shape}")
+    eps = float(eps)
+    if not (eps >= 0 and np.isfinite(eps)):
+        raise ValueError(f"direct_irradiance: eps must be finite and >= 0, got {eps}")
+    n = pts.shape[0]
+    out = np.zeros((n, 3), np.float32)
+    for s in range(0, n, DIRECT_CHUNK):
+        e = min(n, s + DIRECT_CHUNK)
+        acc = np.zeros((e - s, 3), np.float64)
+        for light in lights:
+            _add_light(acc, pts[s:e], nrm[s:e], light, caster, eps)
+        out[s:e] = acc
+    return out
+
+
+def _add_light(acc, x, n, light, caster, eps) -> None:
+    """acc += E of one light at points x (chunk), with shadows."""
+    kind = light["type"]
+    color, rng = _light_arrays(light)
+    if not np.any(color > 0):
+        return
+    if kind == "directional":
+        l = -np.asarray(light["direction"], np.float64)
+        l = l / np.linalg.norm(l)
+        scale = n @ l  # n·(-ω)
+        lit = np.flatnonzero(scale > 0)
+        if lit.size == 0:
+            return
+        scale = scale[lit]
+        if caster is not None:
+            o = x[lit] + eps * n[lit]
+            d = np.broadcast_to(l, o.shape)
+            blocked = np.asarray(caster.occluded(o, d, tfar=np.inf), bool)
+            scale = np.where(blocked, 0.0, scale)
+        acc[lit] += scale[:, None] * color
+        return
+    if kind not in ("point", "spot"):
+        raise ValueError(f"direct_irradiance: unknown light type {kind!r}")
+
+    p = np.asarray(light["position"], np.float64)
+    to_light = p - x
+    d2 = np.einsum("ij,ij->i", to_light, to_light)
+    d = np.sqrt(d2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        l = to_light / d[:, None]
+        cos_n = np.einsum("ij,ij->i", n, l)
+        scale = cos_n / d2  # I·max(0, n·l)/d² (inverse square, candela -> lux)
+    ok = (d > 0) & (cos_n > 0)
+    if rng is not None:
+        win = np.clip(1.0 - (d / rng) ** 4, 0.0, 1.0) ** 2  # range window W(d)
+        scale = scale * win
+        ok &= win > 0
+    if kind == "spot":
+        cos_in, cos_out = _spot_cosines(light)
+        sd = np.asarray(light["direction"], np.float64)
+        sd = sd / np.linalg.norm(sd)
+        with np.errstate(invalid="ignore"):
+            cos_t = -(l @ sd)  # cos θ between the spot axis and light -> point
+        t = np.clip((cos_t - cos_out) / max(1e-3, cos_in - cos_out), 0.0, 1.0)  # KHR angular attenuation
+        scale = scale * t * t
+        ok &= t > 0
+    lit = np.flatnonzero(ok)
+    if lit.size == 0:
+        return
+    scale = scale[lit]
+    if caster is not None:
+        o = x[lit] + eps * n[lit]
+        ray = p - o
+        dist = np.linalg.norm(ray, axis=1)
+        tfar = dist - 2.0 * eps
+        trace = np.flatnonzero(tfar > 0)  # a light closer than 2·eps to the origin is never shadowed
+        if trace.size:
+            blocked = np.asarray(
+                caster.occluded(o[trace], ray[trace] / dist[trace, None], tfar=tfar[trace]), bool
+            )
+            scale[trace[blocked]] = 0.0
+    acc[lit] += scale[:, None] * color
