@@ -9,7 +9,8 @@ Arrays (T = triangle count):
 
 - ``triangles`` : (T, 3, 3) float32, world-space vertex positions.
 - ``normals``   : (T, 3, 3) float32, unit world-space vertex normals (geometric if the mesh has none).
-- ``uv0``       : (T, 3, 2) float32, TEXCOORD_0 (zeros where absent).
+- ``uv0``       : (T, 3, 2) float32, the UV set the material's base-colour (else emissive) texture
+  samples, KHR_texture_transform applied (TEXCOORD_0 unless the material says otherwise; zeros where absent).
 - ``uv1``       : (T, 3, 2) float32 or None, TEXCOORD_1 where every mesh has it.
 - ``material``  : (T,) int32, index into ``materials``.
 - ``textures``  : list of (H, W, 4) uint8 RGBA images (sRGB-encoded as stored in the file).
