@@ -38,6 +38,7 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("place", 1, ("place",), ("ingest",), timeout=600),
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
+    StageDef("light", 1, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 

@@ -23,6 +23,7 @@ from proto.store import Store
 from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput
 from workers.stages.ingest import run_ingest
+from workers.stages.light import run_light
 from workers.stages.place import run_place
 from workers.stages.relocate import run_relocate
 from workers.stages.trace import run_trace
@@ -32,6 +33,7 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "place": run_place,
     "relocate": run_relocate,
     "trace": run_trace,
+    "light": run_light,
 }
 SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {}
 """Runners of the shards of sharded stages (``StageDef.shards_from``), by stage name."""

@@ -158,7 +158,8 @@ def bias_scale(spacing, self_shadow_bias: float = 0.3) -> float:
 
 
 @njit(cache=True, nogil=True)
-def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, irr, depth, out):
+def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, irr, depth,
+                              out):
     n_irr = irr.shape[1] - 2
     n_dep = depth.shape[1] - 2
     nx = counts[0]
@@ -328,12 +329,16 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     org = np.asarray(origin, np.float64).ravel()
     spc = np.asarray(spacing, np.float64).ravel()
     if cnt.shape != (3,) or org.shape != (3,) or spc.shape != (3,) or np.any(cnt < 1) or np.any(spc < 0):
-        raise ValueError("sample_irradiance: counts (3 ints >= 1), origin and spacing (3 floats, spacing >= 0) expected")
+        raise ValueError(
+            "sample_irradiance: counts (3 ints >= 1), origin and spacing (3 floats, spacing >= 0) expected")
+    if not math.isfinite(float(self_shadow_bias)):
+        raise ValueError(f"sample_irradiance: self_shadow_bias must be finite, got {self_shadow_bias}")
     P = int(np.prod(cnt))
     pos = np.ascontiguousarray(probe_positions, np.float64)
     st = np.ascontiguousarray(states, np.uint8).ravel()
     if pos.shape != (P, 3) or st.shape != (P,):
-        raise ValueError(f"sample_irradiance: probe_positions must be ({P}, 3) and states ({P},), got {pos.shape}, {st.shape}")
+        raise ValueError(f"sample_irradiance: probe_positions must be ({P}, 3) and states ({P},), "
+                         f"got {pos.shape}, {st.shape}")
     irr = np.asarray(irradiance)
     dep = np.asarray(depth)
     if irr.ndim != 4 or irr.shape[0] != P or irr.shape[1] != irr.shape[2] or irr.shape[1] < 3 or irr.shape[3] != 3:
@@ -345,5 +350,6 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     dep = np.ascontiguousarray(dep, dtype=mdt)
     out = np.empty((n, 3), np.float32)
     if n:
-        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias_scale(spc, self_shadow_bias), pos, st, irr, dep, out)
+        bias = bias_scale(spc, self_shadow_bias)  # 0.75·D·B (DDGI-P eq 2)
+        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias, pos, st, irr, dep, out)
     return out

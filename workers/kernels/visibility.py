@@ -58,6 +58,8 @@ from __future__ import annotations
 
 import math
 import time
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import nullcontext
 
 import numba
 import numpy as np
@@ -194,131 +196,148 @@ def _grid_args(counts, origin, spacing, S):
 
 
 @numba.njit(cache=True, inline="always")
-def _sample(g, X, Y, S, counts, origin, spacing, out3, cell3):
-    """World position (out3) and cell (cell3) of global sample g = x + X·(y + Y·z)."""
-    f0 = g % X
-    f1 = (g // X) % Y
-    f2 = g // (X * Y)
-    for a in range(3):
-        f = f0 if a == 0 else (f1 if a == 1 else f2)
-        c = f // S
-        if counts[a] == 1:  # one-probe axis: the probe plane
-            out3[a] = origin[a]
-            cell3[a] = 0
-        else:
-            out3[a] = origin[a] + spacing[a] * (c + (f - c * S + 0.5) / S)
-            cell3[a] = c
+def _axis(f, S, n, o, s):
+    """Position (metres) and cell of field coordinate f on an axis with n probes."""
+    if n == 1:  # one-probe axis: one cell of zero extent, samples in the probe plane
+        return o, 0
+    c = f // S
+    return o + s * (c + (f - c * S + 0.5) / S), c
 
 
-@numba.njit(cache=True)
+@numba.njit(cache=True, inline="always")
+def _sample(g, X, Y, S, counts, origin, spacing):
+    """(x, y, z, ci, cj, ck): world position and cell of global sample g = x + X·(y + Y·z)."""
+    px, ci = _axis(g % X, S, counts[0], origin[0], spacing[0])
+    py, cj = _axis((g // X) % Y, S, counts[1], origin[1], spacing[1])
+    pz, ck = _axis(g // (X * Y), S, counts[2], origin[2], spacing[2])
+    return px, py, pz, ci, cj, ck
+
+
+@numba.njit(cache=True, inline="always")
+def _corner(ci, cj, ck, c, counts):
+    """Flattened index of corner c (offset (c & 1, c >> 1 & 1, c >> 2 & 1), clamped) of cell (ci, cj, ck)."""
+    i = min(ci + (c & 1), counts[0] - 1)
+    j = min(cj + ((c >> 1) & 1), counts[1] - 1)
+    k = min(ck + ((c >> 2) & 1), counts[2] - 1)
+    return i + counts[0] * (j + counts[1] * k)
+
+
+@numba.njit(cache=True, nogil=True)
 def _positions_kernel(g0, n, X, Y, S, counts, origin, spacing, out):
-    cell3 = np.empty(3, np.int64)
     for i in range(n):
-        _sample(g0 + i, X, Y, S, counts, origin, spacing, out[i], cell3)
+        px, py, pz, _, _, _ = _sample(g0 + i, X, Y, S, counts, origin, spacing)
+        out[i, 0], out[i, 1], out[i, 2] = px, py, pz
 
 
-@numba.njit(cache=True)
-def _build_rays(g0, n, X, Y, S, counts, origin, spacing, probes, off, rays, radius, key, eps,
-                po, pd, pt, pslot, so, sd, st, sslot, visible, vin, vout, slot_off):
-    """Fill the primary (ray 0, intersect) and secondary (rays 1.., occluded) ray buffers.
+@numba.njit(cache=True, nogil=True)
+def _corners_kernel(g0, n, X, Y, S, counts, origin, spacing, off, rays, cage, cage_off, nsec):
+    """Corner probes cage (n, 8), their OFF flags and the secondary ray count of each sample."""
+    for i in range(n):
+        _, _, _, ci, cj, ck = _sample(g0 + i, X, Y, S, counts, origin, spacing)
+        m = 0
+        for c in range(8):
+            p = _corner(ci, cj, ck, c, counts)
+            cage[i, c] = p
+            cage_off[i, c] = off[p]
+            if not off[p]:
+                m += rays - 1
+        nsec[i] = m
 
-    Samples g0 .. g0 + n − 1 (global indices); probes (P, 3) f64 relocated positions, off (P,)
-    bool. Rays of zero usable length are not cast: they count as unblocked in ``visible`` (and
-    vote in vin/vout if primary). Secondary rays to OFF probes are not cast. Fills slot_off
-    (n·8,) with whether corner slot i·8 + c is an OFF probe. Returns (n_primary, n_secondary).
+
+@numba.njit(cache=True, inline="always")
+def _ray(g, c, r, rays, tx, ty, tz, sx, sy, sz, radius, key, eps, o, d, t, j, ox, oy, oz):
+    """Write ray j from the sample (sx, sy, sz) to the (jittered) target; False if degenerate.
+
+    A degenerate ray (usable length <= 0) is written as a zero-length ray along +z and must be
+    counted unblocked whatever the caster says.
     """
-    np_, ns = 0, 0
-    jit = rays > 1 and radius > 0.0
-    nx, ny = counts[0], counts[1]
-    pos = np.empty(3, np.float64)
-    cell = np.empty(3, np.int64)
-    for i in range(n):
-        gi = g0 + i
-        _sample(gi, X, Y, S, counts, origin, spacing, pos, cell)
-        sx, sy, sz = pos[0], pos[1], pos[2]
+    if rays > 1 and radius > 0.0:  # uniform in the ball of radius `radius` (hash of g, c, r)
+        ctr = (_U(g) * _U(8) + _U(c)) * _U(rays) + _U(r)
+        u0 = float(_mix(key + (ctr * _U(3) + _U(1)) * _GAMMA) >> _S11) * _INV53
+        u1 = float(_mix(key + (ctr * _U(3) + _U(2)) * _GAMMA) >> _S11) * _INV53
+        u2 = float(_mix(key + (ctr * _U(3) + _U(3)) * _GAMMA) >> _S11) * _INV53
+        cz = 2.0 * u0 - 1.0
+        sz_ = math.sqrt(max(0.0, 1.0 - cz * cz))
+        phi = 2.0 * math.pi * u1
+        rr = radius * u2 ** (1.0 / 3.0)
+        tx += rr * sz_ * math.cos(phi)
+        ty += rr * sz_ * math.sin(phi)
+        tz += rr * cz
+    dx, dy, dz = tx - sx, ty - sy, tz - sz
+    dist = math.sqrt(dx * dx + dy * dy + dz * dz)
+    tf = dist - eps
+    o[j, 0], o[j, 1], o[j, 2] = ox, oy, oz
+    if tf <= 0.0:  # the sample sits at the target: nothing can block
+        d[j, 0], d[j, 1], d[j, 2] = 0.0, 0.0, 1.0
+        t[j] = 0.0
+        return False
+    inv = 1.0 / dist
+    d[j, 0], d[j, 1], d[j, 2] = dx * inv, dy * inv, dz * inv
+    t[j] = tf
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _build_rays(i0, i1, g0, X, Y, S, counts, origin, spacing, probes, cage, cage_off, soff, rays, radius, key, eps,
+                po, pd, pt, pdeg, so, sd, st, sdeg):
+    """Fill the ray buffers of chunk samples i0 .. i1 − 1 (global index g0 + i); runs without the GIL.
+
+    Primary rays (ray 0 of every corner, cast with ``intersect``): ray ``i·8 + c``. Secondary
+    rays (rays 1 .. rays − 1 of non-OFF corners, cast with ``occluded``): sample i's start at
+    ``soff[i]``, corner-major. probes (P, 3) f64 relocated positions; cage / cage_off from
+    :func:`_corners_kernel`. pdeg / sdeg flag degenerate (unblocked by definition) rays. Every
+    sample writes only its own rays, so any split of [0, n) over threads gives the same buffers.
+    """
+    for i in range(i0, i1):
+        g = g0 + i
+        sx, sy, sz, _, _, _ = _sample(g, X, Y, S, counts, origin, spacing)
         ox, oy, oz = np.float32(sx), np.float32(sy), np.float32(sz)
+        k = soff[i]
         for c in range(8):
-            ci = min(cell[0] + (c & 1), counts[0] - 1)
-            cj = min(cell[1] + ((c >> 1) & 1), counts[1] - 1)
-            ck = min(cell[2] + ((c >> 2) & 1), counts[2] - 1)
-            p = ci + nx * (cj + ny * ck)
-            slot = i * 8 + c
-            slot_off[slot] = off[p]
-            is_off = off[p]
-            for r in range(rays):
-                if r > 0 and is_off:
-                    break
-                tx, ty, tz = probes[p, 0], probes[p, 1], probes[p, 2]
-                if jit:
-                    ctr = (_U(gi) * _U(8) + _U(c)) * _U(rays) + _U(r)
-                    h0 = _mix(key + (ctr * _U(3) + _U(1)) * _GAMMA)
-                    h1 = _mix(key + (ctr * _U(3) + _U(2)) * _GAMMA)
-                    h2 = _mix(key + (ctr * _U(3) + _U(3)) * _GAMMA)
-                    u0 = float(h0 >> _S11) * _INV53
-                    u1 = float(h1 >> _S11) * _INV53
-                    u2 = float(h2 >> _S11) * _INV53
-                    cz = 2.0 * u0 - 1.0
-                    sz_ = math.sqrt(max(0.0, 1.0 - cz * cz))
-                    phi = 2.0 * math.pi * u1
-                    rr = radius * u2 ** (1.0 / 3.0)
-                    tx += rr * sz_ * math.cos(phi)
-                    ty += rr * sz_ * math.sin(phi)
-                    tz += rr * cz
-                dx, dy, dz = tx - sx, ty - sy, tz - sz
-                d = math.sqrt(dx * dx + dy * dy + dz * dz)
-                tf = d - eps
-                if tf <= 0.0:  # the sample sits at the target: nothing can block
-                    visible[slot] += 1
-                    if r == 0:
-                        if is_off:
-                            vin[i] += 1
-                        else:
-                            vout[i] += 1
-                    continue
-                inv = 1.0 / d
-                if r == 0:
-                    po[np_, 0], po[np_, 1], po[np_, 2] = ox, oy, oz
-                    pd[np_, 0], pd[np_, 1], pd[np_, 2] = dx * inv, dy * inv, dz * inv
-                    pt[np_] = tf
-                    pslot[np_] = slot
-                    np_ += 1
+            p = cage[i, c]
+            tx, ty, tz = probes[p, 0], probes[p, 1], probes[p, 2]
+            j = i * 8 + c
+            pdeg[j] = not _ray(g, c, 0, rays, tx, ty, tz, sx, sy, sz, radius, key, eps, po, pd, pt, j, ox, oy, oz)
+            if cage_off[i, c]:
+                continue
+            for r in range(1, rays):
+                sdeg[k] = not _ray(g, c, r, rays, tx, ty, tz, sx, sy, sz, radius, key, eps, so, sd, st, k,
+                                   ox, oy, oz)
+                k += 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _reduce(i0, i1, rays, cage_off, soff, pdeg, ptri, pback, double_sided, sdeg, socc, theta, dont_care):
+    """θ (n, 8) uint8 = round(255 · unblocked / rays) (0 for OFF), and the inside vote (module doc).
+
+    ptri / pback: the primary rays' hit triangle (−1 on a miss) and back-face flag;
+    double_sided (T,) bool; socc: the secondary rays' occlusion.
+    """
+    for i in range(i0, i1):
+        vin, vout = 0, 0
+        k = soff[i]
+        for c in range(8):
+            j = i * 8 + c
+            free = pdeg[j] or ptri[j] < 0
+            if free:
+                if cage_off[i, c]:
+                    vin += 1
                 else:
-                    so[ns, 0], so[ns, 1], so[ns, 2] = ox, oy, oz
-                    sd[ns, 0], sd[ns, 1], sd[ns, 2] = dx * inv, dy * inv, dz * inv
-                    st[ns] = tf
-                    sslot[ns] = slot
-                    ns += 1
-    return np_, ns
-
-
-@numba.njit(cache=True)
-def _reduce(n, rays, pslot, phit, pback, sslot, socc, slot_off, visible, vin, vout, theta, dont_care):
-    """Count unblocked rays and inside/outside votes; write θ (n, 8) uint8 and dont_care (n,)."""
-    for j in range(pslot.shape[0]):
-        s = pslot[j]
-        i = s // 8
-        if phit[j]:
-            if pback[j]:
-                vin[i] += 1
+                    vout += 1
+            elif pback[j] and not double_sided[ptri[j]]:
+                vin += 1
             else:
-                vout[i] += 1
-        else:
-            visible[s] += 1
-            if slot_off[s]:
-                vin[i] += 1
-            else:
-                vout[i] += 1
-    for j in range(sslot.shape[0]):
-        if not socc[j]:
-            visible[sslot[j]] += 1
-    for i in range(n):
-        dont_care[i] = vin[i] > vout[i]
-        for c in range(8):
-            s = i * 8 + c
-            if slot_off[s]:
+                vout += 1
+            if cage_off[i, c]:
                 theta[i, c] = 0
-            else:
-                theta[i, c] = (visible[s] * 510 + rays) // (2 * rays)  # round(255 · visible / rays)
+                continue
+            vis = 1 if free else 0
+            for r in range(1, rays):
+                if sdeg[k] or not socc[k]:
+                    vis += 1
+                k += 1
+            theta[i, c] = (vis * 510 + rays) // (2 * rays)  # round(255 · vis / rays), exact
+        dont_care[i] = vin > vout
 
 
 # ---------------------------------------------------------------------- θ of one slab
@@ -361,26 +380,44 @@ def _prepare(caster, counts, origin, spacing, positions, states, S, rays, jitter
 
 
 class _Buffers:
-    """Ray buffers for up to ``n`` samples of ``rays`` rays per corner, reused across chunks."""
+    """Ray buffers for chunks of up to ``n`` samples, reused across chunks (secondary grown on demand)."""
 
     def __init__(self, n: int, rays: int):
-        m, ms = n * 8, n * 8 * (rays - 1)
+        m = n * 8
         self.po, self.pd = np.empty((m, 3), np.float32), np.empty((m, 3), np.float32)
-        self.pt, self.pslot = np.empty(m, np.float32), np.empty(m, np.int64)
-        self.so, self.sd = np.empty((ms, 3), np.float32), np.empty((ms, 3), np.float32)
-        self.st, self.sslot = np.empty(ms, np.float32), np.empty(ms, np.int64)
-        self.visible, self.slot_off = np.empty(m, np.int32), np.empty(m, bool)
-        self.vin, self.vout = np.empty(n, np.int32), np.empty(n, np.int32)
+        self.pt, self.pdeg = np.empty(m, np.float32), np.empty(m, bool)
+        self.cage, self.cage_off = np.empty((n, 8), np.int64), np.empty((n, 8), bool)
+        self.nsec, self.soff = np.empty(n, np.int64), np.empty(n, np.int64)
+        self.secondary(0)
+
+    def secondary(self, ms: int):
+        if not hasattr(self, "st") or self.st.shape[0] < ms:
+            self.so, self.sd = np.empty((ms, 3), np.float32), np.empty((ms, 3), np.float32)
+            self.st, self.sdeg = np.empty(ms, np.float32), np.empty(ms, bool)
 
 
-def _chunk_rays(buf, g0, n, grid, probes, off, rays, radius, key, eps):
-    """Build the rays of samples g0 .. g0 + n − 1 into ``buf``; returns (n_primary, n_secondary)."""
-    buf.visible[: n * 8] = 0
-    buf.vin[:n] = 0
-    buf.vout[:n] = 0
-    return _build_rays(g0, n, *grid, probes, off, rays, radius, key, eps,
-                       buf.po, buf.pd, buf.pt, buf.pslot, buf.so, buf.sd, buf.st, buf.sslot,
-                       buf.visible, buf.vin, buf.vout, buf.slot_off)
+def _split(pool, fn, n: int, *args) -> None:
+    """Run ``fn(i0, i1, *args)`` over [0, n) cut into one contiguous part per pool thread."""
+    if pool is None or n < 1024:
+        fn(0, n, *args)
+        return
+    k = pool.threads
+    cuts = [n * t // k for t in range(k + 1)]
+    for f in [pool.submit(fn, cuts[t], cuts[t + 1], *args) for t in range(k)]:
+        f.result()
+
+
+def _chunk_rays(buf, g0, n, grid, probes, off, rays, radius, key, eps, pool=None) -> int:
+    """Build the rays of samples g0 .. g0 + n − 1 into ``buf`` (8n primary); returns the secondary count."""
+    _corners_kernel(g0, n, *grid, off, rays, buf.cage, buf.cage_off, buf.nsec)
+    soff = buf.soff[:n]
+    np.cumsum(buf.nsec[:n], out=soff)
+    ms = int(soff[-1]) if n else 0
+    soff -= buf.nsec[:n]  # exclusive prefix sum
+    buf.secondary(ms)
+    _split(pool, _build_rays, n, g0, *grid, probes, buf.cage, buf.cage_off, soff, rays, radius, key, eps,
+                buf.po, buf.pd, buf.pt, buf.pdeg, buf.so, buf.sd, buf.st, buf.sdeg)
+    return ms
 
 
 def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, rays=1, jitter=0.05, seed=0,
@@ -437,24 +474,33 @@ def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, r
     g0 = z0 * Y * X
     grid = _grid_args(counts, origin, spacing, S)
     buf = _Buffers(min(step, n_all), rays)
-    for a in range(0, n_all, step):
-        n = min(n_all, a + step) - a
-        t0 = time.perf_counter()
-        k1, k2 = _chunk_rays(buf, g0 + a, n, grid, probes, off, rays, radius, key, eps)
-        t1 = time.perf_counter()
-        h = caster.intersect(buf.po[:k1], buf.pd[:k1], tfar=buf.pt[:k1])
-        phit = h.tri >= 0
-        pback = h.backface & ~ds[np.maximum(h.tri, 0)]
-        socc = caster.occluded(buf.so[:k2], buf.sd[:k2], tfar=buf.st[:k2]) if k2 else np.zeros(0, bool)
-        t2 = time.perf_counter()
-        _reduce(n, rays, buf.pslot[:k1], phit, pback, buf.sslot[:k2], socc, buf.slot_off, buf.visible,
-                buf.vin, buf.vout, theta[a:a + n], dont_care[a:a + n])
-        t3 = time.perf_counter()
-        stats["primary_rays"] += int(k1)
-        stats["secondary_rays"] += int(k2)
-        stats["build_s"] += t1 - t0
-        stats["trace_s"] += t2 - t1
-        stats["reduce_s"] += t3 - t2
+    threads = max(1, int(getattr(caster, "threads", 1)))
+    with ThreadPoolExecutor(max_workers=threads) if threads > 1 else nullcontext() as pool:
+        if pool is not None:
+            pool.threads = threads  # the numba kernels run without the GIL, one part per thread
+        _slab_loop(caster, pool, buf, n_all, step, g0, grid, probes, off, rays, radius, key, eps, ds,
+                   theta, dont_care, stats)
     stats["rays"] = stats["primary_rays"] + stats["secondary_rays"]
     stats["dont_care"] = int(dont_care.sum())
     return theta.reshape(z1 - z0, Y, X, 8), dont_care.reshape(z1 - z0, Y, X), stats
+
+
+def _slab_loop(caster, pool, buf, n_all, step, g0, grid, probes, off, rays, radius, key, eps, ds,
+               theta, dont_care, stats):
+    """Build, cast and reduce the slab's samples chunk by chunk (at most CHUNK_RAYS rays each)."""
+    for a in range(0, n_all, step):
+        n = min(n_all, a + step) - a
+        t0 = time.perf_counter()
+        ms = _chunk_rays(buf, g0 + a, n, grid, probes, off, rays, radius, key, eps, pool)
+        t1 = time.perf_counter()
+        h = caster.intersect(buf.po[: 8 * n], buf.pd[: 8 * n], tfar=buf.pt[: 8 * n])
+        socc = caster.occluded(buf.so[:ms], buf.sd[:ms], tfar=buf.st[:ms]) if ms else np.zeros(0, bool)
+        t2 = time.perf_counter()
+        _split(pool, _reduce, n, rays, buf.cage_off, buf.soff, buf.pdeg, h.tri, h.backface, ds, buf.sdeg, socc,
+                theta[a:a + n], dont_care[a:a + n])
+        t3 = time.perf_counter()
+        stats["primary_rays"] += 8 * n
+        stats["secondary_rays"] += ms
+        stats["build_s"] += t1 - t0
+        stats["trace_s"] += t2 - t1
+        stats["reduce_s"] += t3 - t2

@@ -1,0 +1,176 @@
+"""Stage ``light``: multi-bounce probe irradiance from the cached probe-ray hits (DDGI-I §3.4-3.5).
+
+Radiance along each probe ray (DESIGN stage 2):
+
+- a miss sees the sky (``scene.sky``, linear RGB radiance);
+- a back-face hit of a single-sided surface carries 0 (DDGI-P §4.1);
+- a front-face hit carries ``emission + albedo/π · (E_direct + E_indirect)`` where ``E_direct`` is the
+  irradiance from the resolved lights with shadow rays (computed once: geometry and lights do not
+  change between bounces) and ``E_indirect`` is the previous bounce's probe irradiance sampled at the
+  hit with DDGI visibility weights (:func:`workers.kernels.ddgi.sample_irradiance`).
+
+Each bounce re-shades the cached hits; nothing is re-traced except the shadow rays of the first.
+Offline, so each bounce is the full Monte Carlo estimate of DDGI-I eq 1 with no hysteresis
+(α = 0): per octahedral texel direction n, ``E(n) = π · Σ_r max(0, n·ω_r) L_r / Σ_r max(0, n·ω_r)``
+(the cosine-weighted mean radiance times π, exact for constant radiance: a furnace gives π·L).
+Bounces: a fixed count (``light.bounces``) or until the summed irradiance changes by less than
+``light.tolerance`` in one bounce (capped at ``light.max_bounces``). OFF probes stay at 0.
+
+Outputs: ``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) float32 RGBA (rgb irradiance, a = 1),
+octahedral n×n per probe with its border (grid.pack_atlas); ``probe_sh`` (nz, ny, nx, 9|4, 3) float32
+radiance SH per probe (three.js order, :mod:`workers.kernels.sh`); ``sh_l1_r``, ``sh_l1_g``,
+``sh_l1_b`` (nz, ny, nx, 4) float32 volumes holding each channel's L0 and L1 coefficients, the
+form leaking probe GI samples with hardware trilinear filtering.
+"""
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from workers.kernels.ddgi import sample_irradiance
+from workers.kernels.grid import OFF, pack_atlas, unpack_atlas
+from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.sh import sh_project
+from workers.kernels.shading import direct_irradiance, surface_at_hits
+from workers.raycast import RayCaster
+from workers.stages.base import Artifact, StageContext, StageOutput
+
+
+@dataclass
+class HitSurfaces:
+    """The shading inputs of the front-face probe-ray hits, computed once per geometry.
+
+    ``index`` (H,) flat ray indices (into P·R) of the front-face hits; ``position``, ``normal`` (unit,
+    facing the probe), ``view`` (unit, toward the probe), ``albedo``, ``emission`` : (H, 3) float32;
+    ``miss`` (P, R) bool; P, R.
+    """
+
+    index: np.ndarray
+    position: np.ndarray
+    normal: np.ndarray
+    view: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    miss: np.ndarray
+    P: int
+    R: int
+
+
+def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> HitSurfaces:
+    """Shading data of the front-face hits of the cached probe rays (trace stage outputs).
+
+    dirs : (R, 3); hits : (P, R, 4) t, u, v, backface; tri : (P, R) int32 (-1 = miss).
+    """
+    P, R = tri.shape
+    t, u, v, back = hits[..., 0], hits[..., 1], hits[..., 2], hits[..., 3] > 0.5
+    front = (tri >= 0) & ~back
+    index = np.flatnonzero(front)
+    s = surface_at_hits(scene, tri.ravel()[index], u.ravel()[index], v.ravel()[index])
+    d = np.tile(dirs, (P, 1))[index]
+    n = s["normal"].astype(np.float32)
+    n = np.where((np.einsum("ij,ij->i", n, d) > 0)[:, None], -n, n)   # shade the side the ray arrived on
+    return HitSurfaces(index=index, position=s["position"].astype(np.float32), normal=n,
+                       view=(-d).astype(np.float32), albedo=s["albedo"].astype(np.float32),
+                       emission=s["emission"].astype(np.float32), miss=tri < 0, P=P, R=R)
+
+
+def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.ndarray) -> np.ndarray:
+    """(P, n+2, n+2, 3) octahedral irradiance with border from per-ray radiance (P, R, 3). DDGI-I eq 1, α = 0."""
+    maps = math.pi * accumulate_octahedral(dirs, radiance, oct_texel_directions(n), 1.0)
+    maps[states == OFF] = 0.0
+    return add_border(maps).astype(np.float32)
+
+
+def integrate(surf: HitSurfaces, e_direct: np.ndarray, dirs: np.ndarray, sky, grid: dict, positions: np.ndarray,
+              states: np.ndarray, depth: np.ndarray, n: int, *, bounces: int | None, max_bounces: int,
+              tolerance: float, bias: float, report=lambda f: None):
+    """Iterate bounces until converged. Returns ``(irradiance (P,n+2,n+2,3), radiance (P,R,3), history)``.
+
+    e_direct : (H, 3) direct irradiance at the front-face hits; grid : counts, origin, spacing;
+    positions : (P, 3) relocated; states : (P,); depth : (P, m+2, m+2, 2) depth moments with border.
+    """
+    P, R = surf.P, surf.R
+    sky = np.asarray(sky, np.float32)
+    base = surf.emission + surf.albedo / math.pi * e_direct
+    radiance = np.zeros((P * R, 3), np.float32)
+    radiance[surf.miss.ravel()] = sky
+    irr = np.zeros((P, n + 2, n + 2, 3), np.float32)
+    history: list[float] = []
+    cap = bounces if bounces is not None else max_bounces
+    for b in range(1, cap + 1):
+        if b == 1:
+            indirect = 0.0
+        else:
+            indirect = sample_irradiance(surf.position, surf.normal, surf.view, grid["counts"], grid["origin"],
+                                         grid["spacing"], positions, states, irr, depth, bias)
+        radiance[surf.index] = base + surf.albedo / math.pi * indirect
+        new = irradiance_maps(dirs, radiance.reshape(P, R, 3), n, states)
+        total = float(np.abs(new).sum())
+        change = float(np.abs(new - irr).sum()) / total if total > 0 else 0.0
+        history.append(change)
+        irr = new
+        report(b / cap)
+        if bounces is None and b >= 2 and change < tolerance:
+            break
+    return irr, radiance.reshape(P, R, 3), history
+
+
+def run_light(ctx: StageContext) -> StageOutput:
+    sec = ctx.config.light
+    scene = ctx.scene
+    place = ctx.inputs["place"].stats
+    grid = {k: place[k] for k in ("counts", "origin", "spacing")}
+    counts = grid["counts"]
+    nx, ny, nz = counts
+    tr = ctx.inputs["trace"]
+    dirs = tr["ray_directions"]
+    hits, tri = tr["ray_hits"], tr["ray_tri"]
+    states = tr["probe_states"].reshape(-1)
+    m = ctx.config.trace.depth_texels + 2
+    depth = unpack_atlas(tr["depth_moments"], counts, m)
+    positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float32)
+    lit = ctx.inputs["ingest"]["lights"]
+
+    t0 = time.perf_counter()
+    surf = hit_surfaces(scene, dirs, hits, tri)
+    bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
+    eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
+    caster = RayCaster(scene.triangles)
+    e_direct = direct_irradiance(surf.position, surf.normal, lit["lights"], caster, eps)
+    t_direct = time.perf_counter() - t0
+    ctx.report(0.1)
+
+    t1 = time.perf_counter()
+    irr, radiance, history = integrate(
+        surf, e_direct, dirs, lit["sky"], grid, positions, states, depth, sec.irradiance_texels,
+        bounces=sec.bounces, max_bounces=sec.max_bounces, tolerance=sec.tolerance, bias=sec.self_shadow_bias,
+        report=lambda f: ctx.report(0.1 + 0.85 * f))
+    t_bounces = time.perf_counter() - t1
+
+    sh = sh_project(dirs, radiance, order=sec.sh_order).astype(np.float32)     # (P, 9|4, 3)
+    sh[states == OFF] = 0.0
+    shv = sh.reshape(nz, ny, nx, sh.shape[1], 3)
+    rgba = np.concatenate([irr, np.ones(irr.shape[:-1] + (1,), np.float32)], axis=-1)
+    active = states != OFF
+    stats = {
+        "bounces": len(history), "change_per_bounce": history,
+        "converged": sec.bounces is None and len(history) >= 2 and history[-1] < sec.tolerance,
+        "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
+        "direct_seconds": t_direct, "bounce_seconds": t_bounces,
+        "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
+    }
+    n2 = sec.irradiance_texels + 2
+    return StageOutput(
+        artifacts=[
+            Artifact("irradiance", pack_atlas(rgba, counts), description="octahedral probe irradiance with border",
+                     meta={"tile": n2, "texels": sec.irradiance_texels}),
+            Artifact("probe_sh", shv, format="npy", description="radiance SH per probe (three.js order), linear RGB"),
+            *[Artifact(f"sh_l1_{c}", np.ascontiguousarray(shv[..., :4, i]),
+                       description=f"L0 + L1 radiance SH of the {c} channel per probe")
+              for i, c in enumerate("rgb")],
+        ],
+        stats=stats,
+    )
