@@ -174,8 +174,9 @@ class VisibilitySection(_Strict):
     rays: int = Field(1, ge=1, le=64, description="occlusion rays per sample and probe: 1 = binary, more = soft")
     jitter: float = Field(0.05, ge=0.0, le=0.5,
                           description="radius of the jittered ray targets around a probe, fraction of the spacing")
-    slabs: int | None = Field(None, ge=1, le=1024,
-                              description="RQ jobs the field is split into (z slabs); default: one per 4 cell layers")
+    slabs: int = Field(4, ge=1, le=256,
+                       description="RQ jobs the field is split into (z slabs of whole cell layers; "
+                                   "slabs beyond the layer count are empty); the result does not depend on it")
 
 
 class BakeConfig(_Strict):

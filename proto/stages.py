@@ -39,6 +39,8 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     StageDef("light", 1, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    StageDef("visibility", 1, ("visibility", "seed"), ("place", "relocate", "trace"), timeout=3600,
+             shards_from="visibility.slabs"),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 

@@ -32,8 +32,8 @@ async def _recover_loop(app: FastAPI) -> None:
         try:
             await asyncio.to_thread(queue.recover, st.redis, st.catalog, 0.0 if first else 10.0)
             first = False
-        except Exception as e:
-            log.debug("recovery skipped: %s", e)
+        except Exception as e:  # Redis unreachable (it comes back later) or a bug: say so, keep serving
+            log.warning("recovery skipped: %s", e)
         await asyncio.sleep(st.settings.recover_interval_s)
 
 

@@ -30,9 +30,14 @@ def connect(url: str) -> redis.Redis:
     return redis.Redis.from_url(url, socket_connect_timeout=5, socket_timeout=30, health_check_interval=10)
 
 
+def job_id(bake_id: str, attempt: int, stage: str) -> str:
+    """RQ job ids allow letters, digits, '_' and '-': shard names ``visibility.0`` become ``visibility_0``."""
+    return f"{bake_id}-{attempt}-{stage.replace('.', '_')}"
+
+
 def job_ids(bake: dict) -> list[str]:
     a = bake["attempt"]
-    return [f"{bake['id']}-{a}-{s['name']}" for s in bake["stages"]] + [f"{bake['id']}-{a}-finish"]
+    return [job_id(bake["id"], a, s["name"]) for s in bake["stages"]] + [job_id(bake["id"], a, "finish")]
 
 
 def enqueue_bake(conn: redis.Redis, bake: dict) -> list[str]:
@@ -52,10 +57,10 @@ def enqueue_bake(conn: redis.Redis, bake: dict) -> list[str]:
         st = stages[s["name"]]
         after = [jobs[d] for d in deps[st.name] if d in jobs]
         jobs[st.name] = q.enqueue(
-            "workers.jobs.run_stage", bake["id"], st.name, job_id=f"{bake['id']}-{a}-{st.name}",
+            "workers.jobs.run_stage", bake["id"], st.name, job_id=job_id(bake["id"], a, st.name),
             depends_on=after or None, job_timeout=st.timeout, retry=Retry(max=RETRIES),
             result_ttl=3600, failure_ttl=7 * 86400, description=f"bake {bake['id']} stage {st.name}")
-    job = q.enqueue("workers.jobs.finish_bake", bake["id"], job_id=f"{bake['id']}-{a}-finish",
+    job = q.enqueue("workers.jobs.finish_bake", bake["id"], job_id=job_id(bake["id"], a, "finish"),
                     depends_on=list(jobs.values()) or None, job_timeout=600, retry=Retry(max=RETRIES),
                     result_ttl=3600, failure_ttl=7 * 86400)
     return [j.id for j in jobs.values()] + [job.id]

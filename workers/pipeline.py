@@ -27,6 +27,7 @@ from workers.stages.light import run_light
 from workers.stages.place import run_place
 from workers.stages.relocate import run_relocate
 from workers.stages.trace import run_trace
+from workers.stages.visibility import run_visibility, run_visibility_slab
 
 RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "ingest": run_ingest,
@@ -34,8 +35,9 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "relocate": run_relocate,
     "trace": run_trace,
     "light": run_light,
+    "visibility": run_visibility,
 }
-SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {}
+SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {"visibility": run_visibility_slab}
 """Runners of the shards of sharded stages (``StageDef.shards_from``), by stage name."""
 assert set(RUNNERS) == set(STAGE_BY_NAME), "every stage in proto.stages needs a runner"
 assert all(STAGE_BY_NAME[n].shards_from for n in SHARD_RUNNERS)
@@ -82,7 +84,8 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
     with tempfile.TemporaryDirectory(dir=store.root / "tmp") as tmp:
         for art in out.artifacts:
             info = bundle.write_artifact(tmp, art.name, art.data, stage, format=art.format,
-                                         vk_format=art.vk_format, description=art.description, meta=art.meta)
+                                         vk_format=art.vk_format, zstd_level=art.zstd_level,
+                                         description=art.description, meta=art.meta)
             store.put_file(Path(tmp) / info.file, move=True)
             infos.append(info.model_dump())
     rec = {"stage": stage, "cache_key": key, "seconds": seconds, "stats": out.stats, "artifacts": infos}

@@ -38,6 +38,7 @@ class Artifact:
     data: np.ndarray | dict
     format: str = "ktx2"           # "ktx2" | "npy" | "json"
     vk_format: int | None = None   # KTX2 only; inferred from dtype/channels when None
+    zstd_level: int | None = None  # KTX2 only: Zstandard supercompression level
     description: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
 

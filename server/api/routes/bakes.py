@@ -9,6 +9,7 @@ import tempfile
 import time
 from typing import Literal
 
+import redis
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import FileResponse, StreamingResponse
 from pydantic import BaseModel, ConfigDict, Field
@@ -90,8 +91,13 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
     else:
         try:
             queue.enqueue_bake(request.app.state.redis, catalog.get_bake(bake_id))
-        except Exception as e:  # Redis down: the bake is in the catalog; recovery enqueues it later
+        except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as e:
+            # Redis down: the bake is safe in the catalog; recovery enqueues it once Redis is back
             log.warning("could not enqueue bake %s now (%s); recovery will", bake_id, e)
+        except Exception as e:
+            log.exception("enqueueing bake %s failed", bake_id)
+            catalog.set_bake_status(bake_id, "failed", error={"stage": None, "code": "internal",
+                                                              "message": f"could not enqueue: {e}"})
     bake = catalog.get_bake(bake_id)
     return {"id": bake_id, "status": bake["status"], "links": links(bake_id)}
 
