@@ -314,9 +314,16 @@ def _accumulate_octahedral(rd, val, td, power, budget_bytes: int = _ACCUMULATE_B
     wsum = np.zeros((p_count, t_count), dtype=np.float32)
     chunk = max(1, budget_bytes // max(1, 4 * t_count * r_count))
     shared = rd.ndim == 2
-    if shared:  # one pattern for every probe: the (T, R) weights are computed once
+    if shared:  # one pattern for every probe: the (T, R) weights are computed once, and the sums over
+        # rays of all probes and channels are one matrix product (T, R) @ (R, P·C)
         w_shared = _cosine_power(tflat @ rd.T, power)
         den_shared = w_shared.sum(axis=-1)  # Σ_r w
+        num = w_shared @ np.ascontiguousarray(val.transpose(1, 0, 2)).reshape(r_count, p_count * c_count)
+        num = num.reshape(t_count, p_count, c_count).transpose(1, 0, 2)
+        ok = den_shared > 0
+        np.divide(num, den_shared[None, :, None], out=mean, where=ok[None, :, None])
+        wsum[:] = den_shared
+        return mean.reshape((p_count,) + t_shape + (c_count,)), wsum.reshape((p_count,) + t_shape)
     for p0 in range(0, p_count, chunk):
         p1 = min(p_count, p0 + chunk)
         if shared:

@@ -443,7 +443,7 @@ def _prepare(caster, counts, origin, spacing, positions, states, S, rays, jitter
     sp = np.asarray(spacing, np.float64).reshape(3)
     live = sp[(counts > 1) & (sp > 0)]
     radius = jitter * float(live.min()) if live.size else 0.0
-    key = _mix(_U(int(seed) & 0xFFFFFFFFFFFFFFFF) ^ _SEED_SALT)
+    key = _U(_mix(_U(int(seed) & 0xFFFFFFFFFFFFFFFF) ^ _SEED_SALT))  # numba returns a Python int
     eps = TFAR_EPS * float(caster.scale)
     return S, counts, probes, st == OFF, rays, _ball(key, radius, rays), key, eps
 
@@ -533,7 +533,8 @@ def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, r
         Sample inside geometry (module doc): weight 0 in MD eq 5-6. Its θ is still written.
     stats : dict
         ``rays`` (cast), ``primary_rays`` (intersect), ``secondary_rays`` (occluded),
-        ``samples``, ``dont_care`` (count), ``build_s``, ``trace_s``, ``reduce_s`` (seconds).
+        ``samples``, ``dont_care`` (count), ``build_s``, ``trace_s`` (= ``ray_seconds``: time in the
+        caster), ``reduce_s`` (seconds).
     """
     S, counts, probes, off, rays, ball, key, eps = _prepare(caster, counts, origin, spacing, positions, states,
                                                             S, rays, jitter, seed)
@@ -555,6 +556,7 @@ def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, r
         _slab_loop(caster, pool, buf, n_all, step, g0, grid, probes, off, rays, ball, key, eps, ds,
                    theta, dont_care, stats)
     stats["rays"] = stats["primary_rays"] + stats["secondary_rays"]
+    stats["ray_seconds"] = stats["trace_s"]
     stats["dont_care"] = int(dont_care.sum())
     return theta.reshape(z1 - z0, Y, X, 8), dont_care.reshape(z1 - z0, Y, X), stats
 

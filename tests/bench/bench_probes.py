@@ -1,0 +1,173 @@
+"""Probe-bake benchmark (Probe bake issue): run by hand, not part of the test command.
+
+    .venv/bin/python tests/bench/bench_probes.py [--grids 16x8x16,32x16x32] [--rays 256] [--samples 8]
+
+On ../shared/scenes/zdm2-sauerbraten (58k triangles; it has no lights, so a sun and a sky are added)
+runs relocate, trace, light (3 bounces) and visibility (θ, S samples per cell) in this process with
+the real pipeline, timing each stage (wall clock), and next to each stage times raw embreex (2 threads,
+no validation, nothing but ``EmbreeScene.run``) on the same rays in the same run:
+
+- relocate: the final probe rays, once per relocation iteration (the iterations trace the same
+  pattern from nearly the same origins);
+- trace: the final probe rays;
+- light: the shadow rays toward the sun from the front-face hits (its other work is shading);
+- visibility: the θ rays (sample -> each corner probe).
+
+Prints a table and the same numbers as JSON on the last line. Numba kernels are compiled (or loaded
+from cache) by a small warm-up bake first, outside the timings.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from proto.models import BakeConfig  # noqa: E402
+from proto.stages import plan  # noqa: E402
+from proto.store import Store  # noqa: E402
+from workers import pipeline  # noqa: E402
+from workers.ingest import ingest_file  # noqa: E402
+from workers.kernels.visibility import field_shape, sample_positions  # noqa: E402
+
+SCENE = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
+SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0, "color": [1.0, 0.95, 0.9]}
+CHUNK = 65536
+
+
+class RawEmbree:
+    """embreex with nothing around it: chunks over 2 threads, ``run`` only."""
+
+    def __init__(self, triangles: np.ndarray, threads: int = 2):
+        from embreex import rtcore as rtc, rtcore_scene as rtcs
+        from embreex.mesh_construction import TriangleMesh
+
+        self.scene = rtcs.EmbreeScene(rtc.EmbreeDevice())
+        TriangleMesh(self.scene, np.ascontiguousarray(triangles, np.float32))
+        self.scene.run(np.zeros((1, 3), np.float32), np.ones((1, 3), np.float32))  # build the BVH
+        self.pool = ThreadPoolExecutor(threads)
+
+    def rays_per_second(self, origins: np.ndarray, dirs: np.ndarray, occluded: bool = False,
+                        tfar: np.ndarray | None = None, repeat: int = 1) -> float:
+        o = np.ascontiguousarray(origins, np.float32)
+        d = np.ascontiguousarray(dirs, np.float32)
+        n = o.shape[0]
+        far = np.ascontiguousarray(tfar if tfar is not None else np.full(n, 1e30), np.float32)
+        query = "OCCLUDED" if occluded else "INTERSECT"
+
+        def work(s):
+            e = min(s + CHUNK, n)
+            self.scene.run(o[s:e], d[s:e], dists=far[s:e].copy(), query=query, output=0 if occluded else 1)
+
+        t0 = time.perf_counter()
+        for _ in range(repeat):
+            list(self.pool.map(work, range(0, n, CHUNK)))
+        return n * repeat / (time.perf_counter() - t0)
+
+
+def run_grid(scene, counts, rays, S, raw: RawEmbree) -> dict:
+    cfg = BakeConfig.model_validate({
+        "place": {"counts": counts}, "scene": {"lights": [SUN], "sky": [0.3, 0.35, 0.4]},
+        "trace": {"rays_per_probe": rays}, "light": {"bounces": 3},
+        "visibility": {"samples_per_cell": S, "slabs": 1},
+    })
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Store(tmp)
+        sid = store.put_bytes(scene.to_bytes())
+        times, recs = {}, {}
+        for st, _ in plan(sid, cfg):
+            t0 = time.perf_counter()
+            rec, _ = pipeline.execute_stage(store, sid, cfg, st.name)
+            times[st.name] = time.perf_counter() - t0
+            recs[st.name] = pipeline._lazy(store, rec)
+        tr = recs["trace"]
+        P = int(np.prod(counts))
+        pos = recs["relocate"]["probe_positions_relocated"].reshape(-1, 3)
+        dirs = tr["ray_directions"]
+        o = np.repeat(pos, rays, axis=0)
+        d = np.tile(dirs, (P, 1))
+        out = {"probes": P, "rays_per_probe": rays, "stages": {}}
+        raw_trace = raw.rays_per_second(o, d)
+        n_rel = recs["relocate"].stats["rays"]
+        out["stages"]["relocate"] = {"seconds": times["relocate"], "rays": n_rel, "raw_rays_per_s": raw_trace}
+        out["stages"]["trace"] = {"seconds": times["trace"], "rays": tr.stats["rays"], "raw_rays_per_s": raw_trace}
+        # light: shadow rays toward the sun from the front-face hits
+        from workers.stages.light import hit_surfaces
+        surf = hit_surfaces(scene, dirs, tr["ray_hits"], tr["ray_tri"])
+        sun = -np.asarray(SUN["direction"], np.float64)
+        sun /= np.linalg.norm(sun)
+        lit = (surf.normal @ sun) > 0
+        so = surf.position[lit] + 1e-3 * surf.normal[lit]
+        sd = np.broadcast_to(sun.astype(np.float32), so.shape)
+        raw_shadow = raw.rays_per_second(so, sd, occluded=True) if len(so) else float("nan")
+        st = recs["light"].stats
+        out["stages"]["light"] = {"seconds": times["light"], "rays": int(lit.sum()), "raw_rays_per_s": raw_shadow,
+                                  "direct_seconds": st["direct_seconds"], "bounce_seconds": st["bounce_seconds"],
+                                  "bounces": st["bounces"], "front_hits": st["front_hits"]}
+        # visibility: sample -> corner-probe rays
+        place = recs["place"].stats
+        Z, Y, X = field_shape(counts, S)
+        samples = sample_positions(counts, place["origin"], place["spacing"], S, (0, Z))
+        from workers.kernels.grid import cell_coords, cage_indices
+        base, _ = cell_coords(samples, counts, place["origin"], place["spacing"])
+        cage = cage_indices(base, counts)
+        vo = np.repeat(samples.astype(np.float32), 8, axis=0)
+        vt = pos[cage.ravel()]
+        vd = vt - vo
+        dist = np.linalg.norm(vd, axis=1)
+        vd = vd / np.maximum(dist, 1e-12)[:, None]
+        raw_vis = raw.rays_per_second(vo, vd, tfar=dist)
+        vis_seconds = sum(v for k, v in times.items() if k.startswith("visibility"))
+        out["stages"]["visibility"] = {"seconds": vis_seconds, "rays": int(vo.shape[0]), "raw_rays_per_s": raw_vis}
+        for s in out["stages"].values():
+            s["stage_rays_per_s"] = s["rays"] / s["seconds"] if s["seconds"] > 0 else float("nan")
+            s["ratio_to_raw"] = s["stage_rays_per_s"] / s["raw_rays_per_s"]
+        out["total_seconds"] = sum(out["stages"][k]["seconds"] for k in ("relocate", "trace", "light", "visibility"))
+        out["other_seconds"] = {k: v for k, v in times.items() if k in ("ingest", "place")}
+        return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--grids", default="16x8x16,32x16x32")
+    ap.add_argument("--rays", type=int, default=256)
+    ap.add_argument("--samples", type=int, default=8)
+    args = ap.parse_args()
+    if not SCENE.exists():
+        print(f"skipped: {SCENE} is absent (the benchmark reads ../shared/scenes)")
+        return 0
+    scene = ingest_file(SCENE)
+    raw = RawEmbree(scene.triangles)
+    # warm-up: compile / load numba kernels outside the timings
+    run_grid(scene, [3, 2, 3], 16, 2, raw)
+    results = {"scene": "zdm2-sauerbraten", "triangles": scene.n_triangles, "grids": {}}
+    for g in args.grids.split(","):
+        counts = [int(x) for x in g.split("x")]
+        results["grids"][g] = run_grid(scene, counts, args.rays, args.samples, raw)
+
+    print(f"zdm2-sauerbraten ({scene.n_triangles} triangles), {args.rays} rays/probe, θ at {args.samples}/cell, "
+          f"light 3 bounces, raw = embreex 2 threads on the same rays")
+    print(f"{'grid':>10s} {'stage':>11s} {'seconds':>8s} {'rays':>11s} {'stage Mray/s':>13s} "
+          f"{'raw Mray/s':>11s} {'stage/raw':>9s}")
+    for g, r in results["grids"].items():
+        for name, s in r["stages"].items():
+            print(f"{g:>10s} {name:>11s} {s['seconds']:8.2f} {s['rays']:11d} {s['stage_rays_per_s'] / 1e6:13.2f} "
+                  f"{s['raw_rays_per_s'] / 1e6:11.2f} {s['ratio_to_raw']:9.2f}")
+        target = 8.0 if g == "16x8x16" else 40.0
+        print(f"{g:>10s} {'TOTAL':>11s} {r['total_seconds']:8.2f}   (target < {target:.0f} s: "
+              f"{'met' if r['total_seconds'] < target else 'MISSED'}; light: direct "
+              f"{r['stages']['light']['direct_seconds']:.2f} s + 3 bounces {r['stages']['light']['bounce_seconds']:.2f} s)")
+    print(json.dumps(results))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
