@@ -148,10 +148,7 @@ class EmbreeRayCaster:
         n = o.shape[0]
         tn = _per_ray(tnear, n, "tnear")
         tf = _per_ray(tfar, n, "tfar")
-        if not (np.isfinite(o).all() and np.isfinite(d).all()):
-            raise ValueError("origins and dirs must be finite")
-        if not np.einsum("ij,ij->i", d, d).all():
-            raise ValueError("dirs must be non-zero")
+        # finite / non-zero checks of origins and dirs run per chunk in the worker threads (_check_chunk)
         if not np.isfinite(tn).all() or (tn < 0).any():
             raise ValueError("tnear must be finite and >= 0")
         if np.isnan(tf).any() or (tf < tn).any():
@@ -160,6 +157,14 @@ class EmbreeRayCaster:
             o = np.ascontiguousarray(np.asarray(origins, np.float64) + tn[:, None] * np.asarray(dirs, np.float64),
                                      dtype=np.float32)
         return o, d, tn, (tf - tn).astype(np.float32)
+
+    @staticmethod
+    def _check_chunk(o: np.ndarray, d: np.ndarray) -> None:
+        """Validate one chunk of rays (in the worker thread: numpy releases the GIL on big arrays)."""
+        if not (np.isfinite(o).all() and np.isfinite(d).all()):
+            raise ValueError("origins and dirs must be finite")
+        if not np.einsum("ij,ij->i", d, d).all():
+            raise ValueError("dirs must be non-zero")
 
     def _map_chunks(self, fn, n: int):
         bounds = [(s, min(n, s + self.chunk_size)) for s in range(0, n, self.chunk_size)]
@@ -201,6 +206,7 @@ class EmbreeRayCaster:
             return Hits(t=t, tri=tri, u=u, v=v, backface=back)
 
         def work(s: int, e: int) -> None:
+            self._check_chunk(o[s:e], d[s:e])
             res = self._scene.run(o[s:e], d[s:e], dists=tf[s:e].copy(), output=1)  # run overwrites dists
             prim = res["primID"]
             hit = prim >= 0
@@ -233,6 +239,7 @@ class EmbreeRayCaster:
             return out
 
         def work(s: int, e: int) -> None:
+            self._check_chunk(o[s:e], d[s:e])
             res = self._scene.run(o[s:e], d[s:e], dists=tf[s:e].copy(), query="OCCLUDED")
             out[s:e] = res == 0  # embreex 4.4: 0 = occluded, -1 = free
 
