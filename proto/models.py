@@ -179,6 +179,55 @@ class VisibilitySection(_Strict):
                                    "slabs beyond the layer count are empty); the result does not depend on it")
 
 
+class MasksSection(_Strict):
+    """Mask Decomposition (MD §3.2-3.4; stages anneal, masks, compress)."""
+
+    clusters: int = Field(4, ge=1, le=8, description="K, the number of probe clusters (mask channels)")
+    coloring: Literal["anneal", "parity"] = Field(
+        "anneal", description="'anneal' (MD §3.3, eq 7 + eq 8) or 'parity' (eq 4, needs clusters = 8)")
+    sweeps: int = Field(1000, ge=0, le=100000, description="simulated-annealing sweeps over all probes")
+    regularization: float = Field(0.001, ge=0.0, le=10.0, description="λ of eq 8")
+    sigma: float = Field(0.5, ge=0.0, le=8.0, description="Gaussian filter of the masks, in refined-grid samples")
+    light_aware: bool = Field(False, description="fit the masks to the light field (eq 9) after eq 5")
+    light_aware_penalty: float = Field(0.001, ge=0.0, le=10.0,
+                                       description="λ of eq 9's penalty on channels that were 0 before the fit")
+    compress_tolerance: float = Field(0.0, ge=0.0, le=0.5,
+                                      description="merge mask blocks whose values differ by at most this (0 = lossless)")
+
+    @model_validator(mode="after")
+    def _parity_needs_8(self) -> "MasksSection":
+        if self.coloring == "parity" and self.clusters != 8:
+            raise ValueError("coloring 'parity' (MD eq 4) needs clusters = 8")
+        return self
+
+
+class LightRange(_Strict):
+    """A random-light distribution for PRT datasets (PRT §4.1)."""
+
+    types: list[Literal["point", "spot", "directional"]] = Field(["point"], min_length=1)
+    count: int = Field(1, ge=1, le=8, description="lights per configuration")
+    box: Box | None = Field(None, description="where point/spot lights are placed; default: the scene bounds")
+    color_min: Vec3 = Field((1.0, 1.0, 1.0), description="linear RGB, per channel lower bound")
+    color_max: Vec3 = Field((1.0, 1.0, 1.0), description="linear RGB, per channel upper bound")
+    intensity_min: float = Field(1.0, ge=0.0, le=1e9)
+    intensity_max: float = Field(10.0, ge=0.0, le=1e9)
+
+
+class PrtSection(_Strict):
+    """Data-driven PRT (PRT §3-5; stage prt). Off unless enabled."""
+
+    enabled: bool = Field(False, description="bake a relightable transfer")
+    scenario: LightRange = Field(default_factory=LightRange)
+    configurations: int = Field(128, ge=4, le=4096, description="N, random lighting configurations")
+    measurement_points: int = Field(256, ge=4, le=65536, description="M, blue-noise points on the surfaces")
+    supersampling: int = Field(1, ge=1, le=64, description="direct samples averaged per measurement point (§5.1)")
+    basis: int = Field(16, ge=1, le=512, description="n, basis vectors kept")
+    ridge: float = Field(1e-3, ge=0.0, le=1e3, description="λ of eq 14 (0 = pseudo-inverse, eq 13)")
+    gamma: float | None = Field(None, gt=0.0, le=4.0, description="work in gamma space with this exponent (§5.3)")
+    channels: Literal["mono", "multi"] = Field("mono", description="mono: one basis for each colour channel (§5.2)")
+    lightmap: int = Field(256, ge=0, le=4096, description="lightmap resolution (0 = no lightmap target)")
+
+
 class BakeConfig(_Strict):
     """A bake's settings, one section per stage.
 
@@ -192,6 +241,8 @@ class BakeConfig(_Strict):
     trace: TraceSection = Field(default_factory=TraceSection)
     light: LightSection = Field(default_factory=LightSection)
     visibility: VisibilitySection = Field(default_factory=VisibilitySection)
+    masks: MasksSection = Field(default_factory=MasksSection)
+    prt: PrtSection = Field(default_factory=PrtSection)
 
     def section_hash(self, *names: str) -> str:
         """sha256 (hex) of the canonical JSON of the named sections (``"seed"`` allowed)."""
