@@ -23,12 +23,13 @@ import io
 import math
 import os
 import struct
-import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
+
+from proto.store import atomic_write_bytes
 import pyzstd
 
 from proto.models import FORMAT_VERSION
@@ -525,26 +526,6 @@ def decode_ktx2(data: bytes | bytearray | memoryview) -> tuple[np.ndarray, dict[
 
 
 # --------------------------------------------------------------------------- files
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> int:
-    """Write ``data`` to ``path`` through a temp file in the same folder and ``os.replace``."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.chmod(tmp, 0o644)
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
-    return len(data)
 
 
 def write_ktx2(path_or_fileobj: str | os.PathLike[str] | BinaryIO, array: np.ndarray,

@@ -18,7 +18,7 @@ from typing import Callable
 
 from proto import bundle
 from proto.models import ArtifactInfo, BakeConfig, Manifest
-from proto.stages import STAGE_BY_NAME, build_manifest, export_bundle, plan  # noqa: F401 (re-exported)
+from proto.stages import STAGE_BY_NAME, build_manifest, plan
 from proto.store import Store
 from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput

@@ -69,11 +69,11 @@ from __future__ import annotations
 import json
 import os
 import struct
-import tempfile
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
+
+from proto.store import atomic_write_bytes
 
 __all__ = ["SCENES", "BAKE_BOXES", "make_scene", "write_scene"]
 
@@ -420,18 +420,4 @@ def make_scene(name: str) -> bytes:
 
 def write_scene(name: str, path: str | os.PathLike) -> None:
     """Write :func:`make_scene` (name) to ``path`` atomically (temp file in the same folder + rename)."""
-    data = make_scene(name)
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except FileNotFoundError:
-            pass
-        raise
+    atomic_write_bytes(path, make_scene(name))

@@ -65,7 +65,7 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     dirs : (R, 3); hits : (P, R, 4) t, u, v, backface; tri : (P, R) int32 (-1 = miss).
     """
     P, R = tri.shape
-    t, u, v, back = hits[..., 0], hits[..., 1], hits[..., 2], hits[..., 3] > 0.5
+    u, v, back = hits[..., 1], hits[..., 2], hits[..., 3] > 0.5
     front = (tri >= 0) & ~back
     index = np.flatnonzero(front)
     s = surface_at_hits(scene, tri.ravel()[index], u.ravel()[index], v.ravel()[index])
