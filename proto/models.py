@@ -245,9 +245,14 @@ class BakeConfig(_Strict):
     prt: PrtSection = Field(default_factory=PrtSection)
 
     def section_hash(self, *names: str) -> str:
-        """sha256 (hex) of the canonical JSON of the named sections (``"seed"`` allowed)."""
+        """sha256 (hex) of the canonical JSON of the named sections (``"seed"`` allowed); a dotted name
+        (``"masks.sigma"``) takes one field of a section, so a stage's key follows only what it reads."""
         data = self.model_dump(mode="json")
-        payload = json.dumps({n: data[n] for n in names}, sort_keys=True, separators=(",", ":"))
+        picked = {}
+        for n in names:
+            section, _, field = n.partition(".")
+            picked[n] = data[section][field] if field else data[section]
+        payload = json.dumps(picked, sort_keys=True, separators=(",", ":"))
         return hashlib.sha256(payload.encode()).hexdigest()
 
 

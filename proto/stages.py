@@ -39,8 +39,13 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     StageDef("light", 1, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
-    StageDef("visibility", 1, ("visibility", "seed"), ("place", "relocate", "trace"), timeout=3600,
-             shards_from="visibility.slabs"),
+    StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
+             ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
+    StageDef("anneal", 1, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),
+             ("place", "trace", "visibility"), timeout=3600),
+    StageDef("masks", 1, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
+             ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
+    StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 

@@ -22,7 +22,10 @@ from proto.stages import STAGE_BY_NAME, build_manifest, plan
 from proto.store import Store
 from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput
+from workers.stages.anneal import run_anneal
+from workers.stages.compress import run_compress
 from workers.stages.ingest import run_ingest
+from workers.stages.masks import run_masks
 from workers.stages.light import run_light
 from workers.stages.place import run_place
 from workers.stages.relocate import run_relocate
@@ -36,6 +39,9 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "trace": run_trace,
     "light": run_light,
     "visibility": run_visibility,
+    "anneal": run_anneal,
+    "masks": run_masks,
+    "compress": run_compress,
 }
 SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {"visibility": run_visibility_slab}
 """Runners of the shards of sharded stages (``StageDef.shards_from``), by stage name."""

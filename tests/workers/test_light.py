@@ -82,3 +82,18 @@ def test_light_rerun_reuses_trace(tmp_path, scene_files):
     b = BakeConfig.model_validate({"light": {"bounces": 5}})
     ka, kb = dict((s.name, k) for s, k in plan("x", a)), dict((s.name, k) for s, k in plan("x", b))
     assert ka["trace"] == kb["trace"] and ka["light"] != kb["light"]
+
+
+def test_sealed_box_no_leak_with_cells_straddling_the_walls(tmp_path, scene_files):
+    """Cages of hits inside the box mix cavity and outside probes: ray-traced visibility keeps it dark."""
+    counts = [9, 5, 9]
+    cfg = {"place": {"counts": counts, "box": {"min": [-1.5, 0.1, -1.5], "max": [1.5, 1.2, 1.5]}}}
+    _, s = bake_until(tmp_path, scene_files["sealed-box"], cfg, "light")
+    place = s["place"].stats
+    pos = base_positions(counts, place["origin"], place["spacing"])
+    e = probe_irradiance(s, counts).mean(axis=1)
+    inside = np.all(np.abs(pos - [0, 0.5, 0]) < 0.45, axis=1)
+    outside = np.all(np.abs(pos[:, [0, 2]]) > 0.6, axis=1)
+    assert inside.sum() >= 8 and s["light"].stats["bounces"] >= 2
+    assert e[outside].mean() > 0.1
+    assert np.all(e[inside] < 1e-3 * e[outside].mean())

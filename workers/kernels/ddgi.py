@@ -57,7 +57,7 @@ from numba import njit
 
 from workers.kernels.grid import OFF
 
-__all__ = ["sample_irradiance", "octahedral_bilinear", "bias_scale", "NORMAL_BIAS", "VIEW_BIAS"]
+__all__ = ["sample_irradiance", "cage_probes", "octahedral_bilinear", "bias_scale", "NORMAL_BIAS", "VIEW_BIAS"]
 
 NORMAL_BIAS = 0.2  # weight of n in the self-shadow bias direction (DDGI-P eq 2)
 VIEW_BIAS = 0.8  # weight of ω_o (DDGI-P eq 2)
@@ -159,7 +159,7 @@ def bias_scale(spacing, self_shadow_bias: float = 0.3) -> float:
 
 @njit(cache=True, nogil=True)
 def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, irr, depth,
-                              out):
+                              visible, out):
     n_irr = irr.shape[1] - 2
     n_dep = depth.shape[1] - 2
     nx = counts[0]
@@ -212,6 +212,8 @@ def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, b
             gk = min(base[2] + o2, counts[2] - 1)
             q = gi + nx * (gj + ny * gk)
             if states[q] == OFF:  # never used (a numba compile-time constant)
+                continue
+            if visible.shape[0] and visible[i, c] == 0:  # ray-traced visibility: the probe is occluded
                 continue
             p0 = probe_pos[q, 0]
             p1 = probe_pos[q, 1]
@@ -279,7 +281,7 @@ def _float_rows(a, name: str, n: int | None = None) -> np.ndarray:
 
 
 def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe_positions, states, irradiance,
-                      depth, self_shadow_bias: float = 0.3) -> np.ndarray:
+                      depth, self_shadow_bias: float = 0.3, visible=None) -> np.ndarray:
     """DDGI probe irradiance at surface points (DDGI-P §2.2 probe query, eq 2 bias; see module doc).
 
     Parameters
@@ -305,6 +307,11 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
         Bordered octahedral depth moments: mean distance (m) and mean squared distance (m²).
     self_shadow_bias : float
         B of DDGI-P eq 2 (0.3 by default, the paper's value).
+    visible : (N, 8) bool or uint8, optional
+        Ray-traced visibility of each cage corner from the biased point (:func:`cage_probes` gives the
+        corners' probes): a corner with 0 is skipped like an OFF probe. The offline light stage uses
+        it on top of the Chebyshev test, which alone lets light leak through thin walls when the
+        visible side's probes have small trilinear weights (normalization amplifies the 5% floor).
 
     Returns
     -------
@@ -348,8 +355,60 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     mdt = np.float32 if irr.dtype == np.float32 and dep.dtype == np.float32 else np.float64
     irr = np.ascontiguousarray(irr, dtype=mdt)
     dep = np.ascontiguousarray(dep, dtype=mdt)
+    if visible is None:
+        vis = np.zeros((0, 8), np.uint8)
+    else:
+        vis = np.ascontiguousarray(visible, np.uint8)
+        if vis.shape != (n, 8):
+            raise ValueError(f"sample_irradiance: visible must be ({n}, 8), got {vis.shape}")
     out = np.empty((n, 3), np.float32)
     if n:
         bias = bias_scale(spc, self_shadow_bias)  # 0.75·D·B (DDGI-P eq 2)
-        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias, pos, st, irr, dep, out)
+        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias, pos, st, irr, dep, vis, out)
     return out
+
+
+@njit(cache=True, nogil=True)
+def _cage_kernel(points, normals, views, counts, origin, spacing, bias, biased, cage):
+    nx = counts[0]
+    ny = counts[1]
+    for i in range(points.shape[0]):
+        for a in range(3):  # the same arithmetic as _sample_irradiance_kernel
+            bp = float(points[i, a]) + (float(normals[i, a]) * NORMAL_BIAS + float(views[i, a]) * VIEW_BIAS) * bias
+            biased[i, a] = bp
+        base0 = base1 = base2 = 0
+        for a in range(3):
+            g = (biased[i, a] - origin[a]) / spacing[a] if spacing[a] > 0.0 else 0.0
+            hi = max(counts[a] - 2, 0)
+            b = int(min(max(math.floor(g), 0.0), float(hi))) if math.isfinite(g) else 0
+            if a == 0:
+                base0 = b
+            elif a == 1:
+                base1 = b
+            else:
+                base2 = b
+        for c in range(8):
+            gi = min(base0 + (c & 1), counts[0] - 1)
+            gj = min(base1 + ((c >> 1) & 1), counts[1] - 1)
+            gk = min(base2 + ((c >> 2) & 1), counts[2] - 1)
+            cage[i, c] = gi + nx * (gj + ny * gk)
+
+
+def cage_probes(points, normals, view_dirs, counts, origin, spacing, self_shadow_bias: float = 0.3):
+    """The biased points and their 8 cage probes exactly as :func:`sample_irradiance` picks them.
+
+    Returns ``biased (N, 3) float64`` (x + eq-2 bias) and ``cage (N, 8) int64`` flattened probe indices
+    (corner c has offset (c & 1, c >> 1 & 1, c >> 2 & 1)); use them to trace visibility rays.
+    """
+    pts = np.ascontiguousarray(_float_rows(points, "points"), np.float64)
+    n = pts.shape[0]
+    nrm = np.ascontiguousarray(_float_rows(normals, "normals", n), np.float64)
+    view = np.ascontiguousarray(_float_rows(view_dirs, "view_dirs", n), np.float64)
+    cnt = np.asarray(counts, np.int64).ravel()
+    spc = np.asarray(spacing, np.float64).ravel()
+    biased = np.empty((n, 3), np.float64)
+    cage = np.empty((n, 8), np.int64)
+    if n:
+        _cage_kernel(pts, nrm, view, cnt, np.asarray(origin, np.float64).ravel(), spc,
+                     bias_scale(spc, self_shadow_bias), biased, cage)
+    return biased, cage

@@ -1,0 +1,41 @@
+// Scene surfaces: L_out = emission + albedo/π · (E_direct + E_indirect) (DESIGN stage 2, Lambertian),
+// with E_indirect from the GI mode bound to the @mode slot. Output is display-encoded (tonemap.glsl).
+// Define KILN_SHADOWS to shadow the direct light with shadows.glsl (the caller renders the maps).
+#include "common.glsl"
+#ifdef KILN_SHADOWS
+#define KILN_LIGHT_VISIBILITY 1
+#endif
+#include "lights.glsl"
+#ifdef KILN_SHADOWS
+#include "shadows.glsl"
+#endif
+#include "tonemap.glsl"
+#include "@mode"
+
+uniform vec3 uBaseColor;           // linear RGB (glTF baseColorFactor)
+uniform sampler2D uBaseColorMap;   // sRGB texture, decoded to linear by the sampler
+uniform bool uHasBaseColorMap;
+uniform vec3 uEmissive;            // linear RGB radiance (emissiveFactor · strength)
+uniform float uIndirectScale;      // 1 normally, 0 to hide GI
+uniform int uOutput;               // 0 shaded, 1 indirect irradiance only, 2 direct irradiance only, 3 albedo
+
+in vec3 vWorldPos;
+in vec3 vWorldNormal;
+in vec2 vUv;
+
+out vec4 fragColor;
+
+void main() {
+  vec3 n = normalize(vWorldNormal);
+  if (!gl_FrontFacing) n = -n;  // back faces (double-sided or seen from inside) shade with the flipped normal
+  vec3 albedo = uBaseColor;
+  if (uHasBaseColorMap) albedo *= texture(uBaseColorMap, vUv).rgb;
+  vec3 eDirect = directIrradiance(vWorldPos, n);
+  vec3 eIndirect = uIndirectScale * giIndirectIrradiance(vWorldPos, n);
+  vec3 radiance;
+  if (uOutput == 1) radiance = eIndirect * INV_PI;
+  else if (uOutput == 2) radiance = eDirect * INV_PI;
+  else if (uOutput == 3) radiance = albedo;
+  else radiance = uEmissive + albedo * INV_PI * (eDirect + eIndirect);
+  fragColor = vec4(displayColor(radiance), 1.0);
+}

@@ -1,0 +1,20 @@
+// Scene surfaces: world-space position and normal for the fragment shader.
+uniform mat4 modelMatrix;
+uniform mat4 viewMatrix;
+uniform mat4 projectionMatrix;
+
+in vec3 position;
+in vec3 normal;
+in vec2 uv;
+
+out vec3 vWorldPos;
+out vec3 vWorldNormal;
+out vec2 vUv;
+
+void main() {
+  vec4 world = modelMatrix * vec4(position, 1.0);
+  vWorldPos = world.xyz;
+  vWorldNormal = transpose(inverse(mat3(modelMatrix))) * normal;
+  vUv = uv;
+  gl_Position = projectionMatrix * viewMatrix * world;
+}

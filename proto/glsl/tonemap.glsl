@@ -1,0 +1,14 @@
+// Display transform: exposure, ACES filmic fit (Narkowicz 2015), linear -> sRGB (IEC 61966-2-1).
+uniform float uExposure;
+
+vec3 acesFilm(vec3 x) {
+  return clamp((x * (2.51 * x + 0.03)) / (x * (2.43 * x + 0.59) + 0.14), 0.0, 1.0);
+}
+
+vec3 linearToSrgb(vec3 c) {
+  return mix(c * 12.92, 1.055 * pow(c, vec3(1.0 / 2.4)) - 0.055, step(vec3(0.0031308), c));
+}
+
+vec3 displayColor(vec3 radiance) {
+  return linearToSrgb(acesFilm(max(radiance, 0.0) * uExposure));
+}

@@ -1,0 +1,212 @@
+"""Reference samplers of the shading modes (workers/kernels/samplers.py) on synthetic volumes."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from workers.kernels import masks as M
+from workers.kernels import samplers as SM
+from workers.kernels.sh import SH_C0, sh_irradiance
+
+
+def _grid(counts=(4, 3, 5), origin=(-1.0, 0.5, 2.0), spacing=(0.5, 0.75, 0.4)):
+    counts = np.asarray(counts)
+    spacing = np.where(counts > 1, spacing, 0.0)
+    return SM.Grid(counts, origin, spacing)
+
+
+def _normals(n, seed=0):
+    v = np.random.default_rng(seed).normal(size=(n, 3))
+    return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+
+def _points(grid, n, seed=0, margin=0.0):
+    rng = np.random.default_rng(seed)
+    lo = grid.origin - margin
+    hi = grid.origin + grid.spacing * (grid.counts - 1) + margin
+    return rng.uniform(lo, hi, (n, 3))
+
+
+def test_trilinear_centres_linear_and_clamped():
+    vol = np.arange(4, dtype=np.float64).reshape(1, 1, 4)          # one row along x: 0 1 2 3
+    u = np.array([0.125, 0.375, 0.5, 0.875, 0.0, 1.0, -3.0, 7.0])  # centres, midpoint, edges, far outside
+    uvw = np.stack([u, np.full_like(u, 0.5), np.full_like(u, 0.5)], 1)
+    assert np.allclose(SM.trilinear(vol, uvw)[:, 0], [0, 1, 1.5, 3, 0, 3, 0, 3])
+    # uint8 is UNORM
+    assert SM.trilinear(np.full((2, 2, 2, 1), 51, np.uint8), uvw[:1])[0, 0] == pytest.approx(0.2)
+    # 3D: trilinear reproduces an affine function inside the centre box
+    z, y, x = np.meshgrid(np.arange(3), np.arange(4), np.arange(5), indexing="ij")
+    vol3 = (2 * x - y + 0.5 * z + 1.0)[..., None]
+    t = np.random.default_rng(0).uniform([0, 0, 0], [4, 3, 2], (100, 3))   # texel space (x, y, z)
+    uvw3 = (t + 0.5) / np.array([5, 4, 3])
+    assert np.allclose(SM.trilinear(vol3, uvw3)[:, 0], 2 * t[:, 0] - t[:, 1] + 0.5 * t[:, 2] + 1.0)
+
+
+def _const_sh(grid, rgb_l0, l1=(0.0, 0.0, 0.0)):
+    """(nz, ny, nx, 4) per channel: constant L0 per channel, the same L1 (y, z, x) for all."""
+    shape = (int(grid.counts[2]), int(grid.counts[1]), int(grid.counts[0]), 4)
+    out = []
+    for c in rgb_l0:
+        v = np.zeros(shape, np.float32)
+        v[..., 0] = c
+        v[..., 1:] = l1
+        out.append(v)
+    return out
+
+
+def test_leaking_constant_volume_is_the_constant_irradiance():
+    g = _grid()
+    sh = _const_sh(g, [0.3, 1.0, 2.5], l1=(0.1, -0.2, 0.05))
+    pts = _points(g, 200, margin=1.0)                          # inside and outside the grid box
+    n = _normals(200)
+    e = SM.leaking(pts, n, *sh, g)
+    coeffs = np.stack([s[0, 0, 0] for s in sh], -1)              # (4, 3)
+    assert np.allclose(e, sh_irradiance(coeffs, n), rtol=1e-6)
+    # L0 only: E = π·c0·L0 for every normal
+    e0 = SM.leaking(pts, n, *_const_sh(g, [1.0, 2.0, 3.0]), g)
+    assert np.allclose(e0, math.pi * SH_C0 * np.array([1.0, 2.0, 3.0]), rtol=1e-6)
+
+
+def test_leaking_interpolates_probes_trilinearly():
+    g = _grid()
+    rng = np.random.default_rng(3)
+    sh = [rng.random((5, 3, 4, 4)).astype(np.float32) for _ in range(3)]
+    # probe positions themselves return the probe, midpoints the mean of the two
+    p = np.array([[1, 2, 3], [0, 0, 0], [3, 2, 4]])
+    pts = g.origin + p * g.spacing
+    n = np.tile([0.0, 1.0, 0.0], (3, 1))
+    e = SM.leaking(pts, n, *sh, g)
+    for r, (i, j, k) in enumerate(p):
+        P = np.stack([s[k, j, i] for s in sh], -1)
+        assert np.allclose(e[r], sh_irradiance(P, n[r]), rtol=1e-6)
+    mid = g.origin + np.array([[1.5, 2, 3]]) * g.spacing
+    P = 0.5 * (np.stack([s[3, 2, 1] for s in sh], -1) + np.stack([s[3, 2, 2] for s in sh], -1))
+    assert np.allclose(SM.leaking(mid, n[:1], *sh, g)[0], sh_irradiance(P, n[0]), rtol=1e-6)
+
+
+def test_one_probe_axes():
+    g = _grid(counts=(3, 1, 1), origin=(0.0, 1.0, 2.0), spacing=(1.0, 0.0, 0.0))
+    assert np.array_equal(g.spacing, [1.0, 0.0, 0.0])
+    sh = [np.arange(3, dtype=np.float32).reshape(1, 1, 3, 1) * np.array([1, 0, 0, 0], np.float32)] * 3
+    pts = np.array([[0.5, -4.0, 9.0], [1.75, 1.0, 2.0], [5.0, 7.0, -1.0]])   # y, z anywhere
+    n = np.tile([0.0, 0.0, 1.0], (3, 1))
+    e = SM.leaking(pts, n, *sh, g)
+    assert np.allclose(e[:, 0], math.pi * SH_C0 * np.array([0.5, 1.75, 2.0]))
+    uvw = SM.field_uvw(pts, g)
+    assert np.allclose(uvw[:, 1:], 0.5) and np.allclose(uvw[:, 0], [0.25, 0.875, 2.5])
+    assert np.allclose(SM.probe_uvw(pts, g)[:, 1:], 0.5)
+    # visibility-weighted with everything visible = leaking; masks with one cluster = leaking
+    S = 2
+    theta = np.full((S, S, 2 * S, 4), 255, np.uint8)
+    vw = SM.visibility_weighted(pts, n, *sh, theta, theta, g)
+    assert np.allclose(vw, e)
+
+
+@pytest.mark.parametrize("counts", [(4, 3, 5), (3, 1, 4)])
+def test_visibility_weighted_all_visible_is_leaking(counts):
+    g = _grid(counts)
+    rng = np.random.default_rng(1)
+    nz, ny, nx = int(g.counts[2]), int(g.counts[1]), int(g.counts[0])
+    sh = [rng.normal(size=(nz, ny, nx, 4)).astype(np.float32) for _ in range(3)]
+    S = 3
+    cells = np.maximum(g.counts - 1, 1)
+    theta = np.full((cells[2] * S, cells[1] * S, cells[0] * S, 4), 255, np.uint8)
+    pts = _points(g, 300, seed=2)
+    n = _normals(300, 1)
+    assert np.allclose(SM.visibility_weighted(pts, n, *sh, theta, theta, g), SM.leaking(pts, n, *sh, g),
+                       rtol=1e-9, atol=1e-12)
+    # one cluster, mask 1 everywhere: eq 3 = eq 1, and normalized too (w = Σ φ = 1)
+    m = [np.full(theta.shape, 255, np.uint8)]
+    w = [np.ones((nz, ny, nx, 4), np.float32)]
+    e = SM.mask(pts, n, m, [tuple(sh)], g)
+    assert np.allclose(e, SM.leaking(pts, n, *sh, g), rtol=1e-9, atol=1e-12)
+    assert np.allclose(SM.mask_normalized(pts, n, m, [tuple(sh)], w, g), e, rtol=1e-9, atol=1e-12)
+
+
+def test_visibility_weighted_reads_theta_inside_the_cell():
+    # two cells along x; θ of corner 1 (probe 1 seen from cell 0) is 0, everything else 1.
+    g = _grid(counts=(3, 2, 2), origin=(0, 0, 0), spacing=(1, 1, 1))
+    S = 4
+    th = np.full((S, S, 2 * S, 8), 255, np.uint8)
+    th[:, :, :S, 1] = 0                  # cell 0 does not see its corner 1 (= probe x = 1)
+    t0123, t4567 = np.ascontiguousarray(th[..., :4]), np.ascontiguousarray(th[..., 4:])
+    sh = [np.zeros((2, 2, 3, 4), np.float32) for _ in range(3)]
+    sh[0][:, :, 1, 0] = 1.0              # only the probes at x = 1 are bright (red, L0)
+    n = np.array([[0.0, 1.0, 0.0]])
+    # just left of the cell face x = 1: only corner 1 (y = z = 0 row) is hidden; θ must not bleed
+    # from cell 1's texels (where channel 1 means probe x = 2)
+    p = np.array([[0.99, 0.0, 0.0]])
+    e = SM.visibility_weighted(p, n, *sh, t0123, t4567, g)
+    assert e[0, 0] == pytest.approx(0.0, abs=1e-12)
+    q = np.array([[1.01, 0.0, 0.0]])     # cell 1: probe x = 1 is its corner 0, visible
+    e1 = SM.visibility_weighted(q, n, *sh, t0123, t4567, g)
+    assert e1[0, 0] == pytest.approx(0.99 * math.pi * SH_C0, rel=1e-9)
+    # unnormalized: Σ θ φ P
+    e2 = SM.visibility_weighted(q, n, *sh, t0123, t4567, g, normalize=False)
+    assert e2[0, 0] == pytest.approx(0.99 * math.pi * SH_C0, rel=1e-9)
+
+
+def test_mask_normalized_zero_where_no_weight():
+    g = _grid(counts=(2, 2, 2), origin=(0, 0, 0), spacing=(1, 1, 1))
+    sh = tuple(np.ones((2, 2, 2, 4), np.float32) for _ in range(3))
+    m = [np.zeros((2, 2, 2, 4), np.uint8)]
+    w = [np.ones((2, 2, 2, 4), np.float32)]
+    p = np.array([[0.3, 0.4, 0.5]])
+    n = np.array([[1.0, 0.0, 0.0]])
+    assert np.all(SM.mask_normalized(p, n, m, [sh], w, g) == 0)
+    assert np.all(SM.mask(p, n, m, [sh], g) == 0)
+
+
+def test_parity_masks_reproduce_visibility_weighting_at_samples():
+    """MD §3.2 on a synthetic field: K = 8, parity colouring, masks from θ, at every care sample."""
+    g = _grid(counts=(4, 3, 3), origin=(0.0, 0.0, 0.0), spacing=(0.5, 0.6, 0.7))
+    S = 3
+    cells = np.maximum(g.counts - 1, 1)
+    shape = (cells[2] * S, cells[1] * S, cells[0] * S)
+    rng = np.random.default_rng(0)
+    theta = rng.integers(0, 256, shape + (8,)).astype(np.uint8)
+    theta[rng.random(shape + (8,)) < 0.4] = 0
+    dc = rng.random(shape) < 0.1
+    gcol = M.parity_coloring(g.counts)
+    m = M.fit_masks(theta, dc, g.counts, S, gcol, 8)
+    m, _ = M.fill_dont_care(m, dc)
+    q = M.quantize(m)
+    P = int(np.prod(g.counts))
+    sh = rng.normal(size=(P, 4, 3)).astype(np.float32)
+    vols, w = M.cluster_volumes(sh.reshape(3, 3, 4, 4, 3), gcol, 8)
+    z, y, x = np.nonzero(~dc)
+    pts = g.origin + g.spacing * (np.stack([x, y, z], 1) + 0.5) / S
+    n = _normals(len(pts))
+    shv = [np.ascontiguousarray(sh.reshape(3, 3, 4, 4, 3)[..., c]) for c in range(3)]
+    masks = [q[..., :4], q[..., 4:]]
+    cl = [tuple(np.ascontiguousarray(v[..., c]) for c in range(3)) for v in vols]
+    wts = [w[..., :4], w[..., 4:]]
+    ref = SM.visibility_weighted(pts, n, *shv, theta[..., :4], theta[..., 4:], g)
+    ref_un = SM.visibility_weighted(pts, n, *shv, theta[..., :4], theta[..., 4:], g, normalize=False)
+    assert np.allclose(SM.mask_normalized(pts, n, masks, cl, wts, g), ref, rtol=1e-9, atol=1e-12)
+    assert np.allclose(SM.mask(pts, n, masks, cl, g), ref_un, rtol=1e-9, atol=1e-12)
+    # with no don't-care samples it also holds between the samples, inside the box of a cell's sample
+    # centres (both read that cell's texels); within half a sample of a cell face the masks filter
+    # across cells and θ does not, so there the two differ
+    q0 = M.quantize(M.fit_masks(theta, np.zeros_like(dc), g.counts, S, gcol, 8))
+    cell = rng.integers(0, cells, (500, 3))
+    inner = g.origin + g.spacing * (cell + rng.uniform(0.5 / S, 1 - 0.5 / S, (500, 3)))
+    n2 = _normals(500, 3)
+    assert np.allclose(SM.mask_normalized(inner, n2, [q0[..., :4], q0[..., 4:]], cl, wts, g),
+                       SM.visibility_weighted(inner, n2, *shv, theta[..., :4], theta[..., 4:], g),
+                       rtol=1e-9, atol=1e-12)
+
+
+def test_irradiance_dispatch_and_errors():
+    g = _grid(counts=(2, 2, 2), origin=(0, 0, 0), spacing=(1, 1, 1))
+    sh = _const_sh(g, [1.0, 1.0, 1.0])
+    arrays = {"sh_l1_r": sh[0], "sh_l1_g": sh[1], "sh_l1_b": sh[2]}
+    p, n = np.array([[0.5, 0.5, 0.5]]), np.array([[0.0, 1.0, 0.0]])
+    assert SM.irradiance("leaking", arrays, {"counts": [2, 2, 2], "origin": [0, 0, 0], "spacing": [1, 1, 1]},
+                         p, n)[0, 0] == pytest.approx(math.pi * SH_C0)
+    with pytest.raises(ValueError, match="unknown mode"):
+        SM.irradiance("nope", arrays, g, p, n)
+    with pytest.raises(ValueError, match="probe volume"):
+        SM.leaking(p, n, sh[0][:1], sh[1], sh[2], g)

@@ -1,0 +1,323 @@
+"""Reference samplers of the runtime shading modes (DESIGN "Runtime shading"; MD eq 1-3).
+
+The Python twin of what the GLSL in ``proto/glsl`` does with the baked volumes, fetch for fetch:
+every volume is read by :func:`trilinear`, which is a ``sampler3D`` with ``LINEAR`` filtering and
+``CLAMP_TO_EDGE`` wrapping (texel space, texel centres at integer + 0.5; ``R8G8B8A8_UNORM`` bytes read
+as byte / 255). Irradiance is the L1 SH of :mod:`workers.kernels.sh` (three.js order, clamped-cosine
+convolution): ``E(n) = Σ_k Â_l L_k Y_k(n)`` per colour channel.
+
+Addressing (proto/bundle.md §5)
+-------------------------------
+* Probe volumes ``(nz, ny, nx, C)`` (``sh_l1_*``, ``cluster_sh_*``, ``cluster_weights_*``):
+  ``uvw = ((p − origin) / spacing + 0.5) / counts`` (:func:`probe_uvw`) — probe centres at texel
+  centres, so inside the grid box trilinear filtering is ``Σ_i φ_i(p) V_i`` with φ the trilinear
+  weights of the cage (MD §3.1.1), and outside it clamps to the border probes.
+* Refined-grid volumes ``(Z, Y, X, C)`` (``masks_*``, ``theta_*``, ``dont_care``):
+  ``uvw = (p − origin) / (spacing · (counts − 1))`` over the grid box (:func:`field_uvw`), so the
+  texel centres are the samples ``origin + spacing·((x, y, z) + 0.5)/S``.
+* An axis with one probe (spacing 0, counts 1): the probe volume has one texel there and the field is
+  constant along it (its S samples all lie in the probe plane), so that coordinate is set to 0.5
+  (the GLSL must guard the division the same way).
+
+Modes (each ``(points (N, 3), normals (N, 3)) -> irradiance (N, 3) float64``, linear RGB)
+------------------------------------------------------------------------------------------
+``leaking`` (MD eq 1)
+    SH = trilinear(``sh_l1_{r,g,b}``) at the point; E = SH·n.
+``visibility_weighted`` (MD eq 2, normalized as RTXGI)
+    ``Σ_c θ_c(x) φ_c(x) P_c / Σ_c θ_c(x) φ_c(x)`` over the 8 corner probes c of the point's cell
+    (:func:`workers.kernels.grid.cell_coords`: base cell clamped to the grid, α clamped to [0, 1]),
+    P_c fetched unfiltered (texelFetch) from ``sh_l1_*``; 0 where the denominator is 0.
+    **How θ_c(x) is read**: channel c of ``theta_0123`` / ``theta_4567`` is "corner c *of the
+    sample's own cell*", so filtering across a cell face would blend the visibility of different
+    probes. The field is read trilinearly with the texel coordinate clamped to the S³ block of x's
+    cell (``[base·S, base·S + S − 1]`` per axis): every one of the 8 taps belongs to x's cell, it is
+    smooth inside the cell, and at a refined-grid sample it returns that sample's θ exactly.
+    (GLSL: ``t = clamp((p − origin)/spacing·S − 0.5, base·S, base·S + S − 1)``, then
+    ``texture(theta, (t + 0.5) / dims)``.) OFF probes need no test: their θ is 0 (and P is 0).
+``mask`` (MD eq 3)
+    ``Σ_k m_k(x) · (SH of trilinear(cluster_sh_k)(x))·n`` with m = trilinear(``masks_0123`` /
+    ``masks_4567``) at the point (plain trilinear: masks are per cluster, not per corner, so they
+    filter across cells, which is the point of MD).
+``mask_normalized`` (ours, DESIGN stage 4)
+    The ``mask`` sum divided by ``Σ_k m_k(x) · w_k(x)`` with ``w_k`` = channel k of trilinear
+    (``cluster_weights_0123`` / ``_4567``) = ``Σ_i φ_i g_i^k``; 0 where that is 0.
+
+MD §3.2 in these terms: with K = 8, the parity colouring (eq 4) and masks from θ (no filter, no
+light-aware fit), ``mask_normalized`` equals ``visibility_weighted`` and ``mask`` equals eq 2
+unnormalized at every care refined-grid sample and anywhere inside the box of one cell's sample
+centres, to float64 rounding: the mask bytes are the θ bytes, so no 1/255 quantization enters. Within
+half a sample of a cell face they differ (masks filter across the face, θ is clamped to the cell).
+
+Consumers: tests (MD §3.2 invariant, leak tests), stages/evaluate (reference for the GLSL modes).
+"""
+from __future__ import annotations
+
+from typing import Mapping
+
+import numpy as np
+
+from workers.kernels.grid import cage_indices, cell_coords
+from workers.kernels.sh import sh_irradiance
+
+__all__ = ["MODES", "Grid", "trilinear", "texel_fetch", "probe_uvw", "field_uvw", "field_samples_per_cell",
+           "leaking", "visibility_weighted", "mask", "mask_normalized", "irradiance"]
+
+MODES = ("leaking", "visibility_weighted", "mask", "mask_normalized")
+
+
+class Grid:
+    """The probe grid: ``counts (3,) int (nx, ny, nz)``, ``origin (3,)``, ``spacing (3,)`` metres (0 on a
+    one-probe axis). Build from the place stage's stats with ``Grid(**{k: stats[k] for k in ...})`` or
+    :meth:`of`."""
+
+    def __init__(self, counts, origin, spacing):
+        self.counts = np.asarray(counts, np.int64).reshape(3)
+        self.origin = np.asarray(origin, np.float64).reshape(3)
+        self.spacing = np.asarray(spacing, np.float64).reshape(3)
+        if (self.counts < 1).any():
+            raise ValueError(f"counts must be >= 1, got {self.counts.tolist()}")
+
+    @classmethod
+    def of(cls, grid) -> "Grid":
+        """A Grid from a Grid or a mapping with counts, origin, spacing (place stats, manifest grid)."""
+        if isinstance(grid, Grid):
+            return grid
+        return cls(grid["counts"], grid["origin"], grid["spacing"])
+
+    @property
+    def live(self) -> np.ndarray:
+        """(3,) bool: axes with more than one probe and a positive spacing."""
+        return (self.counts > 1) & (self.spacing > 0)
+
+
+def _points(points, name="points") -> np.ndarray:
+    p = np.asarray(points, np.float64)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise ValueError(f"{name} must have shape (N, 3), got {p.shape}")
+    return p
+
+
+def _as_float(volume) -> np.ndarray:
+    v = np.asarray(volume)
+    if v.dtype == np.uint8:
+        return v.astype(np.float64) / 255.0  # UNORM8
+    return v.astype(np.float64)
+
+
+def trilinear(volume, uvw) -> np.ndarray:
+    """Sample a 3D texture like GLSL ``texture()`` with LINEAR filtering and CLAMP_TO_EDGE.
+
+    Parameters
+    ----------
+    volume : (D, H, W) or (D, H, W, C) array
+        Texel (x, y, z) at ``volume[z, y, x]``; uint8 is read as UNORM (byte / 255).
+    uvw : (N, 3) float
+        Normalized coordinates (u → x/W, v → y/H, w → z/D); texel centres at ``(i + 0.5) / size``.
+
+    Returns
+    -------
+    (N, C) float64 (C = 1 for a 3-axis volume).
+
+    Texel space: ``t = uvw·size − 0.5``, ``i0 = floor(t)``, ``f = t − i0``; both taps ``i0`` and
+    ``i0 + 1`` clamped to ``[0, size − 1]`` (so past the border centre the edge texel is returned).
+    """
+    v = _as_float(volume)
+    if v.ndim == 3:
+        v = v[..., None]
+    if v.ndim != 4:
+        raise ValueError(f"volume must be (D, H, W[, C]), got {np.shape(volume)}")
+    uvw = _points(uvw, "uvw")
+    size = np.array([v.shape[2], v.shape[1], v.shape[0]], np.int64)  # (W, H, D) = (x, y, z)
+    t = uvw * size - 0.5
+    i0 = np.floor(t)
+    f = t - i0
+    i0 = i0.astype(np.int64)
+    lo = np.clip(i0, 0, size - 1)
+    hi = np.clip(i0 + 1, 0, size - 1)
+    out = np.zeros((uvw.shape[0], v.shape[3]))
+    for c in range(8):
+        bx, by, bz = c & 1, (c >> 1) & 1, (c >> 2) & 1
+        wx = f[:, 0] if bx else 1.0 - f[:, 0]
+        wy = f[:, 1] if by else 1.0 - f[:, 1]
+        wz = f[:, 2] if bz else 1.0 - f[:, 2]
+        x = hi[:, 0] if bx else lo[:, 0]
+        y = hi[:, 1] if by else lo[:, 1]
+        z = hi[:, 2] if bz else lo[:, 2]
+        out += (wx * wy * wz)[:, None] * v[z, y, x]
+    return out
+
+
+def texel_fetch(volume, ijk) -> np.ndarray:
+    """GLSL ``texelFetch``: texels at integer (x, y, z) = ijk (N, 3) → (N, C) float64 (uint8 as UNORM)."""
+    v = _as_float(volume)
+    if v.ndim == 3:
+        v = v[..., None]
+    ijk = np.asarray(ijk, np.int64)
+    return v[ijk[:, 2], ijk[:, 1], ijk[:, 0]]
+
+
+def probe_uvw(points, grid) -> np.ndarray:
+    """uvw of world points in a probe volume: ``((p − origin)/spacing + 0.5)/counts`` (0.5 on one-probe axes)."""
+    g = Grid.of(grid)
+    p = _points(points)
+    safe = np.where(g.live, g.spacing, 1.0)
+    uvw = ((p - g.origin) / safe + 0.5) / g.counts
+    return np.where(g.live, uvw, 0.5)
+
+
+def field_uvw(points, grid) -> np.ndarray:
+    """uvw of world points in a refined-grid volume: ``(p − origin)/(spacing·(counts − 1))`` (0.5 on
+    one-probe axes)."""
+    g = Grid.of(grid)
+    p = _points(points)
+    ext = np.where(g.live, g.spacing * (g.counts - 1), 1.0)
+    return np.where(g.live, (p - g.origin) / ext, 0.5)
+
+
+def field_samples_per_cell(field_volume, grid) -> int:
+    """S of a refined-grid volume (Z, Y, X, ...) of this grid (checks the shape)."""
+    g = Grid.of(grid)
+    cells = np.maximum(g.counts - 1, 1)
+    shape = np.asarray(field_volume).shape
+    S = shape[2] // int(cells[0])
+    if S < 1 or tuple(shape[:3]) != (int(cells[2]) * S, int(cells[1]) * S, int(cells[0]) * S):
+        raise ValueError(f"field volume shape {shape[:3]} does not fit a grid of {g.counts.tolist()} probes")
+    return S
+
+
+def _irr(sh_rgb: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """(N, 4, 3) L1 radiance SH and (N, 3) normals → (N, 3) irradiance."""
+    return sh_irradiance(sh_rgb, normals)
+
+
+def _stack_rgb(parts) -> np.ndarray:
+    """[(N, 4) r, (N, 4) g, (N, 4) b] → (N, 4, 3)."""
+    return np.stack(parts, axis=-1)
+
+
+def _probe_check(vol, grid: Grid, name: str):
+    shape = np.shape(vol)
+    want = (int(grid.counts[2]), int(grid.counts[1]), int(grid.counts[0]))
+    if tuple(shape[:3]) != want:
+        raise ValueError(f"{name} must be a (nz, ny, nx, ...) = {want} probe volume, got {shape}")
+
+
+def leaking(points, normals, sh_r, sh_g, sh_b, grid) -> np.ndarray:
+    """MD eq 1: trilinear SH volume. sh_* (nz, ny, nx, 4) float (L0, L1y, L1z, L1x of one channel)."""
+    g = Grid.of(grid)
+    for v, n in ((sh_r, "sh_r"), (sh_g, "sh_g"), (sh_b, "sh_b")):
+        _probe_check(v, g, n)
+    uvw = probe_uvw(points, g)
+    sh = _stack_rgb([trilinear(v, uvw) for v in (sh_r, sh_g, sh_b)])
+    return _irr(sh, _points(normals, "normals"))
+
+
+def _theta_in_cell(theta_0123, theta_4567, points, g: Grid, base) -> np.ndarray:
+    """(N, 8) θ_c(x) read trilinearly with the texel coordinate clamped to x's cell block (module doc)."""
+    S = field_samples_per_cell(theta_0123, g)
+    dims = np.array([theta_0123.shape[2], theta_0123.shape[1], theta_0123.shape[0]], np.float64)
+    safe = np.where(g.live, g.spacing, 1.0)
+    t = np.where(g.live, (points - g.origin) / safe * S - 0.5, 0.0)
+    lo = base * S
+    tc = np.clip(t, lo, lo + S - 1)
+    uvw = (tc + 0.5) / dims
+    return np.concatenate([trilinear(theta_0123, uvw), trilinear(theta_4567, uvw)], axis=1)
+
+
+def visibility_weighted(points, normals, sh_r, sh_g, sh_b, theta_0123, theta_4567, grid, *,
+                        normalize: bool = True) -> np.ndarray:
+    """MD eq 2: ``Σ θ_c φ_c P_c / Σ θ_c φ_c`` over the cell's 8 corners (0 where the sum is 0).
+
+    ``normalize=False`` gives eq 2 as written, ``Σ θ_c φ_c P_c`` (what ``mask`` reproduces with K = 8
+    and the parity colouring). theta_* : (Z, Y, X, 4) uint8 refined-grid volumes.
+    """
+    g = Grid.of(grid)
+    p = _points(points)
+    for v, n in ((sh_r, "sh_r"), (sh_g, "sh_g"), (sh_b, "sh_b")):
+        _probe_check(v, g, n)
+    base, alpha = cell_coords(p, g.counts, g.origin, g.spacing)
+    theta = _theta_in_cell(np.asarray(theta_0123), np.asarray(theta_4567), p, g, base)  # (N, 8)
+    cage = cage_indices(base, g.counts)                                                 # (N, 8) flat
+    sh_all = [np.asarray(v, np.float64).reshape(-1, 4) for v in (sh_r, sh_g, sh_b)]
+    num = np.zeros((p.shape[0], 4, 3))
+    den = np.zeros(p.shape[0])
+    for c in range(8):
+        off = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
+        phi = np.prod(np.where(off, alpha, 1.0 - alpha), axis=1)    # φ_c(x)
+        w = theta[:, c] * phi                                          # θ_c(x) φ_c(x)
+        P = _stack_rgb([s[cage[:, c]] for s in sh_all])               # texelFetch of probe c
+        num += w[:, None, None] * P
+        den += w
+    if normalize:
+        ok = den > 0
+        num[ok] /= den[ok, None, None]
+        num[~ok] = 0.0
+    return _irr(num, _points(normals, "normals"))
+
+
+def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None):
+    g = Grid.of(grid)
+    p = _points(points)
+    n = _points(normals, "normals")
+    K = len(cluster_sh)
+    if K < 1:
+        raise ValueError("cluster_sh must hold at least one cluster")
+    m = np.concatenate([trilinear(v, field_uvw(p, g)) for v in masks], axis=1)[:, :K]   # (N, K)
+    if m.shape[1] < K:
+        raise ValueError(f"masks hold {m.shape[1]} channels for {K} clusters")
+    uvw = probe_uvw(p, g)
+    e = np.zeros((p.shape[0], 3))
+    for k, (r, gg, b) in enumerate(cluster_sh):
+        for v in (r, gg, b):
+            _probe_check(v, g, f"cluster_sh[{k}]")
+        sh = _stack_rgb([trilinear(v, uvw) for v in (r, gg, b)])
+        e += m[:, k:k + 1] * _irr(sh, n)
+    den = None
+    if cluster_weights is not None:
+        w = np.concatenate([trilinear(v, uvw) for v in cluster_weights], axis=1)[:, :K]
+        den = (m * w).sum(axis=1)
+    return e, den
+
+
+def mask(points, normals, masks, cluster_sh, grid) -> np.ndarray:
+    """MD eq 3: ``Σ_k m_k(x) · E(trilinear(cluster_sh_k)(x), n)``.
+
+    masks : list of (Z, Y, X, 4) uint8 volumes (``masks_0123``[, ``masks_4567``]);
+    cluster_sh : list of K ``(r, g, b)`` tuples of (nz, ny, nx, 4) float volumes.
+    """
+    return _mask_terms(points, normals, masks, cluster_sh, grid)[0]
+
+
+def mask_normalized(points, normals, masks, cluster_sh, cluster_weights, grid) -> np.ndarray:
+    """``mask`` divided by ``Σ_k m_k(x) w_k(x)`` (0 where that is 0); cluster_weights : list of
+    (nz, ny, nx, 4) float volumes (``cluster_weights_0123``[, ``_4567``])."""
+    e, den = _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights)
+    out = np.zeros_like(e)
+    ok = den > 0
+    out[ok] = e[ok] / den[ok, None]
+    return out
+
+
+def irradiance(mode: str, arrays: Mapping, grid, points, normals) -> np.ndarray:
+    """Shade with ``mode`` (one of :data:`MODES`) from baked artifacts addressed by name.
+
+    arrays : mapping artifact name → array (a dict, or the pipeline's LazyArtifacts merged), using
+    ``sh_l1_{r,g,b}``; ``theta_0123``, ``theta_4567``; ``masks_0123``[, ``masks_4567``],
+    ``cluster_sh_{k}_{r,g,b}``, ``cluster_weights_0123``[, ``_4567``] (K = number of cluster_sh_k_r).
+    """
+    if mode == "leaking":
+        return leaking(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid)
+    if mode == "visibility_weighted":
+        return visibility_weighted(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"],
+                                   arrays["theta_0123"], arrays["theta_4567"], grid)
+    if mode in ("mask", "mask_normalized"):
+        K = 0
+        while f"cluster_sh_{K}_r" in arrays:
+            K += 1
+        cl = [tuple(arrays[f"cluster_sh_{k}_{c}"] for c in "rgb") for k in range(K)]
+        masks = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
+        if mode == "mask":
+            return mask(points, normals, masks, cl, grid)
+        wts = [arrays["cluster_weights_0123"]] + ([arrays["cluster_weights_4567"]] if K > 4 else [])
+        return mask_normalized(points, normals, masks, cl, wts, grid)
+    raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
