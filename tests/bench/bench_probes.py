@@ -10,7 +10,8 @@ no validation, nothing but ``EmbreeScene.run``) on the same rays in the same run
 - relocate: the final probe rays, once per relocation iteration (the iterations trace the same
   pattern from nearly the same origins);
 - trace: the final probe rays;
-- light: the shadow rays toward the sun from the front-face hits (its other work is shading);
+- light: the shadow rays toward the sun from the front-face hits, plus the cage-visibility rays from
+  each hit to its 8 probes (raw: timed on the shadow rays; its other work is shading);
 - visibility: the θ rays (sample -> each corner probe).
 
 "stage Mray/s" divides the rays by the stage's whole wall time (BVH build, shading, depth moments,
@@ -113,7 +114,10 @@ def run_grid(scene, counts, rays, S, raw: RawEmbree) -> dict:
         sd = np.broadcast_to(sun.astype(np.float32), so.shape)
         raw_shadow = raw.rays_per_second(so, sd, occluded=True) if len(so) else float("nan")
         st = recs["light"].stats
-        out["stages"]["light"] = {"seconds": times["light"], "rays": int(lit.sum()), "raw_rays_per_s": raw_shadow,
+        # the light stage's rays: shadow rays + the cage-visibility rays (both occlusion queries)
+        out["stages"]["light"] = {"seconds": times["light"], "rays": int(lit.sum()) + st["visibility_rays"],
+                                  "raw_rays_per_s": raw_shadow,
+                                  "ray_seconds": st["visibility_seconds"] + st["direct_seconds"],
                                   "direct_seconds": st["direct_seconds"], "bounce_seconds": st["bounce_seconds"],
                                   "bounces": st["bounces"], "front_hits": st["front_hits"]}
         # visibility: sample -> corner-probe rays
