@@ -4,8 +4,12 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
-# Debian packages Kiln needs at run time (EGL/Mesa for moderngl previews come with the evaluate stage).
-DEB_PACKAGES="python3-venv python3-dev libgomp1"
+# Debian packages Kiln needs at run time: a venv, OpenMP for embree, EGL + Mesa (llvmpipe) for the
+# headless moderngl renderer of the evaluate stage.
+DEB_PACKAGES="python3-venv python3-dev libgomp1 libegl1 libegl-mesa0 libgl1-mesa-dri"
+# Optional: installed when root and missing; otherwise only mentioned (the browser tests in tests/web skip
+# without Chromium, which Playwright drives as /usr/bin/chromium).
+DEB_OPTIONAL="chromium"
 
 log() { printf 'kiln setup: %s\n' "$*" >&2; }
 
@@ -40,6 +44,23 @@ if [ ${#need_apt[@]} -gt 0 ]; then
   fi
 fi
 
+opt_missing=()
+if command -v dpkg-query >/dev/null 2>&1; then
+  for p in $DEB_OPTIONAL; do
+    dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || opt_missing+=("$p")
+  done
+fi
+if [ ${#opt_missing[@]} -gt 0 ]; then
+  if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
+    log "installing optional Debian packages: ${opt_missing[*]}"
+    { DEBIAN_FRONTEND=noninteractive apt-get update -qq &&
+      DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${opt_missing[@]}" >/dev/null; } ||
+      log "could not install ${opt_missing[*]}: the browser tests will be skipped"
+  else
+    log "optional Debian packages missing: ${opt_missing[*]} (the browser tests will be skipped; as root: apt-get install -y ${opt_missing[*]})"
+  fi
+fi
+
 "$PY" -c 'import sys; sys.exit(0 if sys.version_info >= (3, 11) else 1)' || {
   log "Python 3.11 or newer is needed ($("$PY" --version 2>&1) found); set PYTHON=/path/to/python3.11"; exit 1; }
 
@@ -56,13 +77,24 @@ if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! .venv/bin/python -
   echo "$want" > "$stamp"
 fi
 
-# The web viewer (a later issue) builds with npm when web/package.json exists.
+# The web viewer (web/): `npm ci` when the lock file changed, `npm run build` when any input of the build
+# changed (web sources, the shaders in proto/glsl). Stamps live in web/node_modules (git-ignored).
 if [ -f web/package.json ]; then
   if ! command -v npm >/dev/null 2>&1; then
     log "npm is needed to build the web viewer: apt-get install -y nodejs npm"; exit 1
   fi
-  if [ ! -d web/node_modules ] || [ web/package-lock.json -nt web/node_modules ]; then
+  lock_hash=$(sha256sum web/package-lock.json | cut -d' ' -f1)
+  if [ ! -f web/node_modules/.kiln-lock ] || [ "$(cat web/node_modules/.kiln-lock)" != "$lock_hash" ]; then
+    log "installing the web viewer's npm packages"
     (cd web && npm ci --no-audit --no-fund --loglevel=error)
+    echo "$lock_hash" > web/node_modules/.kiln-lock
   fi
-  (cd web && npm run --silent build)
+  build_hash=$(find web/src web/index.html web/vite.config.js web/package-lock.json proto/glsl -type f -print0 |
+    LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
+  if [ ! -f web/dist/index.html ] || [ ! -f web/node_modules/.kiln-build ] ||
+     [ "$(cat web/node_modules/.kiln-build)" != "$build_hash" ]; then
+    log "building the web viewer (web/dist)"
+    (cd web && npm run --silent build >/dev/null)
+    echo "$build_hash" > web/node_modules/.kiln-build
+  fi
 fi

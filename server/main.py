@@ -66,11 +66,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(scenes.router)
     app.include_router(bakes.router)
 
+    # The built viewer (web/dist, `npm run build`) at / with its assets (relative URLs: ./assets/...); the
+    # minimal page in server/static when it has not been built. Both are looked up per request, so building
+    # while the server runs takes effect.
     if (WEB_DIST / "index.html").exists():
         app.mount("/app", StaticFiles(directory=WEB_DIST, html=True), name="web")
+    app.mount("/assets", StaticFiles(directory=WEB_DIST / "assets", check_dir=False), name="web-assets")
 
     @app.get("/", include_in_schema=False)
     def index():
-        return FileResponse(STATIC / "index.html")
+        built = WEB_DIST / "index.html"
+        return FileResponse(built if built.exists() else STATIC / "index.html",
+                            headers={"Cache-Control": "no-cache"})
 
     return app

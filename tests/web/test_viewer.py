@@ -1,0 +1,284 @@
+"""The web app in a real browser against a real `kiln serve`: upload, bake, every GI mode on screen, debug
+views, refusals shown in words, the dashboard and the compare view.
+
+Pixels are checked, not just the DOM: a blank or black canvas fails. Screenshots are saved under the
+pytest tmp dir (the `shots` fixture prints where) so a person can look at them.
+"""
+from __future__ import annotations
+
+import io
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from tests.web.conftest import ROOT
+
+pytestmark = pytest.mark.timeout(240)
+
+# A fast bake that still exercises every stage (the default grid, coarser θ).
+FAST = {"visibility.samples_per_cell": "4"}
+
+
+def _scene(tmp_path, name="two-rooms"):
+    out = tmp_path / f"{name}.glb"
+    r = subprocess.run([sys.executable, "-m", "server.cli", "scenes", "make", name, str(out)], cwd=ROOT,
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr
+    return out
+
+
+def _pixels(png: bytes) -> np.ndarray:
+    return np.asarray(Image.open(io.BytesIO(png)).convert("RGB"), dtype=np.float64)
+
+
+def _stats(img: np.ndarray) -> dict:
+    lum = img @ np.array([0.2126, 0.7152, 0.0722])
+    return {"mean": float(lum.mean()), "std": float(lum.std()), "lit": float((lum > 12).mean()),
+            "levels": int(len(np.unique(lum.round())))}
+
+
+def _assert_not_blank(img: np.ndarray, what: str):
+    s = _stats(img)
+    assert s["mean"] > 20 and s["std"] > 6 and s["lit"] > 0.3 and s["levels"] > 20, f"{what} looks blank or black: {s}"
+
+
+def _shot(locator, path) -> np.ndarray:
+    png = locator.screenshot()
+    path.write_bytes(png)
+    return _pixels(png)
+
+
+def _frames(page) -> int:
+    return int(page.get_attribute("#viewer-canvas", "data-frames") or 0)
+
+
+def _after(page, action, mode: str):
+    """Do `action`, then wait until `mode` is on screen in a frame drawn after it (the viewer renders on demand)."""
+    n = _frames(page)
+    action()
+    page.wait_for_selector(f"#viewer-canvas[data-ready-mode={mode}]", timeout=60000)
+    page.wait_for_function(
+        f"(c => Number(c.dataset.frames) > {n} && c.dataset.shownMode === '{mode}')(document.getElementById('viewer-canvas'))",
+        timeout=30000)
+
+
+def _field(page, name: str):
+    """The input of a config field, its folded sections opened (as a person clicks the section titles)."""
+    sel = f'#config-form input[name="{name}"]'
+    page.eval_on_selector(sel, "e => { for (let d = e.closest('details'); d; d = d.parentElement.closest('details')) d.open = true; }")
+    return page.locator(sel)
+
+
+def _fill_config(page, values: dict):
+    for name, value in values.items():
+        _field(page, name).fill(value)
+
+
+def _upload_and_bake(page, glb, config: dict) -> str:
+    page.goto("/")
+    page.wait_for_selector("#config-form .config-form")
+    page.set_input_files("#scene-file", str(glb))
+    page.wait_for_selector("#upload-status.ok, #upload-status.error", timeout=30000)
+    assert "ready" in page.inner_text("#upload-status"), page.inner_text("#upload-status")
+    _fill_config(page, config)
+    page.click("#start-bake")
+    page.wait_for_selector("#bake-status.ok, #bake-status.error", timeout=30000)
+    status = page.inner_text("#bake-status")
+    assert status.startswith("Bake "), status
+    card = page.wait_for_selector(".bake-card[data-status=succeeded]", timeout=120000)
+    return card.get_attribute("data-bake")
+
+
+def test_bad_upload_and_bad_config_are_shown_in_words(page, tmp_path, kiln_server):
+    bad = tmp_path / "bad.glb"
+    bad.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (10**9).to_bytes(4, "little") + b"\x00" * 40)
+    page.goto("/")
+    page.wait_for_selector("#config-form .config-form")
+    page.set_input_files("#scene-file", str(bad))
+    page.wait_for_selector("#upload-status.error", timeout=30000)
+    text = page.inner_text("#upload-status")
+    assert "Upload refused" in text and "truncated_glb" in text, text
+    # a config the server refuses: the 422 message lands on the field it names
+    page.set_input_files("#scene-file", str(_scene(tmp_path)))
+    page.wait_for_selector("#upload-status.ok", timeout=30000)
+    _field(page, "trace.rays_per_probe").fill("5")
+    page.click("#start-bake")
+    page.wait_for_selector("#bake-status.error", timeout=30000)
+    field = page.locator('.field[data-path="trace.rays_per_probe"]')
+    assert "has-error" in field.get_attribute("class")
+    assert "greater than or equal to 16" in field.locator(".field-error").inner_text()
+    assert not page.kiln_errors, page.kiln_errors
+
+
+def test_upload_bake_and_view_every_mode(page, tmp_path, kiln_server, shots):
+    bake_id = _upload_and_bake(page, _scene(tmp_path), FAST)
+    stages = page.locator(f'.bake-card[data-bake="{bake_id}"] .stage')
+    assert stages.count() >= 6 and all(s == "succeeded" for s in stages.evaluate_all("e => e.map(x => x.dataset.status)"))
+    _after(page, lambda: page.click(f'a[data-open="{bake_id}"]'), "direct")
+    page.wait_for_function("document.getElementById('stream-label').textContent === 'volumes loaded'", timeout=60000)
+    canvas = page.locator("#viewer-canvas")
+
+    available = page.locator("#mode-list button[data-available='1']").evaluate_all("e => e.map(x => x.dataset.mode)")
+    assert {"direct", "leaking"} <= set(available), available
+    images = {}
+    for mode in available:
+        _after(page, lambda: page.click(f"#mode-list button[data-mode={mode}]"), mode)
+        images[mode] = _shot(canvas, shots / f"mode-{mode}.png")
+        _assert_not_blank(images[mode], f"mode {mode}")
+    # modes that cannot be shown say why and cannot be picked (PRT is off in the default config)
+    for btn in page.locator("#mode-list button[data-available='0']").all():
+        assert btn.is_disabled() and re.search(r"not baked|shader not written yet", btn.inner_text()), btn.inner_text()
+    assert "not baked" in page.inner_text("#mode-list button[data-mode=prt]")
+    d, lk = images["direct"], images["leaking"]
+    diff = np.abs(d - lk).mean()
+    assert diff > 4, f"direct and leaking look the same (mean abs difference {diff:.2f})"
+    assert _stats(lk)["mean"] > _stats(d)["mean"] + 2, "the leaking probes add no light"
+    frame = page.inner_text("#frame-time")
+    assert re.match(r"\d+\.\d\d ms \((GPU timer query|wall clock)\)", frame), frame
+
+    # the fly camera moves with the keyboard
+    page.click("#cam-fly")
+    before = page.evaluate("window.kiln.viewer.camera.position.toArray()")
+    page.keyboard.down("w")
+    page.wait_for_timeout(400)
+    page.keyboard.up("w")
+    after = page.evaluate("window.kiln.viewer.camera.position.toArray()")
+    assert np.linalg.norm(np.subtract(after, before)) > 0.05, (before, after)
+    page.click("#cam-orbit")
+
+    # indirect only: the SH volume itself, smooth and non-black
+    _after(page, lambda: page.select_option("#viewer-output", "indirect"), "leaking")
+    _assert_not_blank(_shot(canvas, shots / "leaking-indirect-only.png"), "indirect only")
+    page.select_option("#viewer-output", "shaded")
+
+    # probes coloured by state: ACTIVE green and OFF red both present in the two-rooms grid
+    _after(page, lambda: page.check("#show-probes"), "leaking")
+    img = _shot(canvas, shots / "probes-by-state.png")
+    r, g, b = img[..., 0], img[..., 1], img[..., 2]
+    assert ((g > 120) & (r < 90) & (b < 110)).sum() > 50, "no ACTIVE (green) probes on screen"
+    assert ((r > 120) & (g < 80)).sum() > 50, "no OFF (red) probes on screen"
+    _after(page, lambda: page.select_option("#probe-coloring", "sh"), "leaking")
+    _shot(canvas, shots / "probes-by-sh.png")
+    page.uncheck("#show-probes")
+
+    # debug images: the irradiance atlas, the depth atlas and a θ slice
+    for view, name in (("irradiance", "atlas-irradiance"), ("depth", "atlas-depth"), ("theta", "theta-slice")):
+        page.select_option("#debug-view", view)
+        page.wait_for_selector(f"#debug-image[data-view={view}]:not([hidden])", timeout=30000)
+        img = _shot(page.locator("#debug-image"), shots / f"{name}.png")
+        assert img.std() > 5, f"debug view {view} is flat"
+    page.screenshot(path=str(shots / "viewer-page.png"))
+    assert not page.kiln_errors, page.kiln_errors
+
+    # the same bake opened in a fresh session: no scene file, probes over an empty scene, with a note
+    page.goto(f"/#/viewer/{bake_id}")
+    page.reload()
+    page.wait_for_selector("#viewer-canvas[data-ready-mode=direct]", timeout=60000)
+    assert "empty scene" in page.inner_text("#viewer-note")
+    page.wait_for_function("document.getElementById('stream-label').textContent === 'volumes loaded'", timeout=60000)
+    _after(page, lambda: page.evaluate("window.kiln.viewer.invalidate()"), "direct")
+    img = _shot(canvas, shots / "no-scene-probes.png")
+    # every artifact came from the Cache API this time (ETag = the sha256 the bake lists), none from the network
+    stats = page.evaluate("window.kiln.viewer.loader.stats")
+    assert stats["cached"] >= 5 and stats["network"] == 0, stats
+    assert ((img[..., 1] > 120) & (img[..., 0] < 90)).sum() > 50, "probes not shown over the empty scene"
+
+
+def test_dashboard_lists_bakes_and_compares_two(page, tmp_path, kiln_server, shots):
+    glb = _scene(tmp_path)
+    first = _upload_and_bake(page, glb, FAST)
+    # a second bake of the same scene with another grid, through the form
+    _field(page, "place.counts.0").fill("6")
+    page.click("#start-bake")
+    page.wait_for_selector("#bake-status.ok", timeout=30000)
+    second = page.inner_text("#bake-status").split()[1]
+    page.wait_for_selector(f'.bake-card[data-status=succeeded][data-bake^="{second}"]', timeout=120000)
+
+    page.goto("/#/dashboard")
+    page.wait_for_selector("#bake-table tbody tr[data-bake]", timeout=30000)
+    page.wait_for_function("document.querySelectorAll('#bake-table tbody tr[data-bake]').length >= 2", timeout=30000)
+    ids = page.locator("#bake-table tbody tr[data-bake]").evaluate_all("e => e.map(x => x.dataset.bake)")
+    assert first in ids and any(i.startswith(second) for i in ids)
+    header = page.inner_text("#bake-table thead")
+    for col in ("status", "place", "trace", "light", "visibility", "total", "memory"):
+        assert col in header, header
+    row = page.inner_text(f'#bake-table tr[data-bake="{first}"]')
+    assert "succeeded" in row and "KiB" in row or "MiB" in row, row
+
+    second_id = next(i for i in ids if i.startswith(second))
+    page.check(f'input[data-pick="{first}"]')
+    page.check(f'input[data-pick="{second_id}"]')
+    page.wait_for_selector("#compare .compare-card >> nth=1")
+    cards = page.locator("#compare .compare-card").evaluate_all("e => e.map(x => x.dataset.bake)")
+    assert sorted(cards) == sorted([first, second_id])
+    table = page.inner_text("#compare-table")
+    assert "bake seconds" in table and "memory MiB" in table
+    assert "place.counts" in page.inner_text("#config-delta")
+    page.wait_for_selector("#chart[data-points] canvas", timeout=10000)
+    assert int(page.get_attribute("#chart", "data-points")) >= 2
+    page.screenshot(path=str(shots / "dashboard.png"), full_page=True)
+    assert not page.kiln_errors, page.kiln_errors
+
+
+def test_glsl_matches_the_python_kernels_on_the_gpu(page, kiln_server):
+    """proto/glsl's sh.glsl, probe_grid.glsl (hardware trilinear filtering of RGBA32F volumes) and
+    octahedral.glsl, run by this browser's WebGL2, give the numbers workers/kernels gave (proto/fixtures)."""
+    import json
+
+    fx = json.loads((ROOT / "proto" / "fixtures" / "expected.json").read_text())
+    page.goto("/")
+    page.wait_for_function("!!(window.kiln && window.kiln.glslParity)")
+    got = page.evaluate("fx => window.kiln.glslParity(fx)", fx)
+    s = fx["sh"]
+    np.testing.assert_allclose(np.asarray(got["sh"]).ravel(), s["irradiance"], rtol=1e-5, atol=1e-5)
+    want = [smp["irradiance"][str(n)] for smp in s["samples"] for n in range(len(s["normals"]))]
+    # hardware filtering weights may be quantized (8 fractional bits on many GPUs): a looser tolerance
+    np.testing.assert_allclose(np.asarray(got["trilinear"]), np.asarray(want), rtol=1e-2, atol=1e-2)
+    o = fx["octahedral"]
+    np.testing.assert_allclose(np.asarray(got["octEncode"]), o["encoded"], atol=1e-5)
+    np.testing.assert_allclose(np.asarray(got["octDecode"]), o["decoded"], atol=1e-5)
+
+
+def test_api_key_streams_progress_without_eventsource_and_cancels(page_keys, tmp_path, kiln_server_keys, shots):
+    """With an API key the app follows a bake by fetch-streaming the SSE endpoint (EventSource cannot send
+    the Authorization header), can cancel it, and streams artifacts with the key."""
+    from tests.web.conftest import API_KEY
+
+    page = page_keys
+    page.goto("/")
+    page.wait_for_selector("#banner:text-matches('API key')", timeout=30000)
+    page.fill("#api-key", API_KEY)
+    page.press("#api-key", "Enter")
+    page.wait_for_function("document.getElementById('banner').textContent === ''", timeout=30000)
+    assert page.evaluate("localStorage.getItem('kiln-api-key')") == API_KEY
+    page.wait_for_selector("#config-form .config-form")
+    page.set_input_files("#scene-file", str(_scene(tmp_path)))
+    page.wait_for_selector("#upload-status.ok", timeout=30000)
+    # a slow bake: watch its stages move, then cancel it
+    _fill_config(page, {"seed": "7", "place.counts.0": "24", "place.counts.1": "12", "place.counts.2": "12",
+                        "trace.rays_per_probe": "2048"})
+    page.click("#start-bake")
+    card = page.wait_for_selector(".bake-card[data-status=running]", timeout=60000)
+    bake_id = card.get_attribute("data-bake")
+    page.wait_for_selector(f'.bake-card[data-bake="{bake_id}"] .stage[data-status=succeeded]', timeout=60000)
+    page.click(f'button[data-cancel="{bake_id}"]')
+    page.wait_for_selector(f'.bake-card[data-bake="{bake_id}"][data-status=cancelled]', timeout=30000)
+    assert kiln_server_keys.api(f"/v1/bakes/{bake_id}", headers={"Authorization": f"Bearer {API_KEY}"})["status"] == "cancelled"
+    # the events went through fetch with the header, never EventSource
+    used = page.evaluate("performance.getEntriesByType('resource').filter(e => e.name.includes('/events')).map(e => e.initiatorType)")
+    assert used and set(used) == {"fetch"}, used
+    # a quick bake to the end, then its volumes with the key
+    _fill_config(page, {"seed": "8", "place.counts.0": "8", "place.counts.1": "8", "place.counts.2": "8",
+                        "trace.rays_per_probe": "256", **FAST})
+    page.click("#start-bake")
+    page.wait_for_selector("#bake-status.ok", timeout=30000)
+    short = page.inner_text("#bake-status").split()[1]
+    page.wait_for_selector(f'.bake-card[data-status=succeeded][data-bake^="{short}"]', timeout=120000)
+    _after(page, lambda: page.click(f'.bake-card[data-bake^="{short}"] a[data-open]'), "direct")
+    _after(page, lambda: page.click("#mode-list button[data-mode=leaking]"), "leaking")
+    _assert_not_blank(_shot(page.locator("#viewer-canvas"), shots / "api-key-leaking.png"), "leaking with an API key")
+    assert not page.kiln_errors, page.kiln_errors

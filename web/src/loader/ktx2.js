@@ -1,0 +1,148 @@
+/**
+ * A KTX2 reader for the subset Kiln writes (proto/bundle.md section 4): uncompressed formats, one level,
+ * no layers, one face, 2D or 3D, supercompression none or Zstandard (one frame, inflated with fzstd).
+ *
+ * three's KTX2Loader rejects RGB32F and the integer formats, so the viewer reads every artifact here and
+ * builds its textures itself. Anything outside the subset throws a KTX2Error naming the reason; nothing
+ * warns and returns undefined.
+ */
+import { decompress } from 'fzstd';
+
+export class KTX2Error extends Error {}
+
+const IDENTIFIER = [0xab, 0x4b, 0x54, 0x58, 0x20, 0x32, 0x30, 0xbb, 0x0d, 0x0a, 0x1a, 0x0a];
+
+/** vkFormat -> {name, components, typeSize, kind}; kind picks the typed array (proto/bundle.md 4.3). */
+export const VK_FORMATS = {
+  9: { name: 'R8_UNORM', components: 1, typeSize: 1, kind: 'unorm' },
+  13: { name: 'R8_UINT', components: 1, typeSize: 1, kind: 'uint' },
+  16: { name: 'R8G8_UNORM', components: 2, typeSize: 1, kind: 'unorm' },
+  37: { name: 'R8G8B8A8_UNORM', components: 4, typeSize: 1, kind: 'unorm' },
+  43: { name: 'R8G8B8A8_SRGB', components: 4, typeSize: 1, kind: 'unorm' },
+  74: { name: 'R16_UINT', components: 1, typeSize: 2, kind: 'uint' },
+  76: { name: 'R16_SFLOAT', components: 1, typeSize: 2, kind: 'half' },
+  83: { name: 'R16G16_SFLOAT', components: 2, typeSize: 2, kind: 'half' },
+  97: { name: 'R16G16B16A16_SFLOAT', components: 4, typeSize: 2, kind: 'half' },
+  98: { name: 'R32_UINT', components: 1, typeSize: 4, kind: 'uint' },
+  99: { name: 'R32_SINT', components: 1, typeSize: 4, kind: 'sint' },
+  100: { name: 'R32_SFLOAT', components: 1, typeSize: 4, kind: 'float' },
+  103: { name: 'R32G32_SFLOAT', components: 2, typeSize: 4, kind: 'float' },
+  106: { name: 'R32G32B32_SFLOAT', components: 3, typeSize: 4, kind: 'float' },
+  109: { name: 'R32G32B32A32_SFLOAT', components: 4, typeSize: 4, kind: 'float' },
+};
+
+function typedView(kind, typeSize, bytes) {
+  const { buffer, byteOffset, byteLength } = bytes;
+  const aligned = byteOffset % typeSize === 0;
+  const src = aligned ? bytes : bytes.slice();  // copy when the level is not aligned in the buffer
+  const b = aligned ? buffer : src.buffer;
+  const off = aligned ? byteOffset : 0;
+  const n = byteLength / typeSize;
+  if (kind === 'float') return new Float32Array(b, off, n);
+  if (kind === 'half') return new Uint16Array(b, off, n);  // raw IEEE half bits: see halfToFloat
+  if (kind === 'sint') return new Int32Array(b, off, n);
+  if (typeSize === 1) return new Uint8Array(b, off, n);
+  if (typeSize === 2) return new Uint16Array(b, off, n);
+  return new Uint32Array(b, off, n);
+}
+
+/**
+ * Parse a KTX2 file of the Kiln subset.
+ * @param {ArrayBuffer|Uint8Array} input
+ * @returns {{vkFormat: number, format: string, components: number, typeSize: number, kind: string,
+ *   width: number, height: number, depth: number, is3D: boolean, supercompression: number,
+ *   kv: Record<string, string>, data: Float32Array|Uint16Array|Uint8Array|Uint32Array|Int32Array}}
+ *   data holds width·height·max(depth,1)·components values, x fastest, then y, then z (bundle.md 4.6).
+ *   Little-endian hosts only (every browser we target).
+ */
+export function parseKTX2(input) {
+  const bytes = input instanceof Uint8Array ? input : new Uint8Array(input);
+  if (bytes.byteLength < 104) throw new KTX2Error(`file of ${bytes.byteLength} bytes is shorter than the KTX2 header`);
+  for (let i = 0; i < 12; i++) {
+    if (bytes[i] !== IDENTIFIER[i]) throw new KTX2Error('not a KTX 2.0 file (wrong identifier)');
+  }
+  const dv = new DataView(bytes.buffer, bytes.byteOffset, bytes.byteLength);
+  const u32 = (o) => dv.getUint32(o, true);
+  const u64 = (o) => {
+    const hi = dv.getUint32(o + 4, true);
+    if (hi !== 0) throw new KTX2Error(`64-bit offset at byte ${o} is beyond what a browser buffer holds`);
+    return dv.getUint32(o, true);
+  };
+  const vkFormat = u32(12);
+  const fmt = VK_FORMATS[vkFormat];
+  if (!fmt) throw new KTX2Error(`unsupported vkFormat ${vkFormat} (Kiln's subset: ${Object.keys(VK_FORMATS).join(', ')})`);
+  const typeSize = u32(16);
+  if (typeSize !== fmt.typeSize) throw new KTX2Error(`typeSize ${typeSize} does not match ${fmt.name}`);
+  const width = u32(20), height = u32(24), depth = u32(28);
+  const layers = u32(32), faces = u32(36), levels = u32(40), sc = u32(44);
+  if (!width || !height) throw new KTX2Error('zero width or height');
+  if (layers !== 0) throw new KTX2Error('array textures are not in the subset');
+  if (faces !== 1) throw new KTX2Error('cube maps are not in the subset');
+  if (levels > 1) throw new KTX2Error(`${levels} mip levels: the subset has one`);
+  if (sc !== 0 && sc !== 2) throw new KTX2Error(`supercompression scheme ${sc} is not in the subset (0 none, 2 Zstandard)`);
+  const dfdOffset = u32(48), dfdLength = u32(52), kvdOffset = u32(56), kvdLength = u32(60);
+  if (u64(64) !== 0 || u64(72) !== 0) throw new KTX2Error('supercompression global data is not in the subset');
+  const levelOffset = u64(80), levelLength = u64(88), rawLength = u64(96);
+  const texelBytes = fmt.components * fmt.typeSize;
+  const expected = width * height * Math.max(depth, 1) * texelBytes;
+  if (rawLength !== expected) {
+    throw new KTX2Error(`uncompressedByteLength ${rawLength} != ${width}x${height}x${Math.max(depth, 1)} x ${texelBytes} bytes`);
+  }
+  if (dfdOffset + dfdLength > bytes.byteLength || kvdOffset + kvdLength > bytes.byteLength) {
+    throw new KTX2Error('file is shorter than its data format descriptor or key/value data');
+  }
+  if (dfdLength !== 28 + 16 * fmt.components) throw new KTX2Error(`DFD of ${dfdLength} bytes does not fit ${fmt.name}`);
+  const samples = (u32(dfdOffset + 8) >>> 16) - 24;
+  if (samples !== 16 * fmt.components) throw new KTX2Error(`DFD describes ${samples / 16} samples, ${fmt.name} has ${fmt.components}`);
+  if (levelOffset + levelLength !== bytes.byteLength) {
+    throw new KTX2Error(levelOffset + levelLength > bytes.byteLength ? 'file is shorter than its level data' : 'bytes after the level data');
+  }
+  const kv = {};
+  const dec = new TextDecoder();
+  for (let o = kvdOffset; o < kvdOffset + kvdLength;) {
+    const n = u32(o);
+    if (n === 0) break;
+    const entry = bytes.subarray(o + 4, o + 4 + n);
+    const nul = entry.indexOf(0);
+    if (nul < 0) throw new KTX2Error('malformed key/value entry (no NUL after the key)');
+    const key = dec.decode(entry.subarray(0, nul));
+    let value = entry.subarray(nul + 1);
+    if (value.length && value[value.length - 1] === 0) value = value.subarray(0, value.length - 1);
+    if (key in kv) throw new KTX2Error(`duplicate key ${key}`);
+    kv[key] = dec.decode(value);
+    o += 4 + n + ((4 - (n % 4)) % 4);
+  }
+  let level = bytes.subarray(levelOffset, levelOffset + levelLength);
+  if (sc === 2) {
+    try {
+      level = decompress(level);
+    } catch (e) {
+      throw new KTX2Error(`corrupt Zstandard level: ${e.message || e}`);
+    }
+    if (level.byteLength !== rawLength) {
+      throw new KTX2Error(`Zstandard level inflates to ${level.byteLength} bytes, expected ${rawLength}`);
+    }
+  } else if (levelLength !== rawLength) {
+    throw new KTX2Error(`level of ${levelLength} bytes, expected ${rawLength}`);
+  }
+  return {
+    vkFormat, format: fmt.name, components: fmt.components, typeSize, kind: fmt.kind,
+    width, height, depth, is3D: depth > 0, supercompression: sc, kv,
+    data: typedView(fmt.kind, typeSize, level),
+  };
+}
+
+/** IEEE 754 half (as its 16 bits) -> number. */
+export function halfToFloat(h) {
+  const s = h & 0x8000 ? -1 : 1;
+  const e = (h >> 10) & 0x1f;
+  const f = h & 0x3ff;
+  if (e === 0) return s * f * 2 ** -24;
+  if (e === 31) return f ? NaN : s * Infinity;
+  return s * (1 + f / 1024) * 2 ** (e - 15);
+}
+
+/** The texel values of a parsed KTX2 as plain numbers (halves decoded, UNORM as the stored integers). */
+export function texelsAsNumbers(tex) {
+  return tex.kind === 'half' ? Float32Array.from(tex.data, halfToFloat) : tex.data;
+}

@@ -1,0 +1,127 @@
+/**
+ * GLSL parity on the real GPU path: runs proto/glsl's sh.glsl, probe_grid.glsl (with hardware trilinear
+ * filtering of RGBA32F 3D textures) and octahedral.glsl on a throwaway WebGL2 context and reads the results
+ * back, for the browser tests to compare with the Python kernels' numbers in proto/fixtures/expected.json.
+ * Needs EXT_color_buffer_float (to read float results back).
+ */
+import { preprocess } from './preprocess.js';
+import { GLSL_SOURCES } from './shaders.js';
+
+const VERT = `#version 300 es
+void main() { vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2); gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0); }`;
+
+const FRAG = `// parity entry (web/src/renderer/selftest.js)
+#include "sh.glsl"
+#include "octahedral.glsl"
+#include "probe_grid.glsl"
+uniform highp sampler2D uIn;  // column = case, rows = inputs
+uniform highp sampler3D uShR;
+uniform highp sampler3D uShG;
+uniform highp sampler3D uShB;
+uniform int uTest;
+out vec4 fragColor;
+void main() {
+  int i = int(gl_FragCoord.x);
+  vec4 a = texelFetch(uIn, ivec2(i, 0), 0);
+  vec4 b = texelFetch(uIn, ivec2(i, 1), 0);
+  vec4 c = texelFetch(uIn, ivec2(i, 2), 0);
+  vec4 d = texelFetch(uIn, ivec2(i, 3), 0);
+  if (uTest == 0) fragColor = vec4(shIrradianceL1(a, b, c, d.xyz), 1.0);
+  else if (uTest == 1) {
+    vec3 uvw = probeGridUVW(a.xyz);
+    fragColor = vec4(shIrradianceL1(texture(uShR, uvw), texture(uShG, uvw), texture(uShB, uvw), b.xyz), 1.0);
+  } else if (uTest == 2) fragColor = vec4(octEncode(a.xyz), 0.0, 1.0);
+  else fragColor = vec4(octDecode(a.xy), 1.0);
+}`;
+
+function compile(gl, type, src) {
+  const s = gl.createShader(type);
+  gl.shaderSource(s, src);
+  gl.compileShader(s);
+  if (!gl.getShaderParameter(s, gl.COMPILE_STATUS)) throw new Error(gl.getShaderInfoLog(s));
+  return s;
+}
+
+/**
+ * @param {object} fx  proto/fixtures/expected.json
+ * @returns {{sh: number[][], trilinear: number[][], octEncode: number[][], octDecode: number[][], renderer: string}}
+ */
+export function glslParity(fx) {
+  const canvas = document.createElement('canvas');
+  const gl = canvas.getContext('webgl2');
+  if (!gl) throw new Error('no WebGL2');
+  if (!gl.getExtension('EXT_color_buffer_float')) throw new Error('EXT_color_buffer_float is missing: cannot read float results');
+  gl.getExtension('OES_texture_float_linear');
+  const { code } = preprocess('parity.frag.glsl', { ...GLSL_SOURCES, 'parity.frag.glsl': FRAG }, { defines: { MAX_LIGHTS: 8 } });
+  const prog = gl.createProgram();
+  gl.attachShader(prog, compile(gl, gl.VERTEX_SHADER, VERT));
+  gl.attachShader(prog, compile(gl, gl.FRAGMENT_SHADER, code));
+  gl.linkProgram(prog);
+  if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(prog));
+  gl.useProgram(prog);
+  gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
+
+  // the SH volumes of the fixture grid: coeffs (D, H, W, 4, 3) -> one RGBA32F 3D texture per channel
+  const s = fx.sh;
+  const [W, H, D] = s.grid.counts;
+  ['uShR', 'uShG', 'uShB'].forEach((name, ch) => {
+    const data = new Float32Array(W * H * D * 4);
+    for (let p = 0; p < W * H * D; p++) for (let q = 0; q < 4; q++) data[p * 4 + q] = s.coeffs[(p * 4 + q) * 3 + ch];
+    const t = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE1 + ch);
+    gl.bindTexture(gl.TEXTURE_3D, t);
+    gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGBA32F, W, H, D, 0, gl.RGBA, gl.FLOAT, data);
+    for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR], [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
+      [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_3D, k, v);
+    gl.uniform1i(gl.getUniformLocation(prog, name), 1 + ch);
+  });
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridOrigin'), s.grid.origin);
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridSpacing'), s.grid.spacing);
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridCounts'), s.grid.counts);
+  gl.uniform1i(gl.getUniformLocation(prog, 'uIn'), 0);
+
+  const run = (test, rows) => {  // rows: array of 4 arrays of N vec4s
+    const n = rows[0].length;
+    const input = new Float32Array(n * 4 * 4);
+    rows.forEach((row, r) => row.forEach((v, i) => input.set([v[0] ?? 0, v[1] ?? 0, v[2] ?? 0, v[3] ?? 0], (r * n + i) * 4)));
+    const tin = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE0);
+    gl.bindTexture(gl.TEXTURE_2D, tin);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, n, 4, 0, gl.RGBA, gl.FLOAT, input);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MIN_FILTER, gl.NEAREST);
+    gl.texParameteri(gl.TEXTURE_2D, gl.TEXTURE_MAG_FILTER, gl.NEAREST);
+    const tout = gl.createTexture();
+    gl.bindTexture(gl.TEXTURE_2D, tout);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.RGBA32F, n, 1, 0, gl.RGBA, gl.FLOAT, null);
+    const fb = gl.createFramebuffer();
+    gl.bindFramebuffer(gl.FRAMEBUFFER, fb);
+    gl.framebufferTexture2D(gl.FRAMEBUFFER, gl.COLOR_ATTACHMENT0, gl.TEXTURE_2D, tout, 0);
+    gl.activeTexture(gl.TEXTURE0);
+    gl.bindTexture(gl.TEXTURE_2D, tin);
+    gl.viewport(0, 0, n, 1);
+    gl.uniform1i(gl.getUniformLocation(prog, 'uTest'), test);
+    gl.drawArrays(gl.TRIANGLES, 0, 3);
+    const out = new Float32Array(n * 4);
+    gl.readPixels(0, 0, n, 1, gl.RGBA, gl.FLOAT, out);
+    return Array.from({ length: n }, (_, i) => Array.from(out.subarray(i * 4, i * 4 + 4)));
+  };
+
+  // 0: per probe and normal, the probe's own coefficients (no filtering)
+  const cases = [[], [], [], []];
+  for (let p = 0; p < W * H * D; p++) {
+    const ch = [0, 1, 2].map((c) => [0, 1, 2, 3].map((q) => s.coeffs[(p * 4 + q) * 3 + c]));
+    for (const n of s.normals) { cases[0].push(ch[0]); cases[1].push(ch[1]); cases[2].push(ch[2]); cases[3].push(n); }
+  }
+  const sh = run(0, cases).map((v) => v.slice(0, 3));
+  // 1: hardware trilinear at world points, then irradiance per normal
+  const tri = [[], [], [], []];
+  for (const smp of s.samples) for (const n of s.normals) { tri[0].push(smp.p); tri[1].push(n); tri[2].push([]); tri[3].push([]); }
+  const trilinear = run(1, tri).map((v) => v.slice(0, 3));
+  const o = fx.octahedral;
+  const enc = run(2, [o.dirs, o.dirs.map(() => []), o.dirs.map(() => []), o.dirs.map(() => [])]).map((v) => v.slice(0, 2));
+  const dec = run(3, [o.uv, o.uv.map(() => []), o.uv.map(() => []), o.uv.map(() => [])]).map((v) => v.slice(0, 3));
+  const dbg = gl.getExtension('WEBGL_debug_renderer_info');
+  const renderer = dbg ? gl.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
+  gl.getExtension('WEBGL_lose_context')?.loseContext();
+  return { sh, trilinear, octEncode: enc, octDecode: dec, renderer };
+}

@@ -1,0 +1,179 @@
+/**
+ * The dashboard (DESIGN "Who uses it" 3): bakes per scene in a table (status, time per stage, memory,
+ * metrics when the evaluate stage recorded them), two picked bakes side by side with deltas, and a chart of
+ * any value across a scene's bakes over time (uPlot).
+ */
+import uPlot from 'uplot';
+import 'uplot/dist/uPlot.min.css';
+import {
+  bakeSeconds, chartValues, compareBakes, configDelta, formatBytes, formatSeconds, memoryBytes, metricColumns, stageGroups,
+} from '../state/stats.js';
+import { clear, formatTime, h, shortId } from './dom.js';
+
+const fmt = (v) => (v == null ? '–' : Math.abs(v) >= 1000 || (Math.abs(v) < 0.01 && v !== 0) ? v.toExponential(3) : Number(v.toFixed(4)).toString());
+
+export function createDashboardPage(app) {
+  const { api, store } = app;
+  const sceneSelect = h('select#dash-scene');
+  const refreshBtn = h('button.small#dash-refresh', { type: 'button' }, 'Refresh');
+  const table = h('table#bake-table.data');
+  const compare = h('div#compare');
+  const chartMetric = h('select#chart-metric');
+  const chartHolder = h('div#chart');
+  const msg = h('p#dash-msg.muted');
+  const el = h('section.page#page-dashboard',
+    h('h2', 'Bakes'),
+    h('div.row', h('label', 'Scene ', sceneSelect), refreshBtn, msg),
+    h('div.table-wrap', table),
+    h('p.muted', 'Tick two bakes to compare them.'),
+    compare,
+    h('h2', 'Over time'),
+    h('div.row', h('label', 'Value ', chartMetric)),
+    chartHolder);
+
+  const details = new Map();  // id -> full bake (with artifacts); finished bakes do not change
+  let bakes = [];
+  let picked = [];
+  let plot = null;
+
+  async function fullBake(b) {
+    const done = ['succeeded', 'failed', 'cancelled'].includes(b.status);
+    if (done && details.has(b.id)) return details.get(b.id);
+    const full = await api.getBake(b.id);
+    details.set(b.id, full);
+    return full;
+  }
+
+  async function load() {
+    msg.textContent = 'loading…';
+    const sceneId = sceneSelect.value || undefined;
+    try {
+      const { items } = await api.listBakes({ sceneId, limit: 200 });
+      // fetch the full records (artifacts -> memory) a few at a time
+      const out = new Array(items.length);
+      let next = 0;
+      await Promise.all([0, 1, 2, 3].map(async () => {
+        while (next < items.length) { const i = next++; out[i] = await fullBake(items[i]).catch(() => items[i]); }
+      }));
+      bakes = out.sort((a, b) => (a.created || 0) - (b.created || 0));
+      picked = picked.filter((id) => bakes.some((b) => b.id === id));
+      msg.textContent = `${bakes.length} bake${bakes.length === 1 ? '' : 's'}`;
+      renderTable();
+      renderCompare();
+      renderChartOptions();
+      renderChart();
+    } catch (e) {
+      msg.textContent = e.message;
+    }
+  }
+
+  function renderScenes() {
+    const { scenes } = store.get();
+    const cur = sceneSelect.value;
+    clear(sceneSelect);
+    sceneSelect.append(h('option', { value: '' }, 'all scenes'));
+    for (const s of scenes) sceneSelect.append(h('option', { value: s.id }, `${s.filename || shortId(s.id)} · ${shortId(s.id)}`));
+    sceneSelect.value = cur;
+  }
+
+  function renderTable() {
+    const groups = [];
+    for (const b of bakes) for (const g of Object.keys(stageGroups(b))) if (!groups.includes(g)) groups.push(g);
+    const metrics = metricColumns(bakes);
+    clear(table);
+    table.append(h('thead', h('tr',
+      h('th', ''), h('th', 'bake'), h('th', 'scene'), h('th', 'created'), h('th', 'status'),
+      groups.map((g) => h('th.num', { title: `seconds in stage ${g}` }, g)),
+      h('th.num', 'total'), h('th.num', 'memory'),
+      metrics.map((m) => h('th.num.metric', m)))));
+    const body = h('tbody');
+    for (const b of [...bakes].reverse()) {
+      const sg = stageGroups(b);
+      const box = h('input', { type: 'checkbox', checked: picked.includes(b.id), dataset: { pick: b.id } });
+      box.addEventListener('change', () => {
+        picked = box.checked ? [...picked.filter((x) => x !== b.id), b.id].slice(-2) : picked.filter((x) => x !== b.id);
+        table.querySelectorAll('input[data-pick]').forEach((i) => { i.checked = picked.includes(i.dataset.pick); });
+        renderCompare();
+      });
+      const flat = chartValues(b);
+      body.append(h('tr', { dataset: { bake: b.id, status: b.status } },
+        h('td', box),
+        h('td', b.status === 'succeeded' ? h('a', { href: `#/viewer/${b.id}` }, h('code', shortId(b.id))) : h('code', shortId(b.id))),
+        h('td', h('code', shortId(b.scene_id))),
+        h('td', formatTime(b.created)),
+        h('td', h('span.badge', { dataset: { status: b.status } }, b.status), b.error ? h('div.error.small', `${b.error.stage}: ${b.error.code}`) : null),
+        groups.map((g) => h('td.num', { title: sg[g]?.cached ? 'cached (time of the original run)' : '' }, sg[g] ? `${formatSeconds(sg[g].seconds)}${sg[g].cached ? ' ⟳' : ''}` : '–')),
+        h('td.num', formatSeconds(bakeSeconds(b))),
+        h('td.num', formatBytes(memoryBytes(b))),
+        metrics.map((m) => h('td.num.metric', fmt(flat[m])))));
+    }
+    table.append(body);
+    if (!bakes.length) table.append(h('tbody', h('tr', h('td', { colSpan: 8 }, 'No bakes for this scene yet.'))));
+  }
+
+  function renderCompare() {
+    clear(compare);
+    if (picked.length !== 2) return;
+    const [a, b] = picked.map((id) => bakes.find((x) => x.id === id)).sort((x, y) => (x.created || 0) - (y.created || 0));
+    if (!a || !b) return;
+    const card = (x) => h('div.compare-card', { dataset: { bake: x.id } },
+      h('h3', h('code', shortId(x.id)), ' ', h('span.badge', { dataset: { status: x.status } }, x.status)),
+      h('p.muted', `${formatTime(x.created)} · scene ${shortId(x.scene_id)}`),
+      h('p', `bake ${formatSeconds(bakeSeconds(x))} · memory ${formatBytes(memoryBytes(x))} · ${(x.artifacts || []).length} artifacts`),
+      x.status === 'succeeded' ? h('a.button.small', { href: `#/viewer/${x.id}` }, 'view') : null);
+    const rows = compareBakes(a, b);
+    const cfg = configDelta(a.config, b.config);
+    compare.append(h('h2', 'Compare'),
+      h('div.compare-cards', card(a), card(b)),
+      h('h3', 'Values (B − A)'),
+      h('table.data#compare-table', h('thead', h('tr', h('th', ''), h('th.num', `A ${shortId(a.id)}`), h('th.num', `B ${shortId(b.id)}`), h('th.num', 'delta'), h('th.num', 'relative'))),
+        h('tbody', rows.map((r) => h('tr', { dataset: { name: r.name } },
+          h('td', r.name), h('td.num', fmt(r.a)), h('td.num', fmt(r.b)),
+          h('td.num', { className: r.delta > 0 ? 'num up' : r.delta < 0 ? 'num down' : 'num' }, r.delta == null ? '–' : `${r.delta > 0 ? '+' : ''}${fmt(r.delta)}`),
+          h('td.num', r.relative == null ? '–' : `${r.relative > 0 ? '+' : ''}${(r.relative * 100).toFixed(1)}%`))))),
+      h('h3', 'Config differences'),
+      cfg.length ? h('table.data#config-delta', h('tbody', cfg.map((d) => h('tr', h('td', h('code', d.path)), h('td', JSON.stringify(d.a)), h('td', JSON.stringify(d.b)))))) : h('p.muted', 'Same config.'));
+  }
+
+  function renderChartOptions() {
+    const names = new Set();
+    for (const b of bakes) for (const [k, v] of Object.entries(chartValues(b))) if (v != null) names.add(k);
+    const cur = chartMetric.value || 'bake seconds';
+    clear(chartMetric);
+    for (const n of [...names].sort()) chartMetric.append(h('option', { value: n }, n));
+    chartMetric.value = names.has(cur) ? cur : [...names][0] || '';
+  }
+
+  function renderChart() {
+    if (plot) { plot.destroy(); plot = null; }
+    clear(chartHolder);
+    const name = chartMetric.value;
+    const pts = bakes.filter((b) => b.created && chartValues(b)[name] != null).map((b) => [b.created, chartValues(b)[name]]);
+    if (!name || pts.length === 0) { chartHolder.append(h('p.muted', 'Nothing to plot yet.')); return; }
+    // uPlot wants increasing x: bakes created in the same second get nudged apart
+    for (let i = 1; i < pts.length; i++) if (pts[i][0] <= pts[i - 1][0]) pts[i][0] = pts[i - 1][0] + 1e-3;
+    const width = Math.max(320, chartHolder.clientWidth || 800);
+    plot = new uPlot({
+      width, height: 260,
+      scales: { x: { time: true } },
+      series: [{}, { label: name, stroke: '#d9642b', width: 2, points: { show: true, size: 7, fill: '#d9642b' } }],
+      axes: [{}, { label: name }],
+    }, [pts.map((p) => p[0]), pts.map((p) => p[1])], chartHolder);
+    chartHolder.dataset.points = String(pts.length);
+  }
+
+  sceneSelect.addEventListener('change', () => { picked = []; load(); });
+  refreshBtn.addEventListener('click', load);
+  chartMetric.addEventListener('change', renderChart);
+  store.subscribe((s, prev) => { if (s.scenes !== prev.scenes) renderScenes(); });
+
+  return {
+    el,
+    async show(params) {
+      renderScenes();
+      const q = params.query || new URLSearchParams();
+      if (q.get('scene')) sceneSelect.value = q.get('scene');
+      await load();
+    },
+  };
+}

@@ -1,0 +1,324 @@
+/**
+ * Per-frame orchestration of the viewer (glTF-Sample-Viewer's "view" layer): opens a bake (and the scene
+ * file when this session uploaded it), streams the artifacts the GI modes need with progress, switches
+ * modes, drives the cameras and renders on demand. The renderer is the only GL code; the UI only listens.
+ */
+import { PerspectiveCamera, Vector3 } from 'three';
+import { ArtifactLoader, loadArtifacts } from '../loader/artifacts.js';
+import { loadSceneFile } from '../loader/scene.js';
+import { GIRenderer } from '../renderer/renderer.js';
+import { hasShader } from '../renderer/shaders.js';
+import { textureFromKTX2 } from '../renderer/textures.js';
+import { GI_MODES, modeArtifacts, modeAvailability, modeById } from '../state/modes.js';
+import { autoCamera } from './autocamera.js';
+import { createControls } from './cameras.js';
+
+/** The grid of a bake, from its place stage's stats (the manifest's `grid`). */
+export function bakeGrid(bake) {
+  const place = (bake?.stages || []).find((s) => s.name === 'place');
+  const st = place && place.stats;
+  if (!st || !st.counts) return null;
+  return { counts: st.counts, origin: st.origin, spacing: st.spacing };
+}
+
+/** Scene bounds of a bake, from its ingest stage's stats. */
+export function bakeBounds(bake) {
+  const ingest = (bake?.stages || []).find((s) => s.name === 'ingest');
+  return ingest?.stats?.bounds || null;
+}
+
+/**
+ * A first exposure for a bake: the light stage's mean probe irradiance (what the probes saw: indirect) plus
+ * the median over grid points of the unshadowed direct irradiance of the lights (KHR units, as lights.glsl),
+ * so that a surface of albedo 0.75 receiving that displays near mid-grey after the ACES curve. Returns EV
+ * (log2 of the exposure) in 0.25 steps, 0 when nothing is known.
+ */
+export function autoExposureEV(bake, lights = []) {
+  const light = (bake?.stages || []).find((s) => s.name === 'light');
+  const e = light?.stats?.mean_irradiance;
+  let total = Array.isArray(e) ? (e[0] + e[1] + e[2]) / 3 : 0;
+  const grid = bakeGrid(bake);
+  if (grid && lights.length) {
+    const [nx, ny, nz] = grid.counts;
+    const vals = [];
+    const step = Math.max(1, Math.round(Math.cbrt((nx * ny * nz) / 512)));  // at most ~512 points
+    for (let k = 0; k < nz; k += step) for (let j = 0; j < ny; j += step) for (let i = 0; i < nx; i += step) {
+      const p = [i, j, k].map((x, a) => grid.origin[a] + grid.spacing[a] * x);
+      let sum = 0;
+      for (const l of lights) {
+        const c = l.color || [1, 1, 1];
+        const I = (l.intensity ?? 1) * (c[0] + c[1] + c[2]) / 3;
+        if (l.type === 'directional') { sum += I; continue; }
+        const d2 = l.position.reduce((s2, x, a) => s2 + (x - p[a]) ** 2, 0);
+        sum += I / Math.max(d2, 1e-2);
+      }
+      vals.push(sum);
+    }
+    vals.sort((a, b) => a - b);
+    total += vals[Math.floor(vals.length / 2)] || 0;
+  }
+  if (!(total > 0)) return 0;
+  const exposure = 0.6 / ((0.75 / Math.PI) * total);
+  return Math.max(-10, Math.min(10, Math.round(Math.log2(exposure) * 4) / 4));
+}
+
+/** KHR_lights_punctual lights of a loaded glTF, in the form of the `lights` artifact. */
+export function gltfLights(root) {
+  const out = [];
+  if (!root) return out;
+  root.updateMatrixWorld(true);
+  root.traverse((o) => {
+    if (!o.isLight) return;
+    const p = new Vector3().setFromMatrixPosition(o.matrixWorld);
+    const c = [o.color.r, o.color.g, o.color.b];
+    if (o.isPointLight) out.push({ type: 'point', position: p.toArray(), color: c, intensity: o.intensity, range: o.distance || null });
+    else if (o.isSpotLight || o.isDirectionalLight) {
+      const t = new Vector3().setFromMatrixPosition(o.target.matrixWorld);
+      const d = t.sub(p).normalize().toArray();
+      if (o.isDirectionalLight) out.push({ type: 'directional', direction: d, color: c, intensity: o.intensity });
+      else {
+        out.push({
+          type: 'spot', position: p.toArray(), direction: d, color: c, intensity: o.intensity, range: o.distance || null,
+          outer_cone_angle: o.angle, inner_cone_angle: o.angle * (1 - o.penumbra),
+        });
+      }
+    }
+  });
+  return out;
+}
+
+export class Viewer {
+  /**
+   * @param {{canvas: HTMLCanvasElement, api: import('../api/client.js').KilnApi, onStatus?: Function, onError?: Function}} opts
+   */
+  constructor({ canvas, api, onStatus = () => {}, onError = (e) => console.error(e) }) {
+    this.canvas = canvas;
+    this.api = api;
+    this.onStatus = onStatus;
+    this.onError = onError;
+    this.renderer = new GIRenderer(canvas, { onError: (e) => { this.status({ shaderError: e.message }); onError(e); } });
+    this.camera = new PerspectiveCamera(60, 1, 0.02, 500);
+    this.controls = createControls(this.camera, canvas, () => this.invalidate());
+    this.controls.setMode('orbit');
+    this.loader = new ArtifactLoader(api);
+    this.bake = null;
+    this.artifacts = {};        // name -> decoded artifact (KTX2 parsed / JSON)
+    this.loading = new Map();   // name -> promise
+    this.mode = 'direct';
+    this.shownMode = null;
+    this.frames = 0;
+    this.dirty = true;
+    this.state = { exposure: 1, output: 'shaded', probes: false, probeColoring: 'state', shadows: true };
+    this.resizeObserver = new ResizeObserver(() => this.resize());
+    this.resizeObserver.observe(canvas);
+    this.resize();
+    this.last = performance.now();
+    this.running = true;
+    const loop = (t) => {
+      if (!this.running) return;
+      const dt = Math.min(0.1, (t - this.last) / 1000);
+      this.last = t;
+      const moving = this.controls.update(dt);
+      if (this.dirty || moving) this.renderNow();
+      requestAnimationFrame(loop);
+    };
+    requestAnimationFrame(loop);
+  }
+
+  status(patch) { this.onStatus(patch); }
+
+  invalidate() { this.dirty = true; }
+
+  resize() {
+    const w = Math.max(1, this.canvas.clientWidth), h = Math.max(1, this.canvas.clientHeight);
+    this.renderer.setSize(w, h);
+    this.camera.aspect = w / h;
+    this.camera.updateProjectionMatrix();
+    this.invalidate();
+  }
+
+  renderNow() {
+    this.dirty = false;
+    const ms = this.renderer.render(this.camera);
+    this.frames += 1;
+    this.canvas.dataset.frames = String(this.frames);
+    this.canvas.dataset.shownMode = this.shownMode || 'direct';
+    this.status({ frameMs: ms, frameSource: this.renderer.timer.source, frames: this.frames });
+    if (ms != null && this.renderer.timer.ext && this.renderer.timer.pending.length) setTimeout(() => this.status({ frameMs: this.renderer.timer.poll() }), 50);
+  }
+
+  artifactInfo(name) {
+    return (this.bake?.artifacts || []).find((a) => a.name === name) || null;
+  }
+
+  /** The modes and whether each can be shown for this bake. */
+  modes() {
+    const names = (this.bake?.artifacts || []).map((a) => a.name);
+    return GI_MODES.map((m) => ({ ...m, ...modeAvailability(m, names, hasShader) }));
+  }
+
+  /**
+   * Open a bake (may be null: just a scene) with the scene file uploaded in this session (may be null).
+   * @param {{bake: object|null, sceneFile: File|null, camera?: {position: number[], target: number[]}, mode?: string}} opts
+   */
+  async open({ bake, sceneFile, camera, mode }) {
+    const gen = (this.generation = (this.generation || 0) + 1);
+    const stale = () => gen !== this.generation;  // another open() started meanwhile: drop this one's results
+    this.bake = bake;
+    this.artifacts = {};
+    this.loading = new Map();
+    this.mode = 'direct';
+    this.renderer.setModeShader('mode_direct.glsl');
+    this.shownMode = 'direct';
+    let root = null;
+    let note = '';
+    if (sceneFile) {
+      try {
+        root = await loadSceneFile(sceneFile);
+      } catch (e) {
+        note = `could not load ${sceneFile.name} in the browser: ${e.message}`;
+      }
+    } else if (bake) {
+      note = 'The original scene file is only kept in the browser session that uploaded it: showing the probes over an empty scene.';
+    }
+    if (stale()) return;
+    this.renderer.setScene(root);
+    this.root = root;
+    const grid = bakeGrid(bake);
+    if (grid) this.renderer.setGrid(grid);
+    const bounds = bakeBounds(bake);
+    const cam = camera || autoCamera(root, bounds);
+    const size = bounds ? Math.hypot(...bounds[1].map((x, i) => x - bounds[0][i])) : 10;
+    this.camera.near = Math.max(0.005, size / 2000);
+    this.camera.far = size * 20 + 10;
+    this.camera.updateProjectionMatrix();
+    this.controls.fly.speed = Math.max(0.5, size / 8);
+    this.controls.lookAt(cam.position, cam.target);
+    this.userExposure = false;
+    const ev = autoExposureEV(bake, gltfLights(root));
+    this.set({ exposure: 2 ** ev });
+    this.status({ exposureEV: ev, note, modes: this.modes(), mode: this.mode, shownMode: 'direct', grid, hasScene: !!root, rendererInfo: this.renderer.info });
+    // direct light at once: the scene's own lights now, the bake's resolved lights (+ config lights, sky) soon
+    this.renderer.setLights(gltfLights(root));
+    this.renderer.setSky([0, 0, 0]);
+    this.invalidate();
+    if (!bake) return;
+    if (this.artifactInfo('lights')) {
+      const lights = await this.fetch(['lights']);
+      if (stale()) return;
+      this.renderer.setLights(lights.lights.lights || []);
+      this.renderer.setSky(lights.lights.sky || [0, 0, 0]);
+      if (!this.userExposure) {
+        const ev = autoExposureEV(bake, lights.lights.lights || []);
+        this.set({ exposure: 2 ** ev });
+        this.status({ exposureEV: ev });
+      }
+      this.invalidate();
+    }
+    // stream the probe data and every available mode's volumes in the background, with progress
+    const wanted = ['probe_positions_relocated', 'probe_states'];
+    for (const m of this.modes()) if (m.available) wanted.push(...modeArtifacts(m));
+    const stream = this.fetch(wanted.filter((n) => this.artifactInfo(n)))
+      .then(() => { if (!stale()) this.buildProbes(); })
+      .catch((e) => this.onError(e));
+    if (!root) this.setProbes({ visible: true });
+    if (mode && mode !== 'direct') await this.setMode(mode);
+    await stream;
+  }
+
+  /** Fetch and decode artifacts (each once), reporting combined progress. */
+  async fetch(names) {
+    const artifacts = this.artifacts, loading = this.loading, bake = this.bake;  // of this open(): a later one replaces them
+    const todo = names.filter((n) => !(n in artifacts) && !loading.has(n));
+    if (todo.length) {
+      const infos = todo.map((n) => {
+        const info = (bake?.artifacts || []).find((a) => a.name === n);
+        if (!info) throw new Error(`bake ${bake?.id} has no artifact ${n}`);
+        return info;
+      });
+      const report = (f, label) => { if (bake === this.bake) this.status({ loading: f, loadingLabel: label }); };
+      const p = loadArtifacts(this.loader, bake.id, infos, report)
+        .then((got) => { Object.assign(artifacts, got); report(1, ''); });
+      for (const n of todo) loading.set(n, p);
+    }
+    await Promise.all(names.map((n) => loading.get(n)));
+    return Object.fromEntries(names.map((n) => [n, artifacts[n]]));
+  }
+
+  buildProbes() {
+    const grid = bakeGrid(this.bake);
+    const pos = this.artifacts.probe_positions_relocated;
+    if (!grid || !pos) return;
+    const states = this.artifacts.probe_states ? this.artifacts.probe_states.data : null;
+    const radius = 0.12 * Math.min(...grid.spacing);
+    this.renderer.setProbes({ positions: pos.data, stride: pos.components, states, counts: grid.counts, radius });
+    if (this.artifacts.sh_l1_r) this.bindModeTextures(modeById('leaking'));
+    this.renderer.setProbeDisplay({ visible: this.state.probes, coloring: this.state.probeColoring });
+    this.invalidate();
+  }
+
+  bindModeTextures(mode) {
+    const textures = {};
+    for (const [uniform, [name, kind]] of Object.entries(mode.textures)) {
+      const art = this.artifacts[name];
+      if (!art) return false;
+      if (this.renderer.hasTextures([uniform]) && this.renderer.modeTextures[uniform].value.userData.artifact === name) continue;
+      const tex = textureFromKTX2(art, { filter: kind.endsWith('nearest') ? 'nearest' : 'linear', floatLinear: this.renderer.floatLinear });
+      tex.userData.artifact = name;
+      textures[uniform] = tex;
+    }
+    this.renderer.setTextures(textures);
+    return true;
+  }
+
+  /** Switch GI mode; resolves once the mode is on screen (its volumes streamed and bound). */
+  async setMode(id) {
+    const mode = this.modes().find((m) => m.id === id);
+    if (!mode) throw new Error(`unknown GI mode ${id}`);
+    if (!mode.available) { this.status({ modeError: `${mode.label}: ${mode.reason}${mode.missing.length ? ` (${mode.missing.join(', ')})` : ''}` }); return false; }
+    this.mode = id;
+    this.status({ mode: id, modeError: '' });
+    await this.fetch(modeArtifacts(mode));
+    if (this.mode !== id) return false;  // the user moved on meanwhile
+    this.bindModeTextures(mode);
+    this.renderer.setModeShader(mode.shader);
+    this.shownMode = id;
+    this.renderer.compile(this.camera);
+    this.invalidate();
+    this.status({ shownMode: id });
+    return true;
+  }
+
+  set(patch) {
+    Object.assign(this.state, patch);
+    if ('exposure' in patch) this.renderer.setExposure(patch.exposure);
+    if ('output' in patch) this.renderer.setOutput(patch.output);
+    if ('shadows' in patch) this.renderer.setShadows(patch.shadows);
+    this.renderer.setProbeDisplay({ visible: this.state.probes, coloring: this.state.probeColoring });
+    this.invalidate();
+  }
+
+  setProbes({ visible, coloring }) {
+    const patch = {};
+    if (visible !== undefined) patch.probes = visible;
+    if (coloring !== undefined) patch.probeColoring = coloring;
+    this.set(patch);
+    this.status({ probes: this.state.probes, probeColoring: this.state.probeColoring });
+  }
+
+  setCameraMode(mode) {
+    this.controls.setMode(mode);
+    this.status({ cameraMode: mode });
+    this.invalidate();
+  }
+
+  cameraState() {
+    return { position: this.camera.position.toArray(), target: this.controls.orbit.target.toArray() };
+  }
+
+  dispose() {
+    this.running = false;
+    this.resizeObserver.disconnect();
+    this.renderer.three.dispose();
+  }
+}

@@ -1,0 +1,115 @@
+// Cross-language parity: the JS KTX2 loader and the SH / octahedral math decode proto/fixtures (written by
+// proto/fixtures/make_fixtures.py from the Python kernels) to the same numbers.
+import { describe, expect, it } from 'vitest';
+import { readFileSync } from 'node:fs';
+import { fileURLToPath } from 'node:url';
+import { parseKTX2, texelsAsNumbers } from '../src/loader/ktx2.js';
+import { probeGridUVW, sampleVolumeTrilinear, shIrradianceL1 } from '../src/math/sh.js';
+import { atlasTexel, octDecode, octEncode, octTexelDirection } from '../src/math/octahedral.js';
+
+const FIX = fileURLToPath(new URL('../../proto/fixtures/', import.meta.url));
+const expected = JSON.parse(readFileSync(FIX + 'expected.json', 'utf8'));
+const load = (f) => parseKTX2(new Uint8Array(readFileSync(FIX + f)));
+const f32 = Math.fround;
+
+describe('KTX2 loader on the Python-written fixtures', () => {
+  for (const v of expected.volumes) {
+    it(`decodes ${v.file} (${v.format})`, () => {
+      const tex = load(v.file);
+      expect(tex.format).toBe(v.format);
+      expect([tex.width, tex.height, tex.depth, tex.components]).toEqual([v.width, v.height, v.depth, v.components]);
+      expect(tex.is3D).toBe(true);
+      const got = Array.from(texelsAsNumbers(tex));
+      expect(got.length).toBe(v.values.length);
+      // float32 values are exact; halves decode exactly to the float64 of numpy's float16
+      got.forEach((x, i) => expect(x).toBe(tex.kind === 'float' ? f32(v.values[i]) : v.values[i]));
+    });
+  }
+
+  it('reads key/value data and the Zstandard flag', () => {
+    const tex = load('volume_r8_zstd.ktx2');
+    expect(tex.supercompression).toBe(2);
+    expect(tex.kv.KTXwriter).toMatch(/^Kiln proto\.ktx2/);
+    expect(tex.kv.KTXwriterScParams).toMatch(/--zstd \d+/);
+  });
+
+  it('refuses what is not in the subset, with a reason', () => {
+    const good = new Uint8Array(readFileSync(FIX + 'volume_rgba32f.ktx2'));
+    const bad = good.slice(); bad[0] = 0;
+    expect(() => parseKTX2(bad)).toThrow(/identifier/);
+    const fmt = good.slice(); new DataView(fmt.buffer).setUint32(12, 131, true);  // a BC format
+    expect(() => parseKTX2(fmt)).toThrow(/unsupported vkFormat 131/);
+    expect(() => parseKTX2(good.slice(0, good.length - 4))).toThrow(/shorter/);
+    const extra = new Uint8Array(good.length + 4); extra.set(good);
+    expect(() => parseKTX2(extra)).toThrow(/after the level/);
+    const z = new Uint8Array(readFileSync(FIX + 'volume_r8_zstd.ktx2'));
+    const zlen = new DataView(z.buffer).getUint32(96, true);
+    const wrong = z.slice(); new DataView(wrong.buffer).setUint32(96, zlen + 1, true);
+    expect(() => parseKTX2(wrong)).toThrow(/uncompressedByteLength/);
+  });
+});
+
+describe('octahedral convention (fold on +Z) and atlas tiling', () => {
+  const close = (a, b, eps = 1e-6) => a.forEach((x, i) => expect(x).toBeCloseTo(b[i], 6));
+  it('encodes like workers.kernels.octahedral.oct_encode', () => {
+    expected.octahedral.dirs.forEach((d, i) => close(octEncode(d), expected.octahedral.encoded[i]));
+  });
+  it('decodes like oct_decode', () => {
+    expected.octahedral.uv.forEach((uv, i) => close(octDecode(uv), expected.octahedral.decoded[i]));
+  });
+  it('finds every probe tile and texel direction in the atlas', () => {
+    const a = expected.atlas;
+    const tex = load(a.file);
+    expect([tex.width, tex.height]).toEqual([a.width, a.height]);
+    expect(tex.is3D).toBe(false);
+    const [nx, ny, nz] = a.counts;
+    const n = a.texels;
+    for (let k = 0; k < nz; k++) for (let j = 0; j < ny; j++) for (let i = 0; i < nx; i++) {
+      for (let r = 0; r < n; r++) for (let c = 0; c < n; c++) {
+        const t = atlasTexel(tex, i, j, k, r, c, nx, n);
+        expect(t[0]).toBe((k * ny + j) * nx + i);  // the probe this tile belongs to
+        const dir = octTexelDirection(r, c, n);
+        const py = a.texel_directions.slice((r * n + c) * 3, (r * n + c) * 3 + 3);
+        dir.forEach((x, q) => { expect(x).toBeCloseTo(py[q], 6); expect(t[1 + q]).toBeCloseTo(x, 6); });
+      }
+    }
+    // the border mirrors the interior (RTXGI): top row = first interior row with columns flipped
+    const row0 = (c) => Array.from(tex.data.subarray(c * 4, c * 4 + 4));
+    const interior = (r, c) => Array.from(tex.data.subarray(((1 + r) * tex.width + 1 + c) * 4, ((1 + r) * tex.width + 2 + c) * 4));
+    for (let c = 1; c <= n; c++) expect(row0(c)).toEqual(interior(0, n - c));
+  });
+});
+
+describe('L1 SH irradiance', () => {
+  const s = expected.sh;
+  const vols = s.files.map(load);
+  const grid = s.grid;
+  const [W, H, D] = grid.counts;
+  it('the r/g/b volumes hold the coefficients in the documented order', () => {
+    const coeffs = s.coeffs;  // (D, H, W, 4, 3) float32
+    for (let p = 0; p < W * H * D; p++) for (let q = 0; q < 4; q++) for (let c = 0; c < 3; c++) {
+      expect(vols[c].data[p * 4 + q]).toBe(f32(coeffs[(p * 4 + q) * 3 + c]));
+    }
+  });
+  it('evaluates like workers.kernels.sh.sh_irradiance for every probe and normal', () => {
+    const N = s.normals.length;
+    for (let p = 0; p < W * H * D; p++) {
+      const ch = vols.map((v) => Array.from(v.data.subarray(p * 4, p * 4 + 4)));
+      s.normals.forEach((nrm, ni) => {
+        const e = shIrradianceL1(ch[0], ch[1], ch[2], nrm);
+        e.forEach((x, c) => expect(x).toBeCloseTo(s.irradiance[(p * N + ni) * 3 + c], 4));
+      });
+    }
+  });
+  it('maps world points to uvw and samples trilinearly like the GPU', () => {
+    for (const smp of s.samples) {
+      const uvw = probeGridUVW(smp.p, grid);
+      uvw.forEach((x, a) => expect(x).toBeCloseTo(smp.uvw[a], 10));
+      const ch = vols.map((v) => sampleVolumeTrilinear(v, uvw));
+      ch.forEach((c4, c) => c4.forEach((x, q) => expect(x).toBeCloseTo(smp.coeffs_rgb[c][q], 5)));
+      s.normals.forEach((nrm, ni) => {
+        shIrradianceL1(ch[0], ch[1], ch[2], nrm).forEach((x, c) => expect(x).toBeCloseTo(smp.irradiance[ni][c], 4));
+      });
+    }
+  });
+});
