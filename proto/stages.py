@@ -46,6 +46,7 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("masks", 1, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
+    StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 

@@ -1390,6 +1390,7 @@ class _GltfReader:
         # Plan: triangle budget and TEXCOORD_1 coverage from the JSON alone, before reading geometry.
         planned = 0
         all_uv1 = True
+        any_uv1 = False
         draws: list[tuple[int, int, int, dict]] = []  # (node, mesh, primitive index, primitive)
         for ni in order:
             node = nodes[ni]
@@ -1422,6 +1423,8 @@ class _GltfReader:
                 planned += n
                 if n and "TEXCOORD_1" not in prim["attributes"]:
                     all_uv1 = False
+                if n and "TEXCOORD_1" in prim["attributes"]:
+                    any_uv1 = True
                 draws.append((ni, node["mesh"], pi, prim))
         if planned > self.limits.max_triangles:
             raise _err(
@@ -1434,7 +1437,11 @@ class _GltfReader:
         tri_out = np.empty((planned, 3, 3), np.float32)
         nrm_out = np.empty((planned, 3, 3), np.float32)
         uv0_out = np.zeros((planned, 3, 2), np.float32)
-        uv1_out = np.zeros((planned, 3, 2), np.float32) if all_uv1 and planned else None
+        # TEXCOORD_1 is kept per triangle even when only some primitives have it (zeros elsewhere): it
+        # lands in ``uv1`` when every primitive has it, else in ``uv1_partial``; ``uv1_chart`` says which
+        # node's UV1 space (lightmap) each triangle lives in, -1 for triangles without TEXCOORD_1.
+        uv1_out = np.zeros((planned, 3, 2), np.float32) if any_uv1 and planned else None
+        chart_out = np.full((planned,), -1, np.int32) if uv1_out is not None else None
         mat_out = np.empty((planned,), np.int32)
         cursor = 0
 
@@ -1511,13 +1518,16 @@ class _GltfReader:
             if uv_set != 0:
                 self._counts[f"primitive(s) whose uv0 holds {uv_key} (the UV set their material's textures use)"] += 1
             uv1 = None
-            if uv1_out is not None:
+            if uv1_out is not None and "TEXCOORD_1" in attrs:
                 uv1 = self._vertex_attr(attrs["TEXCOORD_1"], n_vertices, sel, 2, f"{what} TEXCOORD_1")
 
             skin_m = self._skin_matrices(node, ni, prim, world, n_vertices, sel, what)
             mats = self._instances(node, ni, world[ni]) if skin_m is None else None
             out = (tri_out, nrm_out, uv0_out, uv1_out, mat_out)
+            start = cursor
             cursor = self._emit(out, cursor, pos64, nrm, skin_m, mats, tri, uv, uv1, mat, f"{what} (node {ni})")
+            if uv1 is not None:
+                chart_out[start:cursor] = ni
 
         if cursor == 0:
             dropped = {k: n for k, n in self._counts.items() if k.endswith("primitive(s) ignored")}
@@ -1531,7 +1541,8 @@ class _GltfReader:
             raise _err(
                 "no_triangles", f"'{self.label}' has no triangles in its scene to bake" + (f" ({why})" if why else "")
             )
-        if uv1_out is None and any("TEXCOORD_1" in prim["attributes"] for *_, prim in draws):
+        if any_uv1 and not all_uv1:
+            # ``uv1`` stays None (it promises every triangle); the coordinates live on in uv1_partial
             self.warnings.append("TEXCOORD_1 dropped: not every primitive has it")
 
         lights = self.build_lights(order, world)
@@ -1554,8 +1565,10 @@ class _GltfReader:
             materials=materials,
             lights=lights,
             textures=textures,
-            uv1=trim(uv1_out),
+            uv1=trim(uv1_out) if all_uv1 else None,
             warnings=list(self.warnings),
+            uv1_partial=None if all_uv1 else trim(uv1_out),
+            uv1_chart=trim(chart_out),
         )
 
     _BLOCK = 1 << 19  # corners per processing block: bounds the float64 temporaries (~40 MB each)

@@ -28,6 +28,7 @@ from workers.stages.ingest import run_ingest
 from workers.stages.masks import run_masks
 from workers.stages.light import run_light
 from workers.stages.place import run_place
+from workers.stages.prt import run_prt
 from workers.stages.relocate import run_relocate
 from workers.stages.trace import run_trace
 from workers.stages.visibility import run_visibility, run_visibility_slab
@@ -42,6 +43,7 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "anneal": run_anneal,
     "masks": run_masks,
     "compress": run_compress,
+    "prt": run_prt,
 }
 SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {"visibility": run_visibility_slab}
 """Runners of the shards of sharded stages (``StageDef.shards_from``), by stage name."""

@@ -12,6 +12,12 @@ Arrays (T = triangle count):
 - ``uv0``       : (T, 3, 2) float32, the UV set the material's base-colour (else emissive) texture
   samples, KHR_texture_transform applied (TEXCOORD_0 unless the material says otherwise; zeros where absent).
 - ``uv1``       : (T, 3, 2) float32 or None, TEXCOORD_1 where every mesh has it.
+- ``uv1_partial``: (T, 3, 2) float32 or None, TEXCOORD_1 per triangle when only *some* meshes have it
+  (zeros on the triangles without it; ``uv1`` is None then). None when ``uv1`` is set or no mesh has it.
+- ``uv1_chart`` : (T,) int32 or None, set whenever some mesh has TEXCOORD_1: the glTF node index whose
+  mesh gave the triangle its TEXCOORD_1 (triangles with the same chart share one UV1 space, i.e. one
+  lightmap; different nodes' UV1 spaces may overlap), -1 for triangles without TEXCOORD_1. Instances of
+  one node (EXT_mesh_gpu_instancing) share its chart. Use :meth:`NormalizedScene.texcoord1`.
 - ``material``  : (T,) int32, index into ``materials``.
 - ``textures``  : list of (H, W, 4) uint8 RGBA images (sRGB-encoded as stored in the file).
 
@@ -47,6 +53,8 @@ class NormalizedScene:
     textures: list[np.ndarray] = field(default_factory=list)
     uv1: np.ndarray | None = None
     warnings: list[str] = field(default_factory=list)
+    uv1_partial: np.ndarray | None = None
+    uv1_chart: np.ndarray | None = None
 
     # ------------------------------------------------------------------ properties
     @property
@@ -58,6 +66,16 @@ class NormalizedScene:
         """(2, 3) float64: min and max corner, world space, metres."""
         v = self.triangles.reshape(-1, 3)
         return np.stack([v.min(axis=0), v.max(axis=0)]).astype(np.float64)
+
+    def texcoord1(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """TEXCOORD_1 per triangle and its chart: ``(uv (T, 3, 2) float32, chart (T,) int32)``, chart -1
+        where a triangle has none; None when no mesh has TEXCOORD_1. Scenes stored before charts existed
+        (``uv1`` without ``uv1_chart``) get chart 0 everywhere."""
+        uv = self.uv1 if self.uv1 is not None else self.uv1_partial
+        if uv is None:
+            return None
+        chart = self.uv1_chart if self.uv1_chart is not None else np.zeros(self.n_triangles, np.int32)
+        return uv, chart
 
     def summary(self, scene_id: str) -> dict:
         return {
@@ -80,6 +98,10 @@ class NormalizedScene:
         }
         if self.uv1 is not None:
             arrays["uv1"] = np.ascontiguousarray(self.uv1, np.float32)
+        if self.uv1_partial is not None:
+            arrays["uv1_partial"] = np.ascontiguousarray(self.uv1_partial, np.float32)
+        if self.uv1_chart is not None:
+            arrays["uv1_chart"] = np.ascontiguousarray(self.uv1_chart, np.int32)
         for i, t in enumerate(self.textures):
             arrays[f"texture_{i:04d}"] = np.ascontiguousarray(t, np.uint8)
         meta = {"materials": self.materials, "lights": self.lights, "warnings": self.warnings,
@@ -107,4 +129,6 @@ class NormalizedScene:
                 textures=[z[f"texture_{i:04d}"] for i in range(meta["n_textures"])],
                 uv1=z["uv1"] if "uv1" in z.files else None,
                 warnings=meta.get("warnings", []),
+                uv1_partial=z["uv1_partial"] if "uv1_partial" in z.files else None,
+                uv1_chart=z["uv1_chart"] if "uv1_chart" in z.files else None,
             )

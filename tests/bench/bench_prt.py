@@ -1,7 +1,7 @@
 """Data-driven PRT benchmark (issue "Data-driven PRT"): run by hand, not part of the test command.
 
     .venv/bin/python tests/bench/bench_prt.py [--scenario front|room] [--configs 128] [--points 256]
-        [--basis 16] [--grid 8x8x8] [--rays 256] [--lightmap 256] [--heldout 16] [--png prt_rmse.png]
+        [--basis 16] [--grid 8x8x8] [--rays 256] [--lightmap 256] [--heldout 16] [--png /tmp/kiln_prt_rmse.png]
 
 On ../shared/scenes/cornell-box-vinc3r (4410 triangles, TEXCOORD_1 on the box, the block, Suzanne and one
 logo piece; xatlas UVs for the rest) this
@@ -181,7 +181,8 @@ def main(argv=None) -> dict:
     ap.add_argument("--lightmap", type=int, default=256)
     ap.add_argument("--heldout", type=int, default=16)
     ap.add_argument("--ridge", type=float, default=1e-3)
-    ap.add_argument("--png", default=str(ROOT / "prt_rmse.png"))
+    ap.add_argument("--supersampling", type=int, default=1)
+    ap.add_argument("--png", default=str(Path(tempfile.gettempdir()) / "kiln_prt_rmse.png"))
     args = ap.parse_args(argv)
     if not (SCENE_DIR / GLTF).exists():
         print(f"{SCENE_DIR} is absent: nothing to benchmark")
@@ -202,6 +203,7 @@ def main(argv=None) -> dict:
             "place": {"counts": counts}, "trace": {"rays_per_probe": args.rays},
             "prt": {"enabled": True, "configurations": args.configs, "measurement_points": args.points,
                     "basis": args.basis, "lightmap": args.lightmap, "ridge": args.ridge,
+                    "supersampling": args.supersampling,
                     "scenario": SCENARIOS[args.scenario]}})
         t_ingest = time.perf_counter()
         scene = ingest_file(zip_scene(tmp / "cornell2.zip"))
@@ -297,7 +299,8 @@ def main(argv=None) -> dict:
           f"reference RMS: SH {sh_rms:.4g}" + (f", lightmap {lm_rms:.4g}" if lm_rms else ""))
     print("  basis  SH relit   SH proj  ratio  " + ("  LM relit   LM proj  ratio" if fit_lm else ""))
     for r in rows:
-        line = f"  {r['basis']:5d} {r['sh_relit']:9.4g} {r['sh_proj']:9.4g} {r['sh_relit'] / max(r['sh_proj'], 1e-30):6.2f}"
+        ratio = r["sh_relit"] / max(r["sh_proj"], 1e-30)
+        line = f"  {r['basis']:5d} {r['sh_relit']:9.4g} {r['sh_proj']:9.4g} {ratio:6.2f}"
         if "lm_relit" in r:
             line += f" {r['lm_relit']:9.4g} {r['lm_proj']:9.4g} {r['lm_relit'] / max(r['lm_proj'], 1e-30):6.2f}"
         print(line)
