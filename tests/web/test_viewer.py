@@ -268,7 +268,10 @@ def test_api_key_streams_progress_without_eventsource_and_cancels(page_keys, tmp
     page.click(f'button[data-cancel="{bake_id}"]')
     page.wait_for_selector(f'.bake-card[data-bake="{bake_id}"][data-status=cancelled]', timeout=30000)
     assert kiln_server_keys.api(f"/v1/bakes/{bake_id}", headers={"Authorization": f"Bearer {API_KEY}"})["status"] == "cancelled"
-    # the events went through fetch with the header, never EventSource
+    # the events went through fetch with the header, never EventSource (a resource-timing entry appears
+    # once the stream has closed, after the final status event)
+    page.wait_for_function("performance.getEntriesByType('resource').some(e => e.name.includes('/events'))",
+                           timeout=30000)
     used = page.evaluate("performance.getEntriesByType('resource').filter(e => e.name.includes('/events')).map(e => e.initiatorType)")
     assert used and set(used) == {"fetch"}, used
     # a quick bake to the end, then its volumes with the key
