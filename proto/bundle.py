@@ -115,7 +115,7 @@ def _sha256_file(path: Path) -> tuple[str, int]:
 
 
 def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndarray | dict[str, Any],
-                   stage: str, *, format: Literal["ktx2", "npy", "json"] = "ktx2",
+                   stage: str, *, format: Literal["ktx2", "npy", "json", "png"] = "ktx2",
                    vk_format: int | str | None = None, zstd_level: int | None = None,
                    description: str = "", meta: dict[str, Any] | None = None,
                    volume: bool | None = None) -> ArtifactInfo:
@@ -131,8 +131,6 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
     ``"dict"`` for JSON). ``sha256`` and ``bytes`` are computed from the written file.
     """
     file = artifact_file_name(name, format)
-    if format == "png":
-        raise ValueError("png artifacts are written by the evaluate stage, not write_artifact")
     meta = dict(meta or {})
     if format == "ktx2":
         arr = np.asarray(array)
@@ -162,6 +160,11 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
             raise ValueError(f"json artifact {name!r} must be a dict, got {type(array).__name__}")
         data = _encode_json(array)
         shape, dtype = [], "dict"
+    elif format == "png":  # an encoded image (previews); loads back as its bytes
+        data = bytes(array)
+        if not data.startswith(b"\x89PNG\r\n\x1a\n"):
+            raise ValueError(f"png artifact {name!r} must be PNG-encoded bytes")
+        shape, dtype = [len(data)], "uint8"
     else:  # pragma: no cover - artifact_file_name checked the format
         raise ValueError(format)
 

@@ -228,6 +228,39 @@ class PrtSection(_Strict):
     lightmap: int = Field(256, ge=0, le=4096, description="lightmap resolution (0 = no lightmap target)")
 
 
+class CameraSpec(_Strict):
+    """A camera given by hand: world-space position and target, metres; vertical field of view, degrees."""
+
+    position: Vec3
+    target: Vec3
+    fov_y: float | None = Field(None, gt=1.0, lt=179.0)
+    name: str | None = Field(None, max_length=32, pattern=r"^[a-z0-9_-]+$")
+
+
+class EvaluateSection(_Strict):
+    """Previews and metrics of every GI mode against a path-traced reference (DESIGN stage 7; stage evaluate)."""
+
+    enabled: bool = Field(False, description="render previews and metrics against a path-traced reference "
+                                            "(slow: minutes per camera at 64 spp on this CPU; needs EGL/Mesa)")
+    cameras: int | list[CameraSpec] = Field(3, description="auto-placed camera count (0..16), or a list of cameras")
+    width: int = Field(512, ge=16, le=4096)
+    height: int = Field(384, ge=16, le=4096)
+    fov_y: float = Field(60.0, gt=1.0, lt=179.0, description="degrees, for auto-placed cameras")
+    spp: int = Field(64, ge=1, le=4096, description="path-traced reference samples per pixel")
+    bounces: int | None = Field(None, ge=1, le=256, description="reference bounces; default: the light stage's")
+    modes: list[Literal["direct", "leaking", "ddgi", "mask", "mask_normalized", "prt"]] | None = Field(
+        None, description="modes to evaluate; default: every mode the bake has data for")
+    repeats: int = Field(5, ge=1, le=100, description="timed repeats of each shading pass (median reported)")
+    flip: bool = Field(True, description="compute FLIP (slow on large images)")
+
+    @field_validator("cameras")
+    @classmethod
+    def _camera_count(cls, v):
+        if isinstance(v, int) and not 0 <= v <= 16:
+            raise ValueError("cameras must be 0..16 or a list")
+        return v
+
+
 class BakeConfig(_Strict):
     """A bake's settings, one section per stage.
 
@@ -243,6 +276,7 @@ class BakeConfig(_Strict):
     visibility: VisibilitySection = Field(default_factory=VisibilitySection)
     masks: MasksSection = Field(default_factory=MasksSection)
     prt: PrtSection = Field(default_factory=PrtSection)
+    evaluate: EvaluateSection = Field(default_factory=EvaluateSection)
 
     def section_hash(self, *names: str) -> str:
         """sha256 (hex) of the canonical JSON of the named sections (``"seed"`` allowed); a dotted name

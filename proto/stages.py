@@ -47,6 +47,9 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
+    StageDef("evaluate", 1, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+             ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt"),
+             timeout=7200),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 
@@ -137,6 +140,10 @@ def finalize_bake(catalog: Catalog, store: Store, bake: dict) -> dict:
     manifest = build_manifest(store, summary, config, bake_id=bake["id"], cached=cached)
     metrics = {f"stage_seconds.{s.name}": s.seconds for s in manifest.stages}
     metrics["artifact_bytes"] = sum(a.bytes for a in manifest.artifacts)
+    for s in manifest.stages:  # the evaluate stage's quality metrics: "<mode>.<metric>"
+        if s.name == "evaluate":
+            metrics.update({k: v for k, v in (s.stats.get("metrics") or {}).items()
+                            if isinstance(v, (int, float)) and v == v})
     catalog.set_metrics(bake["id"], metrics)
     data = manifest.model_dump(mode="json")
     catalog.set_bake_status(bake["id"], "succeeded", manifest=data)

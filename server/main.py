@@ -15,7 +15,7 @@ from proto.stages import KILN_VERSION
 from proto.store import Store
 from server import queue
 from server.api import errors
-from server.api.routes import bakes, ops, relight, scenes
+from server.api.routes import bakes, compare, ops, relight, scenes
 from server.config import Settings, get_settings
 from server.ingest_pool import IngestPool
 
@@ -66,6 +66,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(scenes.router)
     app.include_router(bakes.router)
     app.include_router(relight.router)
+    app.include_router(compare.router)
 
     # The built viewer (web/dist, `npm run build`) at / with its assets (relative URLs: ./assets/...); the
     # minimal page in server/static when it has not been built. Both are looked up per request, so building

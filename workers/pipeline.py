@@ -24,6 +24,7 @@ from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput
 from workers.stages.anneal import run_anneal
 from workers.stages.compress import run_compress
+from workers.stages.evaluate import run_evaluate
 from workers.stages.ingest import run_ingest
 from workers.stages.masks import run_masks
 from workers.stages.light import run_light
@@ -44,6 +45,7 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "masks": run_masks,
     "compress": run_compress,
     "prt": run_prt,
+    "evaluate": run_evaluate,
 }
 SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {"visibility": run_visibility_slab}
 """Runners of the shards of sharded stages (``StageDef.shards_from``), by stage name."""

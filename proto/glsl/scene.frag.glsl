@@ -10,6 +10,7 @@
 #include "shadows.glsl"
 #endif
 #include "tonemap.glsl"
+#include "gi_view.glsl"
 #include "@mode"
 
 uniform vec3 uBaseColor;           // linear RGB (glTF baseColorFactor)
@@ -17,6 +18,7 @@ uniform sampler2D uBaseColorMap;   // sRGB texture, decoded to linear by the sam
 uniform bool uHasBaseColorMap;
 uniform vec3 uEmissive;            // linear RGB radiance (emissiveFactor · strength)
 uniform float uIndirectScale;      // 1 normally, 0 to hide GI
+uniform vec3 cameraPosition;       // set by three.js for every ShaderMaterial (the ddgi mode's view bias)
 uniform int uOutput;               // 0 shaded, 1 indirect irradiance only, 2 direct irradiance only, 3 albedo
 
 in vec3 vWorldPos;
@@ -30,6 +32,7 @@ void main() {
   if (!gl_FrontFacing) n = -n;  // back faces (double-sided or seen from inside) shade with the flipped normal
   vec3 albedo = uBaseColor;
   if (uHasBaseColorMap) albedo *= texture(uBaseColorMap, vUv).rgb;
+  giViewDir = normalize(cameraPosition - vWorldPos);
   vec3 eDirect = directIrradiance(vWorldPos, n);
   vec3 eIndirect = uIndirectScale * giIndirectIrradiance(vWorldPos, n);
   vec3 radiance;

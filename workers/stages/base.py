@@ -36,7 +36,7 @@ class Artifact:
 
     name: str
     data: np.ndarray | dict
-    format: str = "ktx2"           # "ktx2" | "npy" | "json"
+    format: str = "ktx2"           # "ktx2" | "npy" | "json" | "png" (PNG-encoded bytes)
     vk_format: int | None = None   # KTX2 only; inferred from dtype/channels when None
     zstd_level: int | None = None  # KTX2 only: Zstandard supercompression level
     description: str = ""

@@ -1,0 +1,23 @@
+// Probe-grid addressing shared by the GI modes (proto/bundle.md section 5; Python: workers/kernels/samplers.py
+// probe_uvw, field_uvw; workers/kernels/grid.py cell_coords). Guards one-probe axes (counts 1, spacing 0):
+// there the grid coordinate is 0 (probe volumes read their single texel, refined-grid fields the middle).
+#include "probe_grid.glsl"
+
+// Continuous probe index of world point p: (p - origin) / spacing, 0 on one-probe axes.
+vec3 giGridCoord(vec3 p) {
+  vec3 g = (p - uGridOrigin) / max(uGridSpacing, vec3(1e-30));
+  return mix(vec3(0.0), g, greaterThan(uGridCounts, vec3(1.5)));
+}
+
+// Texel coordinate (texel centres at integer + 0.5) of p in a probe volume, clamped to the border texel
+// centres: with LINEAR filtering this equals CLAMP_TO_EDGE, and it never reads outside the volume, so
+// several volumes can be stacked along z in one texture (giStackedUVW).
+vec3 giProbeTexel(vec3 p) {
+  return clamp(giGridCoord(p) + 0.5, vec3(0.5), uGridCounts - 0.5);
+}
+
+// uvw in a 3D texture holding `count` probe volumes stacked along z (volume `slot` at z texels
+// [slot * nz, (slot + 1) * nz)): the bytes of the volumes concatenated in slot order.
+vec3 giStackedUVW(vec3 texel, float slot, float count) {
+  return vec3(texel.xy / uGridCounts.xy, (texel.z + slot * uGridCounts.z) / (uGridCounts.z * count));
+}

@@ -1,0 +1,217 @@
+"""The deferred shading pass (workers/render/shading.py) and the GLSL of every GI mode (proto/glsl).
+
+GLSL = Python: points (positions + normals in float textures) are shaded through each mode's GLSL into a
+float target and compared with the Python reference samplers (workers/kernels/samplers.py, ddgi.py).
+Tolerance: float16 precision relative to the values, 2^-10 × max |reference| (≈ one half-float ulp at
+the largest value), for 99.5% of the points (leaking: all of them). Hardware LINEAR filtering computes its
+weights in fixed point (8 fractional bits on llvmpipe and NVIDIA, as GL allows), so where a filtered value
+jumps across one texel (a mask edge, a depth discontinuity), it may differ by up to 2^-8 of the jump: the
+remaining points are held to 2^-8 × scale (mask modes) and 5% (ddgi, whose Chebyshev weight is a steep
+function of the filtered depth near r ≈ μ).
+"""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from proto.glsl_preprocess import ShaderSourceError, load_sources, preprocess
+from workers.kernels import samplers as SM
+from workers.kernels.ddgi import sample_irradiance
+from workers.kernels.grid import unpack_atlas
+from workers.kernels.shading import direct_irradiance
+from workers.raycast import RayCaster
+from workers.render.context import RenderUnavailable, create_context
+from workers.render.shading import MODES, GBufferInputs, ShadingRenderer, prepare_mode, shadow_masks
+
+from tests.workers.test_probes import bake_until
+
+F16 = 2.0 ** -10
+TWO_ROOMS_BOX = {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}
+CFG = {"place": {"counts": [9, 4, 5], "box": TWO_ROOMS_BOX}, "trace": {"rays_per_probe": 128},
+       "light": {"bounces": 2}, "visibility": {"samples_per_cell": 4, "slabs": 1},
+       "masks": {"clusters": 4, "sweeps": 200}}
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    try:
+        c = create_context()
+    except RenderUnavailable as e:  # pragma: no cover - depends on the machine
+        pytest.skip(str(e))
+    yield c
+    c.release()
+
+
+@pytest.fixture(scope="module")
+def two_rooms(tmp_path_factory, scene_files):
+    scene, s = bake_until(tmp_path_factory.mktemp("shade"), scene_files["two-rooms"], CFG, "compress")
+    return scene, s
+
+
+def _arrays(s) -> dict:
+    out = {}
+    for st in ("light", "masks", "compress", "relocate", "trace"):
+        for n in s[st].names():
+            out[n] = s[st][n]
+    return out
+
+
+def _grid(s):
+    p = s["place"].stats
+    return {k: p[k] for k in ("counts", "origin", "spacing")}
+
+
+def _mask_meta(s, cfg=CFG):
+    S = cfg["visibility"]["samples_per_cell"]
+    T = s["compress"].stats["block_size"]
+    return {"samples_per_cell": S, "block_size": T, "border_lo": T - S - 1}
+
+
+def _points(n, rng, box):
+    lo, hi = np.array(box["min"]) - 0.4, np.array(box["max"]) + 0.4  # some outside the grid box too
+    p = lo + rng.random((n, 3)) * (hi - lo)
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    return p, nrm
+
+
+def _as_image(a, W=64):
+    return np.asarray(a, np.float32).reshape(-1, W, a.shape[-1])
+
+
+def test_preprocessor_contract():
+    src = {"a.glsl": '#include "b.glsl"\n#include "b.glsl"\nvoid main() {}\n', "b.glsl": "float x;\n",
+           "c.glsl": '#include "@mode"\n', "v.glsl": "#version 330\n", "cyc.glsl": '#include "cyc2.glsl"\n',
+           "cyc2.glsl": '#include "cyc.glsl"\n'}
+    out = preprocess("a.glsl", src, target="desktop", defines={"MAX_LIGHTS": 8, "FLAG": True, "OFF": False})
+    lines = out.code.splitlines()
+    assert lines[:4] == ["#version 330", "#define KILN_DESKTOP 1", "#define MAX_LIGHTS 8", "#define FLAG"]
+    assert out.code.count("float x;") == 1                          # included once
+    assert out.line_map[lines.index("float x;")] == ("b.glsl", 1)
+    assert out.line_map[lines.index("void main() {}")] == ("a.glsl", 3)
+    es = preprocess("a.glsl", src, target="webgl2").code.splitlines()
+    assert es[0] == "#version 300 es" and "precision highp sampler3D;" in es and "#define KILN_WEBGL2 1" in es
+    assert "b.glsl" in preprocess("c.glsl", src, slots={"mode": "b.glsl"}).line_map[-2]
+    for entry, kw in (("c.glsl", {}), ("v.glsl", {}), ("nope.glsl", {}), ("cyc.glsl", {}), ("a.glsl", {"target": "x"})):
+        with pytest.raises(ShaderSourceError):
+            preprocess(entry, src, **kw)
+
+
+def test_every_mode_compiles_forward_and_deferred(ctx):
+    """scene.frag.glsl (the viewer's forward shader) and deferred.frag.glsl compile with every mode."""
+    src = load_sources()
+    vert = preprocess("scene.vert.glsl", src, target="desktop").code
+    for mode in MODES:
+        for entry in ("scene.frag.glsl",):
+            code = preprocess(entry, src, target="desktop", slots={"mode": f"mode_{mode}.glsl"},
+                              defines={"MAX_LIGHTS": 8}).code
+            ctx.program(vertex_shader=vert, fragment_shader=code).release()
+        preprocess("deferred.frag.glsl", src, target="webgl2", slots={"mode": f"mode_{mode}.glsl"},
+                   defines={"MAX_LIGHTS": 8})
+    r = ShadingRenderer(ctx)
+    try:
+        for mode in MODES:
+            r.program(mode)
+    finally:
+        r.release()
+
+
+@pytest.mark.parametrize("mode", ["leaking", "ddgi", "mask", "mask_normalized"])
+def test_glsl_equals_python(ctx, two_rooms, mode):
+    scene, s = two_rooms
+    arrays, grid = _arrays(s), _grid(s)
+    rng = np.random.default_rng(7)
+    N = 64 * 48
+    p, n = _points(N, rng, TWO_ROOMS_BOX)
+    eye = np.array([4.0, 1.5, 2.0])
+    view = (eye - p) / np.linalg.norm(eye - p, axis=1, keepdims=True)
+    if mode == "leaking":
+        want = np.maximum(SM.leaking(p, n, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid), 0)
+    elif mode == "ddgi":
+        counts = grid["counts"]
+        irr = unpack_atlas(arrays["irradiance"], counts, arrays["irradiance"].shape[0] // counts[1])[..., :3]
+        dep = unpack_atlas(arrays["depth_moments"], counts, arrays["depth_moments"].shape[0] // counts[1])
+        want = sample_irradiance(p, n, view, counts, grid["origin"], grid["spacing"],
+                                 arrays["probe_positions_relocated"].reshape(-1, 3),
+                                 arrays["probe_states"].reshape(-1), irr, dep, 0.3).astype(np.float64)
+    else:
+        want = SM.irradiance(mode, arrays, grid, p, n)
+    res = prepare_mode(mode, arrays, grid, mask_meta=_mask_meta(s))
+    r = ShadingRenderer(ctx)
+    try:
+        r.set_mode(res)
+        r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((48, 64, 3)), np.zeros((48, 64, 3)),
+                                    np.ones((48, 64), bool)))
+        got = r.render(mode, output=1, eye=eye).reshape(-1, 3).astype(np.float64)
+    finally:
+        r.release()
+    scale = np.abs(want).max()
+    assert scale > 0
+    err = np.abs(got - want)
+    per_point = err.max(axis=1) / scale
+    if mode == "leaking":
+        assert per_point.max() <= F16, per_point.max()
+    else:
+        assert np.quantile(per_point, 0.995) <= F16, np.quantile(per_point, 0.995)
+        assert per_point.max() <= (0.05 if mode == "ddgi" else 2.0 ** -8), per_point.max()
+
+
+def test_direct_matches_python_and_shadow_rays(ctx, two_rooms):
+    """The pass's E_direct (lights.glsl × Embree shadow mask) equals shading.direct_irradiance."""
+    scene, s = two_rooms
+    lights = s["ingest"]["lights"]["lights"]
+    assert lights
+    rng = np.random.default_rng(3)
+    p, n = _points(64 * 32, rng, TWO_ROOMS_BOX)
+    caster = RayCaster(scene.triangles)
+    want = direct_irradiance(p, n, lights, caster, 1e-3)
+    sm = shadow_masks(p, n, lights, caster, 1e-3)
+    r = ShadingRenderer(ctx, lights)
+    try:
+        r.set_mode(prepare_mode("direct", {}, _grid(s)))
+        r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((32, 64, 3)), np.zeros((32, 64, 3)),
+                                    np.ones((32, 64), bool), sm.reshape(32, 64, -1)))
+        got = r.render("direct", output=2).reshape(-1, 3)
+        rad = r.render("direct", output=0).reshape(-1, 3)
+    finally:
+        r.release()
+    assert (sm == 0).any() and (sm == 1).any()
+    assert np.abs(got - want).max() <= 1e-4 * np.abs(want).max()
+    assert np.abs(rad).max() == 0  # albedo 0, no emission
+
+
+PRT_CFG = {"place": {"counts": [3, 3, 3]}, "trace": {"rays_per_probe": 32}, "light": {"bounces": 2},
+           "prt": {"enabled": True, "configurations": 16, "measurement_points": 32, "basis": 8, "lightmap": 0,
+                   "scenario": {"types": ["point"], "box": {"min": [0.2, 0.2, 0.2], "max": [0.8, 0.8, 0.8]}}}}
+
+
+def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files):
+    """mode_prt.glsl's basis sum = prt_relight.relight's sh_l1 volumes sampled trilinearly."""
+    from proto.models import BakeConfig
+    from workers.prt_relight import PrtModel, relight
+    from workers.stages.base import StageContext
+    from workers.stages.evaluate import _prt_resources
+
+    prt_stage = pytest.importorskip("workers.stages.prt")
+    scene, s = bake_until(tmp_path, scene_files["cornell"], PRT_CFG, "light")
+    out = prt_stage.run_prt(StageContext(BakeConfig.model_validate(PRT_CFG), lambda: scene, s, lambda f: None))
+    arrays = {a.name: a.data for a in out.artifacts}
+    if PrtModel.from_arrays(arrays).gamma is not None:  # pragma: no cover - default config is linear
+        pytest.skip("gamma-space PRT has no GLSL basis sum")
+    grid = _grid(s)
+    lights = [{"type": "point", "position": [0.5, 0.6, 0.5], "intensity": 2.0, "color": [1.0, 0.8, 0.6]}]
+    caster = RayCaster(scene.triangles)
+    want_vol = relight(arrays, lights, caster, lightmap=False)
+    rng = np.random.default_rng(5)
+    p, n = _points(64 * 16, rng, {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]})
+    want = SM.leaking(p, n, want_vol["sh_l1_r"], want_vol["sh_l1_g"], want_vol["sh_l1_b"], grid)
+    r = ShadingRenderer(ctx)
+    try:
+        r.set_mode(_prt_resources(arrays, grid, lights, caster))
+        r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((16, 64, 3)), np.zeros((16, 64, 3)),
+                                    np.ones((16, 64), bool)))
+        got = r.render("prt", output=1).reshape(-1, 3)
+    finally:
+        r.release()
+    scale = np.abs(want).max()
+    assert scale > 0 and np.abs(got - want).max() <= F16 * scale, np.abs(got - want).max() / scale

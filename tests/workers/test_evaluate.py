@@ -1,0 +1,128 @@
+"""Stage evaluate on the procedural scenes: the real pipeline up to compress, then run_evaluate with a
+hand-built context (the stage is registered by the lead).
+
+Furnace: the scene has no geometry to look at (one 1 mm triangle 1 km away), so no camera sees a surface.
+Instead the modes' GLSL shades constructed G-buffer points — a grid of points filling the probe box with
+random normals, albedo 0.5 — through the same deferred pass; every mode must return E = π·L (sky L = 1)
+and the radiance albedo/π · π = albedo·L, which is also the path-traced reference there (open space under
+a uniform sky: E_indirect = π L). The stage itself must also run (no shaded pixels: zero errors).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from proto.models import BakeConfig
+from workers.procedural import BAKE_BOXES
+from workers.render.context import RenderUnavailable, create_context
+from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode
+from workers.stages.base import StageContext
+from workers.stages.evaluate import available_modes, run_evaluate
+
+from tests.workers.test_probes import bake_until
+
+EVAL = {"cameras": 1, "width": 96, "height": 72, "spp": 16, "repeats": 2, "flip": True}
+MD_SMALL = {"visibility": {"samples_per_cell": 4, "slabs": 1}, "masks": {"clusters": 4, "sweeps": 200}}
+TWO_ROOMS = {"place": {"counts": [9, 4, 5], "box": {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}},
+             "trace": {"rays_per_probe": 128}, "light": {"bounces": 2}, **MD_SMALL}
+SEALED = {"place": {"counts": [5, 3, 5], "box": {"min": [-1.5, 0.1, -1.5], "max": [1.5, 1.2, 1.5]}},
+          "trace": {"rays_per_probe": 128}, "light": {"bounces": 2}, **MD_SMALL}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def _gl():
+    try:
+        create_context().release()
+    except RenderUnavailable as e:  # pragma: no cover
+        pytest.skip(str(e))
+
+
+def _evaluate(scene, s, cfg, evaluate):
+    config = BakeConfig.model_validate({**cfg, "evaluate": {"enabled": True, **evaluate}})
+    ctx = StageContext(config=config, scene_loader=lambda: scene, inputs=s, report=lambda f: None)
+    return run_evaluate(ctx)
+
+
+def _stats(out):
+    return out.stats["metrics"]
+
+
+def test_two_rooms_leaking_worst_mask_and_ddgi_far_better(tmp_path, scene_files):
+    # a camera in the dark room B looking at the shared wall: light leaks through it in leaking mode
+    cam = {"position": [7.5, 1.5, 2.0], "target": [4.05, 1.2, 1.2], "name": "roomb"}
+    scene, s = bake_until(tmp_path, scene_files["two-rooms"], TWO_ROOMS, "compress")
+    out = _evaluate(scene, s, TWO_ROOMS, {**EVAL, "cameras": [cam]})
+    m = _stats(out)
+    modes = out.stats["modes"]
+    assert set(modes) >= {"direct", "leaking", "ddgi", "mask", "mask_normalized"}
+    leak = {k: m[f"{k}.leak"] for k in ("leaking", "ddgi", "mask", "mask_normalized")}
+    assert leak["leaking"] == max(leak.values())
+    for k in ("ddgi", "mask"):
+        assert leak[k] <= 0.5 * leak["leaking"], leak
+    # normalized mask GI at S = 4, K = 4 leaks on the room-B side of the shared wall in this view (a cluster
+    # holding probes of both sides in one cell; dividing by Σ m_k w_k brings the lit side's SH back): better
+    # than leaking, not "far" better — see the report
+    assert leak["mask_normalized"] < leak["leaking"], leak
+    for k in modes:
+        assert m[f"{k}.pass_ms"] > 0 and m[f"{k}.rmse"] >= 0
+    assert m["leaking.gi_fetches_per_pixel"] == 3
+    assert 8 <= m["ddgi.gi_fetches_per_pixel"] <= 24
+    assert m["mask.gi_fetches_per_pixel"] >= 2 + 3 and m["mask.texture_bytes"] > 0
+    names = {a.name for a in out.artifacts}
+    assert {"eval_metrics", "eval_contact", "eval_roomb_reference", "eval_roomb_mask", "eval_roomb_mask_error"} <= names
+    contact = next(a for a in out.artifacts if a.name == "eval_contact")
+    assert contact.format in ("png", "npy")
+
+
+def test_sealed_box_leaking_worst(tmp_path, scene_files):
+    # a camera inside the sealed cavity: the reference's indirect is ~0 there; leaking probes bring the sun in
+    cam = {"position": [0.0, 0.5, 0.35], "target": [0.0, 0.4, -0.45], "name": "cavity", "fov_y": 80.0}
+    scene, s = bake_until(tmp_path, scene_files["sealed-box"], SEALED, "compress")
+    out = _evaluate(scene, s, SEALED, {**EVAL, "cameras": [cam], "flip": False})
+    m = _stats(out)
+    # the reference's indirect is 0 in the whole view, so the relative leak score is 0 for every mode: the
+    # absolute excess indirect (lux) measures the leak
+    leak = {k: m[f"{k}.indirect_excess"] for k in ("leaking", "ddgi", "mask", "mask_normalized")}
+    assert leak["leaking"] == max(leak.values()) and leak["leaking"] > 0
+    for k in ("ddgi", "mask"):
+        assert leak[k] <= 0.5 * leak["leaking"], leak
+    # normalized mask GI: 5 cm walls, samples 19 cm apart (S = 4): the cavity's surface points filter with
+    # outside samples and the division by Σ m_k w_k restores the outside probes' light (0.44 vs 0.46 lux;
+    # 0.32 at S = 8) — better than leaking only; see the report
+    assert leak["mask_normalized"] < leak["leaking"], leak
+
+
+def test_furnace_every_mode_near_zero_error(tmp_path, scene_files):
+    lo, hi = BAKE_BOXES["furnace"]
+    cfg = {"place": {"counts": [3, 3, 3], "box": {"min": lo, "max": hi}}, "scene": {"sky": [1, 1, 1]},
+           "trace": {"rays_per_probe": 64}, "light": {"bounces": 1}, **MD_SMALL}
+    scene, s = bake_until(tmp_path, scene_files["furnace"], cfg, "compress")
+    arrays = {n: s[st][n] for st in ("light", "relocate", "trace", "masks", "compress") for n in s[st].names()}
+    place = s["place"].stats
+    grid = {k: place[k] for k in ("counts", "origin", "spacing")}
+    S, T = 4, s["compress"].stats["block_size"]
+    meta = {"samples_per_cell": S, "block_size": T, "border_lo": T - S - 1}
+    rng = np.random.default_rng(1)
+    H, W = 24, 32
+    p = np.asarray(lo) + rng.random((H, W, 3)) * (np.asarray(hi) - np.asarray(lo))
+    n = rng.normal(size=(H, W, 3))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    albedo = np.full((H, W, 3), 0.5)
+    r = ShadingRenderer()
+    try:
+        r.set_gbuffer(GBufferInputs(p, n, albedo, np.zeros((H, W, 3)), np.ones((H, W), bool)))
+        for mode in available_modes(arrays):
+            if mode == "direct":
+                continue
+            r.set_mode(prepare_mode(mode, arrays, grid, mask_meta=meta))
+            e = r.render(mode, 1, eye=(0.0, 0.0, 5.0))
+            rad = r.render(mode, 0, eye=(0.0, 0.0, 5.0))
+            # 1%: the probes' SH / octahedral projection of the sky from 64 rays, not the shaders
+            assert np.abs(e - math.pi).max() <= 1e-2 * math.pi, (mode, np.abs(e - math.pi).max())
+            assert np.abs(rad - 0.5).max() <= 1e-2 * 0.5, mode
+    finally:
+        r.release()
+    out = _evaluate(scene, s, cfg, {**EVAL, "spp": 4})      # no surface in view: runs, zero error
+    assert all(v == 0 for k, v in _stats(out).items() if k.endswith((".rmse", ".leak")))

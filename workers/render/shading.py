@@ -1,0 +1,414 @@
+"""Deferred shading pass of the evaluate stage: G-buffer + a GI mode's GLSL from ``proto/glsl`` → linear HDR.
+
+The pass is ``proto/glsl/deferred.frag.glsl`` with the mode file bound to its ``@mode`` slot
+(``mode_<name>.glsl``), preprocessed for GLSL 3.30 core by :mod:`proto.glsl_preprocess` — the same
+files the WebGL2 viewer compiles. One full-screen triangle; per pixel
+
+    L_out = emission + albedo/π · (E_direct + E_indirect)
+
+- ``E_direct``: the punctual lights evaluated in GLSL (``lights.glsl``, the formulas of
+  :func:`workers.kernels.shading.direct_irradiance`) times a per-pixel, per-light visibility computed
+  with Embree shadow rays on the CPU (:func:`shadow_masks`) and uploaded as RGBA8 textures (lights 0-3,
+  4-7). So the direct term is the reference's, exactly (the same rays, eps and normals), and the pass
+  still does the lighting work a game's base pass does.
+- ``E_indirect``: the mode's ``giIndirectIrradiance(p, n)``.
+
+``uOutput`` selects radiance (0), E_indirect (1) or E_direct (2); targets are RGBA32F, read back as
+(H, W, 3) float32 with row 0 at the top (the G-buffer's order: textures are uploaded row 0 first and the
+pass reads texel ``gl_FragCoord.xy``, so no flip happens anywhere).
+
+Modes and their textures (:func:`prepare_mode`; the GLSL headers document each binding):
+
+=================== ===========================================================================================
+``direct``          none
+``leaking``         ``sh_l1_{r,g,b}`` 3D RGBA32F, LINEAR
+``ddgi``            ``uProbeData`` (relocated positions + non-OFF flag, 3D RGBA32F, NEAREST), ``irradiance`` and
+                    ``depth_moments`` atlases (2D, LINEAR)
+``mask``            ``mask_indirection`` (NEAREST), ``mask_atlas_*`` (LINEAR), the cluster SH volumes stacked
+``mask_normalized`` along z (3D RGBA32F), cluster weights stacked (normalized only)
+``prt``             the PRT SH basis (L1 coefficients) stacked along z; per-channel coefficients as uniforms
+=================== ===========================================================================================
+
+Timing (:meth:`ShadingRenderer.time_pass`): wall clock of ``render(); ctx.finish()``, median of repeats
+after one warm-up (llvmpipe's timer queries are wrong).
+
+Consumers: workers/stages/evaluate.py, tests/render/test_shading.py, tests/bench/bench_evaluate.py.
+"""
+from __future__ import annotations
+
+import math
+import statistics
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from proto.glsl_preprocess import ShaderSourceError, format_compile_errors, load_sources, preprocess
+from workers.kernels.ddgi import bias_scale
+from workers.kernels.grid import OFF
+from workers.kernels.shading import direct_irradiance
+
+from .context import create_context
+
+__all__ = ["MODES", "MAX_LIGHTS", "ModeResources", "GBufferInputs", "ShadingRenderer", "prepare_mode",
+           "shadow_masks", "light_uniforms", "stack_volumes"]
+
+MODES = ("direct", "leaking", "ddgi", "mask", "mask_normalized", "prt")
+MAX_LIGHTS = 8
+PRT_MAX_GROUPS = 16
+_SAMPLER_TYPES = {0x8B5E: "2d", 0x8B5F: "3d"}  # GL_SAMPLER_2D, GL_SAMPLER_3D  # basis slots ≤ 64 (mode_prt.glsl KILN_PRT_MAX_GROUPS)
+
+
+# ----------------------------------------------------------------------------------------- inputs
+@dataclass
+class GBufferInputs:
+    """What the pass reads per pixel, (H, W, ...) float32 arrays, row 0 = top (any point set works:
+    the GLSL = Python tests lay points out as an image)."""
+
+    position: np.ndarray
+    normal: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    shaded: np.ndarray             # (H, W) bool
+    shadow: np.ndarray | None = None  # (H, W, L) visibility in [0, 1] per light (None: all visible)
+
+    @classmethod
+    def from_gbuffer(cls, gb, shadow=None) -> "GBufferInputs":
+        return cls(gb.position, gb.normal, gb.albedo, gb.emission, gb.shaded, shadow)
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return self.shaded.shape
+
+
+def shadow_masks(points, normals, lights, caster, eps: float) -> np.ndarray:
+    """(N, L) uint8 0/1: whether light l reaches point n, by the shadow rays of
+    :func:`workers.kernels.shading.direct_irradiance` (same origins ``x + eps·n``, same tfar). Points a light
+    does not reach anyway (facing away, out of the cone or range) get 1."""
+    pts = np.asarray(points, np.float64).reshape(-1, 3)
+    nrm = np.asarray(normals, np.float64).reshape(-1, 3)
+    out = np.ones((pts.shape[0], len(lights)), np.uint8)
+    for i, light in enumerate(lights):
+        lit = direct_irradiance(pts, nrm, [light], None, eps).sum(axis=1)
+        sel = np.flatnonzero(lit > 0)
+        if sel.size == 0 or caster is None:
+            continue
+        shadowed = direct_irradiance(pts[sel], nrm[sel], [light], caster, eps).sum(axis=1)
+        out[sel, i] = (shadowed > 0).astype(np.uint8)
+    return out
+
+
+def light_uniforms(lights) -> dict[str, np.ndarray]:
+    """lights.glsl uniforms from the scene's light dicts (at most :data:`MAX_LIGHTS`)."""
+    lights = list(lights)
+    if len(lights) > MAX_LIGHTS:
+        raise ValueError(f"the shading pass takes at most {MAX_LIGHTS} lights, got {len(lights)}")
+    pos = np.zeros((MAX_LIGHTS, 4), np.float32)
+    dr = np.zeros((MAX_LIGHTS, 4), np.float32)
+    col = np.zeros((MAX_LIGHTS, 4), np.float32)
+    cone = np.zeros((MAX_LIGHTS, 4), np.float32)
+    types = {"point": 0.0, "spot": 1.0, "directional": 2.0}
+    for i, lt in enumerate(lights):
+        pos[i, :3] = lt.get("position") or (0.0, 0.0, 0.0)
+        pos[i, 3] = types[lt["type"]]
+        d = np.asarray(lt.get("direction") or (0.0, 0.0, -1.0), np.float64)
+        dr[i, :3] = d / max(np.linalg.norm(d), 1e-30)
+        rng = lt.get("range")
+        dr[i, 3] = float(rng) if rng is not None and math.isfinite(rng) and rng > 0 else 0.0
+        col[i, :3] = np.asarray(lt.get("color", (1.0, 1.0, 1.0)), np.float64) * float(lt.get("intensity", 1.0))
+        inner = lt.get("inner_cone_angle")
+        outer = lt.get("outer_cone_angle")
+        cone[i, 0] = math.cos(0.0 if inner is None else float(inner))
+        cone[i, 1] = math.cos(math.pi / 4 if outer is None else float(outer))
+    return {"uLightCount": len(lights), "uLightPosType": pos, "uLightDirRange": dr, "uLightColor": col,
+            "uLightCone": cone}
+
+
+# ----------------------------------------------------------------------------------------- modes
+@dataclass
+class ModeResources:
+    """A mode's textures ``{uniform: (array, linear)}`` (3D when the array has 4 axes, else 2D), its other
+    uniforms, and the bytes of the textures it samples (MD Table 2 style: as uploaded)."""
+
+    mode: str
+    textures: dict = field(default_factory=dict)
+    uniforms: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    @property
+    def texture_bytes(self) -> int:
+        return int(sum(np.asarray(a).nbytes for a, _ in self.textures.values()))
+
+
+def stack_volumes(volumes) -> np.ndarray:
+    """Probe volumes (nz, ny, nx, C) stacked along z (volume s at z texels [s·nz, (s+1)·nz)): gi_grid.glsl's
+    giStackedUVW layout; the bytes of the volumes concatenated."""
+    return np.ascontiguousarray(np.concatenate([np.asarray(v, np.float32) for v in volumes], axis=0))
+
+
+def _grid_uniforms(grid) -> dict:
+    return {"uGridOrigin": tuple(float(x) for x in grid["origin"]),
+            "uGridSpacing": tuple(float(x) for x in grid["spacing"]),
+            "uGridCounts": tuple(float(x) for x in grid["counts"])}
+
+
+def cluster_count(arrays) -> int:
+    K = 0
+    while f"cluster_sh_{K}_r" in arrays:
+        K += 1
+    return K
+
+
+def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask_meta: dict | None = None,
+                 prt_model=None, prt_coefficients=None) -> ModeResources:
+    """Textures and uniforms of one mode from baked artifacts addressed by name (``arrays[name]``).
+
+    grid : counts (nx, ny, nz), origin, spacing. mask modes need ``mask_meta`` with ``samples_per_cell`` (S),
+    ``block_size`` (T) and ``border_lo``. prt needs ``prt_model`` (:class:`workers.prt_relight.PrtModel`,
+    mono, no gamma) and ``prt_coefficients`` (n, 3) (u of PRT eq 10 per colour channel).
+    """
+    r = ModeResources(mode, uniforms=_grid_uniforms(grid))
+    nx, ny, nz = (int(c) for c in grid["counts"])
+    if mode == "direct":
+        return r
+    if mode == "leaking":
+        for u, c in (("uShR", "r"), ("uShG", "g"), ("uShB", "b")):
+            r.textures[u] = (np.ascontiguousarray(arrays[f"sh_l1_{c}"], np.float32), True)
+        return r
+    if mode == "ddgi":
+        pos = np.asarray(arrays["probe_positions_relocated"], np.float32).reshape(nz, ny, nx, 3)
+        states = np.asarray(arrays["probe_states"]).reshape(nz, ny, nx)
+        data = np.concatenate([pos, (states != OFF)[..., None].astype(np.float32)], axis=-1)
+        irr = np.ascontiguousarray(arrays["irradiance"], np.float32)
+        dep = np.ascontiguousarray(arrays["depth_moments"], np.float32)
+        t_irr = irr.shape[0] // ny
+        t_dep = dep.shape[0] // ny
+        r.textures.update(uProbeData=(np.ascontiguousarray(data), False), uIrradianceAtlas=(irr, True),
+                          uDepthAtlas=(dep, True))
+        r.uniforms.update(uDdgiBias=bias_scale(grid["spacing"], self_shadow_bias), uIrradianceTexels=t_irr - 2,
+                          uDepthTexels=t_dep - 2)
+        r.info.update(irradiance_texels=t_irr - 2, depth_texels=t_dep - 2, probes_off=int((states == OFF).sum()))
+        return r
+    if mode in ("mask", "mask_normalized"):
+        if mask_meta is None:
+            raise ValueError("mask modes need mask_meta (samples_per_cell, block_size, border_lo)")
+        K = cluster_count(arrays)
+        if K < 1:
+            raise ValueError("mask modes need cluster_sh_{k}_{r,g,b} volumes")
+        sh = stack_volumes([arrays[f"cluster_sh_{k}_{c}"] for k in range(K) for c in "rgb"])
+        r.textures.update(uMaskIndirection=(np.ascontiguousarray(arrays["mask_indirection"]), False),
+                          uMaskAtlas0123=(np.ascontiguousarray(arrays["mask_atlas_0123"]), True),
+                          uClusterSh=(sh, True))
+        if K > 4:
+            r.textures["uMaskAtlas4567"] = (np.ascontiguousarray(arrays["mask_atlas_4567"]), True)
+        if mode == "mask_normalized":
+            names = ["cluster_weights_0123"] + (["cluster_weights_4567"] if K > 4 else [])
+            r.textures["uClusterWeights"] = (stack_volumes([arrays[n] for n in names]), True)
+        r.uniforms.update(uClusterCount=K, uMaskS=float(mask_meta["samples_per_cell"]),
+                          uMaskT=float(mask_meta["block_size"]), uMaskLo=float(mask_meta["border_lo"]))
+        r.info.update(clusters=K)
+        return r
+    if mode == "prt":
+        if prt_model is None or prt_coefficients is None:
+            raise ValueError("prt mode needs prt_model and prt_coefficients")
+        if prt_model.channels != "mono" or prt_model.gamma is not None:
+            raise ValueError("the prt GLSL mode sums a mono, linear (gamma None) basis")
+        u = np.asarray(prt_coefficients, np.float32)
+        n = u.shape[0]
+        G = -(-n // 4)
+        if G > PRT_MAX_GROUPS:
+            raise ValueError(f"prt mode: at most {4 * PRT_MAX_GROUPS} basis slots, got {n}")
+        names = prt_model.section["sh"]["basis"]            # [k][g] artifact names
+        vols = [arrays[names[k][g]] for k in range(4) for g in range(G)]
+        coef = np.zeros((3, PRT_MAX_GROUPS, 4), np.float32)
+        padded = np.zeros((4 * G, 3), np.float32)
+        padded[:n] = u
+        coef[:, :G, :] = padded.T.reshape(3, G, 4)
+        r.textures["uPrtBasis"] = (stack_volumes(vols), True)
+        r.uniforms.update(uPrtGroups=G, uPrtCoef=coef.reshape(-1, 4))
+        r.info.update(basis=n, groups=G)
+        return r
+    raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
+
+
+# ----------------------------------------------------------------------------------------- renderer
+class ShadingRenderer:
+    """Compiles the deferred pass per mode and renders G-buffers through it.
+
+    Parameters
+    ----------
+    ctx : moderngl.Context, optional (default: a new headless one, released by :meth:`release`)
+    lights : list of light dicts (the scene's resolved lights; at most 8)
+    """
+
+    def __init__(self, ctx=None, lights=()):
+        self._own_ctx = ctx is None
+        self.ctx = create_context() if ctx is None else ctx
+        import moderngl as mgl
+
+        self._mgl = mgl
+        self.sources = load_sources()
+        self.lights = list(lights)
+        self.light_uniforms = light_uniforms(self.lights)
+        self.vert = preprocess("fullscreen.vert.glsl", self.sources, target="desktop").code
+        self.programs: dict[str, object] = {}
+        self.modes: dict[str, ModeResources] = {}
+        self.mode_textures: dict[str, dict] = {}
+        self._gbuf: dict = {}
+        self._fbo = None
+        self._size = None
+        self._vaos: dict = {}
+        self._dummies: dict = {}
+
+    # ------------------------------------------------------------------ setup
+    def program(self, mode: str):
+        if mode not in self.programs:
+            pre = preprocess("deferred.frag.glsl", self.sources, target="desktop", slots={"mode": f"mode_{mode}.glsl"},
+                             defines={"MAX_LIGHTS": MAX_LIGHTS})
+            try:
+                prog = self.ctx.program(vertex_shader=self.vert, fragment_shader=pre.code)
+            except Exception as exc:  # moderngl raises plain Errors with the driver log
+                raise ShaderSourceError(f"mode {mode}: GLSL compile failed:\n{format_compile_errors(str(exc), pre)}"
+                                        ) from exc
+            self.programs[mode] = prog
+            self._vaos[mode] = self.ctx.vertex_array(prog, [])
+        return self.programs[mode]
+
+    def _texture(self, array: np.ndarray, linear: bool):
+        a = np.ascontiguousarray(array)
+        if a.dtype == np.float64:
+            a = a.astype(np.float32)
+        dtype = {np.dtype(np.float32): "f4", np.dtype(np.uint8): "f1", np.dtype(np.float16): "f2"}[a.dtype]
+        if a.ndim == 4:
+            D, H, W, C = a.shape
+            tex = self.ctx.texture3d((W, H, D), C, a.tobytes(), dtype=dtype)
+            tex.repeat_z = False
+        else:
+            if a.ndim == 2:
+                a = a[..., None]
+            H, W, C = a.shape
+            tex = self.ctx.texture((W, H), C, a.tobytes(), dtype=dtype)
+        tex.repeat_x = tex.repeat_y = False
+        f = self._mgl.LINEAR if linear else self._mgl.NEAREST
+        tex.filter = (f, f)
+        return tex
+
+    def set_mode(self, res: ModeResources) -> None:
+        """Upload a mode's textures (replacing an earlier upload of the same mode) and compile its program."""
+        for t in self.mode_textures.pop(res.mode, {}).values():
+            t.release()
+        self.program(res.mode)
+        self.modes[res.mode] = res
+        self.mode_textures[res.mode] = {u: self._texture(a, lin) for u, (a, lin) in res.textures.items()}
+
+    def set_gbuffer(self, g: GBufferInputs) -> None:
+        """Upload a G-buffer (and its shadow masks) and size the target."""
+        for t in self._gbuf.values():
+            t.release()
+        H, W = g.shape
+        L = len(self.lights)
+        pos = np.zeros((H, W, 4), np.float32)
+        pos[..., :3] = g.position
+        pos[..., 3] = np.asarray(g.shaded, np.float32)
+
+        def rgba(a):
+            out = np.zeros((H, W, 4), np.float32)
+            out[..., :3] = a
+            return out
+
+        sm = np.full((H, W, 8), 255, np.uint8)
+        if g.shadow is not None and L:
+            sm[..., :L] = np.round(np.clip(np.asarray(g.shadow, np.float64).reshape(H, W, L), 0, 1) * 255)
+        self._gbuf = {"uGPosition": self._texture(pos, False), "uGNormal": self._texture(rgba(g.normal), False),
+                      "uGAlbedo": self._texture(rgba(g.albedo), False),
+                      "uGEmission": self._texture(rgba(g.emission), False),
+                      "uShadowMask0": self._texture(sm[..., :4], False),
+                      "uShadowMask1": self._texture(sm[..., 4:], False)}
+        if self._size != (W, H):
+            if self._fbo is not None:
+                self._fbo.release()
+                self._target.release()
+            self._target = self.ctx.texture((W, H), 4, dtype="f4")
+            self._fbo = self.ctx.framebuffer(color_attachments=[self._target])
+            self._size = (W, H)
+
+    def _bind(self, mode: str, output: int, eye) -> None:
+        prog = self.program(mode)
+        res = self.modes.get(mode) or ModeResources(mode)
+        unit = 0
+        bound = set()
+        for name, tex in list(self._gbuf.items()) + list(self.mode_textures.get(mode, {}).items()):
+            if name in prog:
+                tex.use(location=unit)
+                prog[name].value = unit
+                bound.add(name)
+                unit += 1
+        # samplers the mode declares but this bake lacks (the K > 4 atlas, weights of plain mask GI) still need
+        # a texture of their type on their unit: two sampler types on one unit make the draw fail
+        for name in prog:
+            u = prog[name]
+            kind = _SAMPLER_TYPES.get(getattr(u, "gl_type", None))
+            if kind and name not in bound:
+                self._dummy(kind).use(location=unit)
+                u.value = unit
+                unit += 1
+        values = {**self.light_uniforms, **res.uniforms, "uEye": tuple(float(x) for x in eye), "uOutput": int(output)}
+        for name, v in values.items():
+            if name not in prog:
+                continue
+            if isinstance(v, np.ndarray):
+                prog[name].write(np.ascontiguousarray(v, np.float32 if v.dtype.kind == "f" else v.dtype).tobytes())
+            else:
+                prog[name].value = v
+
+    def _dummy(self, kind: str):
+        if kind not in self._dummies:
+            if kind == "3d":
+                self._dummies[kind] = self.ctx.texture3d((1, 1, 1), 4, bytes(16), dtype="f4")
+            else:
+                self._dummies[kind] = self.ctx.texture((1, 1), 4, bytes(16), dtype="f4")
+        return self._dummies[kind]
+
+    def draw(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> None:
+        """Render the pass into the target (no read back, no finish)."""
+        self._bind(mode, output, eye)
+        self._fbo.use()
+        self.ctx.viewport = (0, 0, *self._size)
+        self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.BLEND)
+        self._vaos[mode].render(self._mgl.TRIANGLES, vertices=3)
+
+    def render(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """(H, W, 3) float32: radiance (output 0), E_indirect (1) or E_direct (2), row 0 = top."""
+        self.draw(mode, output, eye)
+        W, H = self._size
+        a = np.frombuffer(self._target.read(), np.float32).reshape(H, W, 4)
+        return np.ascontiguousarray(a[..., :3])
+
+    def time_pass(self, mode: str, eye=(0.0, 0.0, 0.0), repeats: int = 5) -> dict:
+        """Wall time of the whole pass (draw + ctx.finish()), one warm-up, then ``repeats``: median, min, all."""
+        self.draw(mode, 0, eye)
+        self.ctx.finish()
+        times = []
+        for _ in range(max(1, int(repeats))):
+            t0 = time.perf_counter()
+            self.draw(mode, 0, eye)
+            self.ctx.finish()
+            times.append(time.perf_counter() - t0)
+        return {"median_s": statistics.median(times), "min_s": min(times), "repeats": len(times)}
+
+    def release(self) -> None:
+        for texs in self.mode_textures.values():
+            for t in texs.values():
+                t.release()
+        for t in self._gbuf.values():
+            t.release()
+        for v in list(self._vaos.values()) + list(self._dummies.values()):
+            v.release()
+        for p in self.programs.values():
+            p.release()
+        if self._fbo is not None:
+            self._fbo.release()
+            self._target.release()
+        self.mode_textures, self._gbuf, self._vaos, self.programs = {}, {}, {}, {}
+        if self._own_ctx:
+            self.ctx.release()
