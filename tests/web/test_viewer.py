@@ -78,18 +78,21 @@ def _fill_config(page, values: dict):
         _field(page, name).fill(value)
 
 
-def _upload_and_bake(page, glb, config: dict) -> str:
+def _upload_and_bake(page, glb, config: dict, checks=()) -> str:
     page.goto("/")
     page.wait_for_selector("#config-form .config-form")
     page.set_input_files("#scene-file", str(glb))
     page.wait_for_selector("#upload-status.ok, #upload-status.error", timeout=30000)
     assert "ready" in page.inner_text("#upload-status"), page.inner_text("#upload-status")
+    for name in checks:
+        _field(page, name).check()
     _fill_config(page, config)
     page.click("#start-bake")
     page.wait_for_selector("#bake-status.ok, #bake-status.error", timeout=30000)
     status = page.inner_text("#bake-status")
     assert status.startswith("Bake "), status
-    card = page.wait_for_selector(".bake-card[data-status=succeeded]", timeout=120000)
+    # this bake's card (the session's server lists earlier tests' bakes too)
+    card = page.wait_for_selector(f'.bake-card[data-status=succeeded][data-bake^="{status.split()[1]}"]', timeout=120000)
     return card.get_attribute("data-bake")
 
 
@@ -137,6 +140,7 @@ def test_upload_bake_and_view_every_mode(page, tmp_path, kiln_server, shots):
     diff = np.abs(d - lk).mean()
     assert diff > 4, f"direct and leaking look the same (mean abs difference {diff:.2f})"
     assert _stats(lk)["mean"] > _stats(d)["mean"] + 2, "the leaking probes add no light"
+    _after(page, lambda: page.click("#mode-list button[data-mode=leaking]"), "leaking")
     frame = page.inner_text("#frame-time")
     assert re.match(r"\d+\.\d\d ms \((GPU timer query|wall clock)\)", frame), frame
 
@@ -284,4 +288,87 @@ def test_api_key_streams_progress_without_eventsource_and_cancels(page_keys, tmp
     _after(page, lambda: page.click(f'.bake-card[data-bake^="{short}"] a[data-open]'), "direct")
     _after(page, lambda: page.click("#mode-list button[data-mode=leaking]"), "leaking")
     _assert_not_blank(_shot(page.locator("#viewer-canvas"), shots / "api-key-leaking.png"), "leaking with an API key")
+    assert not page.kiln_errors, page.kiln_errors
+
+
+# The MD stages run in the default config (masks + compress); PRT small: 16 configurations, 32 points, 4 slots.
+PRT = {**FAST, "prt.configurations": "16", "prt.measurement_points": "32", "prt.basis": "4", "prt.lightmap": "0"}
+ALL_MODES = ("direct", "leaking", "ddgi", "mask", "mask_normalized", "prt")
+
+
+def _look(page, position, target):
+    page.evaluate("([p, t]) => { window.kiln.viewer.controls.lookAt(p, t); window.kiln.viewer.invalidate(); }",
+                  [list(position), list(target)])
+
+
+def _prt_expected(kiln_server, bake_id, light) -> np.ndarray:
+    """u (n, 3) of workers/prt_relight for one light, with the browser's unshadowed direct vector."""
+    import httpx
+
+    from workers.kernels import prt as kprt
+    from workers.kernels.shading import direct_irradiance
+
+    def npy(name):
+        r = httpx.get(f"{kiln_server.url}/v1/bakes/{bake_id}/artifacts/{name}", timeout=30)
+        r.raise_for_status()
+        return np.load(io.BytesIO(r.content))
+
+    table, offsets, T = npy("prt_points").astype(np.float64), npy("prt_point_offsets"), npy("prt_sh_transfer")
+    e = direct_irradiance(table[:, :3], table[:, 3:6], [light], None, 1e-3)  # caster None: unshadowed
+    x = kprt.group_mean(table[:, 6:9] / np.pi * e, offsets.astype(np.int64))
+    xa = np.concatenate([x, np.linalg.norm(x, axis=0)[None]], axis=0)
+    return np.einsum("cnm,mc->nc", T.astype(np.float64), xa)
+
+
+def test_md_ddgi_and_prt_modes_and_relight(page, tmp_path, kiln_server, shots):
+    """Every GI mode of a bake with the MD stages and PRT on screen; leaking leaks into room B where the
+    visibility-aware modes do not; the PRT light gizmo relights with the server's transfer."""
+    bake_id = _upload_and_bake(page, _scene(tmp_path), PRT, checks=["prt.enabled"])
+    _after(page, lambda: page.click(f'a[data-open="{bake_id}"]'), "direct")
+    page.wait_for_function("document.getElementById('stream-label').textContent === 'volumes loaded'", timeout=60000)
+    canvas = page.locator("#viewer-canvas")
+    available = page.locator("#mode-list button[data-available='1']").evaluate_all("e => e.map(x => x.dataset.mode)")
+    assert set(ALL_MODES) <= set(available), available
+
+    images = {}
+    for mode in ALL_MODES:
+        _after(page, lambda: page.click(f"#mode-list button[data-mode={mode}]"), mode)
+        images[mode] = _shot(canvas, shots / f"md-{mode}.png")
+        _assert_not_blank(images[mode], f"mode {mode}")
+    assert not page.inner_text("#shader-error"), page.inner_text("#shader-error")
+    for mode in ALL_MODES[1:]:
+        diff = np.abs(images[mode] - images["direct"]).mean()
+        assert diff > 2, f"{mode} looks like direct only (mean abs difference {diff:.2f})"
+    assert page.get_attribute("#mode-list button[data-mode=prt]", "title").lower().count("unshadowed")
+
+    # room B, looking at the shared wall from its far corner: only the door lets light in, leaking SH
+    # volumes leak room A's light through the 5 cm wall
+    _look(page, (7.8, 1.5, 3.8), (4.05, 1.2, 0.6))
+    room_b, wall = {}, {}
+    for mode in ("leaking", "ddgi", "mask", "mask_normalized"):
+        _after(page, lambda: page.click(f"#mode-list button[data-mode={mode}]"), mode)
+        img = _shot(canvas, shots / f"room-b-{mode}.png")
+        room_b[mode] = _stats(img)["mean"]
+        h, w = img.shape[:2]
+        # the shared wall above and left of the door, room B side: no direct light reaches it
+        wall[mode] = _stats(img[int(0.1 * h):int(0.4 * h), :int(0.2 * w)])["mean"]
+    print("room B mean brightness:", room_b, "shared wall region:", wall)
+    assert wall["leaking"] > wall["mask"] + 20, wall
+    assert wall["leaking"] > wall["ddgi"] + 40, wall
+    assert room_b["leaking"] > room_b["mask"] + 3, room_b
+
+    # PRT relight: move the light into room B; the browser's coefficients match numpy's, room B lights up
+    _after(page, lambda: page.click("#mode-list button[data-mode=prt]"), "prt")
+    before = _shot(canvas, shots / "room-b-prt-light-a.png")
+    light = page.evaluate("window.kiln.viewer.prt.light")
+    got = np.asarray(page.evaluate("Array.from(window.kiln.viewer.prt.u)")).reshape(-1, 3)
+    np.testing.assert_allclose(got, _prt_expected(kiln_server, bake_id, light), rtol=1e-4, atol=1e-6)
+    _after(page, lambda: page.evaluate("window.kiln.viewer.setPrtLight([6.0, 2.4, 2.0])"), "prt")
+    after = _shot(canvas, shots / "room-b-prt-light-b.png")
+    light = page.evaluate("window.kiln.viewer.prt.light")
+    assert light["position"] == [6.0, 2.4, 2.0]
+    got = np.asarray(page.evaluate("Array.from(window.kiln.viewer.prt.u)")).reshape(-1, 3)
+    np.testing.assert_allclose(got, _prt_expected(kiln_server, bake_id, light), rtol=1e-4, atol=1e-6)
+    assert _stats(after)["mean"] > _stats(before)["mean"] + 10, (_stats(before), _stats(after))
+    _assert_not_blank(after, "prt with the light in room B")
     assert not page.kiln_errors, page.kiln_errors

@@ -27,7 +27,7 @@ describe('GLSL preprocessor', () => {
 
   it('every mode file defines giIndirectIrradiance and has no #version', () => {
     for (const f of Object.keys(sources).filter((x) => x.startsWith('mode_'))) {
-      expect(sources[f]).toMatch(/vec3 giIndirectIrradiance\(vec3 p, vec3 n\)/);
+      expect(sources[f]).toMatch(/vec3 giIndirectIrradiance\(vec3 \w+, vec3 \w+\)/);
       expect(sources[f]).not.toMatch(/#\s*version/);
     }
   });

@@ -4,16 +4,17 @@
  * current GI mode, draws the probe spheres, and times frames.
  */
 import {
-  Color, DoubleSide, GLSL3, FrontSide, InstancedBufferAttribute, InstancedBufferGeometry, Mesh, RawShaderMaterial,
+  Color, DoubleSide, GLSL3, FrontSide, Group, InstancedBufferAttribute, InstancedBufferGeometry, Mesh, RawShaderMaterial,
   Scene, SphereGeometry, Vector3, Vector4, WebGLRenderer,
 } from 'three';
 import { formatCompileErrors } from './preprocess.js';
 import { shaderSource } from './shaders.js';
-import { GI_MODES } from '../state/modes.js';
+import { MODE_SAMPLERS } from '../state/modes.js';
 import { FrameTimer } from './timer.js';
 import { ShadowMaps } from './shadows.js';
 
 export const MAX_LIGHTS = 8;
+export const PRT_MAX_GROUPS = 16;  // mode_prt.glsl KILN_PRT_MAX_GROUPS
 const LIGHT_TYPES = { point: 0, spot: 1, directional: 2 };
 const OUTPUTS = { shaded: 0, indirect: 1, direct: 2, albedo: 3 };
 
@@ -50,6 +51,16 @@ export class GIRenderer {
       uGridOrigin: { value: new Vector3() },
       uGridSpacing: { value: new Vector3(1, 1, 1) },
       uGridCounts: { value: new Vector3(1, 1, 1) },
+      // the GI modes' scalar uniforms (workers/render/shading.py prepare_mode); setModeUniforms sets them
+      uDdgiBias: { value: 0 },
+      uIrradianceTexels: { value: 8 },
+      uDepthTexels: { value: 16 },
+      uClusterCount: { value: 1 },
+      uMaskS: { value: 1 },
+      uMaskT: { value: 2 },
+      uMaskLo: { value: 0 },
+      uPrtGroups: { value: 0 },
+      uPrtCoef: { value: new Float32Array(3 * PRT_MAX_GROUPS * 4) },
       ...ShadowMaps.uniforms(MAX_LIGHTS),
     };
     this.shadowsEnabled = true;
@@ -58,9 +69,13 @@ export class GIRenderer {
     this.lights = [];
     // uniform name -> {value: texture}; every slot any mode or the probe shader binds exists from the start,
     // so programs compiled before a texture arrives still pick it up
-    this.modeTextures = { uShR: { value: null }, uShG: { value: null }, uShB: { value: null } };
-    for (const m of GI_MODES) for (const name of Object.keys(m.textures)) this.modeTextures[name] = { value: null };
+    // (a sampler left null gets three.js' empty texture of its type: the K <= 4 atlas, plain mask's weights)
+    this.modeTextures = {};
+    for (const name of MODE_SAMPLERS) this.modeTextures[name] = { value: null };
     this.world = new Scene();
+    this.overlay = new Group();  // gizmos: drawn, but hidden from the shadow passes
+    this.overlay.name = 'kiln:overlay';
+    this.world.add(this.overlay);
     this.sceneRoot = null;
     this.materials = new Map();  // original material -> our RawShaderMaterial
     this.modeShader = 'mode_direct.glsl';
@@ -178,6 +193,15 @@ export class GIRenderer {
     }
   }
 
+  /** Scalar / array uniforms of the GI modes (uDdgiBias, uMaskS, uPrtCoef, ...). */
+  setModeUniforms(values) {
+    for (const [name, v] of Object.entries(values)) {
+      const u = this.shared[name];
+      if (!u) throw new Error(`no mode uniform ${name} (declare it in renderer.js shared)`);
+      if (ArrayBuffer.isView(u.value)) u.value.set(v); else u.value = v;
+    }
+  }
+
   hasTextures(names) {
     return names.every((n) => this.modeTextures[n] && this.modeTextures[n].value);
   }
@@ -278,7 +302,10 @@ export class GIRenderer {
   render(camera) {
     if (this.shadowsEnabled && this.shadowsDirty && this.sceneRoot) {
       this.shadows = this.shadows || new ShadowMaps(this);
+      const overlay = this.overlay.visible;
+      this.overlay.visible = false;
       this.shadows.update(this.world, this.sceneRoot, this.lights);
+      this.overlay.visible = overlay;
       this.shadowsDirty = false;
     }
     this.timer.begin();

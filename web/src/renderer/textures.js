@@ -53,3 +53,37 @@ export function textureFromKTX2(ktx, { filter = 'linear', floatLinear = true } =
   tex.needsUpdate = true;
   return tex;
 }
+
+/**
+ * Probe volumes (parsed KTX2, same size) stacked along z into one 3D texture: gi_grid.glsl giStackedUVW
+ * (workers/render/shading.py stack_volumes: the bytes concatenated in slot order). RGBA32F, LINEAR.
+ */
+export function stackedVolumeTexture(volumes, options = {}) {
+  if (!volumes.length) throw new Error('no volumes to stack');
+  const vs = volumes.map(widen);
+  const { width, height, depth, components } = vs[0];
+  for (const v of vs) {
+    if (v.kind !== 'float' || v.width !== width || v.height !== height || v.depth !== depth || v.components !== components) {
+      throw new Error(`stacked volumes must be float ${width}x${height}x${depth}x${components}, got ${v.format} ${v.width}x${v.height}x${v.depth}`);
+    }
+  }
+  const per = vs[0].data.length;
+  const data = new Float32Array(per * vs.length);
+  vs.forEach((v, s) => data.set(v.data, s * per));
+  return textureFromKTX2({ ...vs[0], data, depth: Math.max(1, depth) * vs.length, is3D: true }, options);
+}
+
+/**
+ * The ddgi mode's uProbeData: texel (i, j, k) = relocated position xyz, w = 1 unless the probe is OFF
+ * (state 0), RGBA32F NEAREST (shading.py prepare_mode("ddgi")).
+ */
+export function probeDataTexture(positions, states) {
+  const p = widen(positions);
+  const n = p.data.length / 4;
+  const data = new Float32Array(n * 4);
+  for (let i = 0; i < n; i++) {
+    data[i * 4] = p.data[i * 4]; data[i * 4 + 1] = p.data[i * 4 + 1]; data[i * 4 + 2] = p.data[i * 4 + 2];
+    data[i * 4 + 3] = states && states.data[i * (states.components || 1)] === 0 ? 0 : 1;
+  }
+  return textureFromKTX2({ ...p, kind: 'float', data, components: 4 }, { filter: 'nearest' });
+}

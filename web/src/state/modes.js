@@ -4,11 +4,68 @@
  * shader file exists in proto/glsl; otherwise the UI says why ("not baked" / "shader not written yet").
  *
  * `needs` entries are artifact names, or {prefix} for families (`cluster_sh_<k>_<c>`, `prt_*`). The mask and
- * PRT modes list what workers/stages/{masks,anneal,prt}.py write; their shaders and texture bindings come
- * with the evaluate issue (add `textures` here, the GLSL in proto/glsl).
- * `textures` maps a sampler uniform to an artifact and how to upload it: 'volume' (3D, linear filtering,
- * CLAMP_TO_EDGE) or 'atlas' (2D, linear).
+ * PRT modes list what workers/stages/{masks,compress,prt}.py write; their bindings copy
+ * workers/render/shading.py prepare_mode (proto/glsl/README.md "Texture bindings of the new modes").
+ * `textures` (an object, or a function of the bake's artifact names and the artifacts loaded so far) maps a
+ * sampler uniform to an artifact and how to upload it: 'volume' (3D, linear filtering, CLAMP_TO_EDGE),
+ * 'volume-nearest', 'atlas' (2D, linear), 'stack' (a list of probe volumes concatenated along z:
+ * gi_grid.glsl giStackedUVW) or 'probe-data' ([relocated positions, states] -> RGBA32F xyz + non-OFF flag,
+ * NEAREST). `uniforms({grid, names, info, artifacts})` gives the mode's other uniforms, as
+ * workers/render/shading.py prepare_mode binds them.
  */
+const CHANNELS = ['r', 'g', 'b'];
+
+/** K, the number of clusters: cluster_sh_{k}_r for k = 0, 1, ... in the artifact names. */
+export function clusterCount(names) {
+  const set = new Set(names);
+  let k = 0;
+  while (set.has(`cluster_sh_${k}_r`)) k += 1;
+  return k;
+}
+
+/** The `cluster_sh_{k}_{c}` names in stacking order (k0 r, k0 g, k0 b, k1 r, ...: gi_mask.glsl). */
+const clusterShNames = (names) => Array.from({ length: clusterCount(names) }, (_, k) => CHANNELS.map((c) => `cluster_sh_${k}_${c}`)).flat();
+
+/**
+ * Mask atlas uniforms (S, block size T, border_lo): the atlas artifact's meta when the bake lists it, else the
+ * compress stage's stats (block_size, layout: "shared" -> border_lo 0, "bordered" -> 1; S = T - 1 - border_lo),
+ * else S from the dense masks' shape and the documented shared layout (proto/bundle.md 5.2: T = S + 1).
+ */
+export function maskParams({ names, info, bake, grid }) {
+  const meta = info('mask_atlas_0123')?.meta || info('mask_indirection')?.meta;
+  if (meta && meta.block_size) {
+    return { S: Number(meta.samples_per_cell), T: Number(meta.block_size), lo: Number(meta.border_lo ?? 0) };
+  }
+  const st = (bake?.stages || []).find((x) => x.name === 'compress')?.stats;
+  if (st && st.block_size) {
+    const lo = st.layout === 'bordered' ? 1 : 0;
+    return { S: Number(st.block_size) - 1 - lo, T: Number(st.block_size), lo };
+  }
+  const shape = info('masks_0123')?.shape;  // (Z, Y, X, 4), X = (nx - 1) · S
+  const nx = grid?.counts?.[0] || 2;
+  const S = shape ? Math.round(shape[2] / Math.max(1, nx - 1)) : Number(bake?.config?.visibility?.samples_per_cell ?? 1);
+  return { S, T: S + 1, lo: 0 };
+}
+
+function maskUniforms(ctx) {
+  const { S, T, lo } = maskParams(ctx);
+  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo };
+}
+
+/** uDdgiBias = 0.75 · D · 0.3, D = min spacing over axes with spacing > 0 (workers/kernels/ddgi.bias_scale). */
+export function ddgiBias(spacing, selfShadowBias = 0.3) {
+  const pos = (spacing || []).filter((s) => s > 0);
+  return 0.75 * (pos.length ? Math.min(...pos) : 0) * selfShadowBias;
+}
+
+/**
+ * The PRT basis volume names of the 4 L1 coefficients, k = 0..3 (an L2 bake lists 9: the shader sums L1),
+ * g = 0..G-1, stacked k slowest (mode_prt.glsl).
+ */
+export function prtBasisNames(section) {
+  return section?.sh?.basis ? section.sh.basis.slice(0, 4).flat() : [];
+}
+
 export const GI_MODES = [
   { id: 'direct', label: 'Direct only', shader: 'mode_direct.glsl', needs: [], textures: {} },
   {
@@ -17,21 +74,68 @@ export const GI_MODES = [
     textures: { uShR: ['sh_l1_r', 'volume'], uShG: ['sh_l1_g', 'volume'], uShB: ['sh_l1_b', 'volume'] },
   },
   {
+    // workers/render/shading.py prepare_mode("ddgi")
     id: 'ddgi', label: 'DDGI (ray-traced visibility)', shader: 'mode_ddgi.glsl',
-    needs: ['irradiance', 'depth_moments', 'probe_offsets', 'probe_states'],
-    textures: { uIrradianceAtlas: ['irradiance', 'atlas'], uDepthAtlas: ['depth_moments', 'atlas'],
-      uProbeOffsets: ['probe_offsets', 'volume-nearest'], uProbeStates: ['probe_states', 'volume-nearest'] },
+    needs: ['irradiance', 'depth_moments', 'probe_positions_relocated', 'probe_states'],
+    textures: {
+      uIrradianceAtlas: ['irradiance', 'atlas'], uDepthAtlas: ['depth_moments', 'atlas'],
+      uProbeData: [['probe_positions_relocated', 'probe_states'], 'probe-data'],
+    },
+    uniforms: ({ grid, artifacts }) => {
+      const ny = grid.counts[1];
+      return {
+        uDdgiBias: ddgiBias(grid.spacing), uIrradianceTexels: Math.floor(artifacts.irradiance.height / ny) - 2,
+        uDepthTexels: Math.floor(artifacts.depth_moments.height / ny) - 2,
+      };
+    },
   },
   {
+    // workers/render/shading.py prepare_mode("mask")
     id: 'mask', label: 'Mask GI', shader: 'mode_mask.glsl',
-    needs: ['masks_0123', 'clusters', { prefix: 'cluster_sh_' }], textures: {},
+    needs: ['mask_indirection', 'mask_atlas_0123', { prefix: 'cluster_sh_' }],
+    textures: (names) => ({
+      uMaskIndirection: ['mask_indirection', 'volume-nearest'], uMaskAtlas0123: ['mask_atlas_0123', 'volume'],
+      ...(clusterCount(names) > 4 ? { uMaskAtlas4567: ['mask_atlas_4567', 'volume'] } : {}),
+      uClusterSh: [clusterShNames(names), 'stack'],
+    }),
+    uniforms: maskUniforms,
   },
   {
     id: 'mask_normalized', label: 'Mask GI (normalized)', shader: 'mode_mask_normalized.glsl',
-    needs: ['masks_0123', 'clusters', 'cluster_weights_0123', { prefix: 'cluster_sh_' }], textures: {},
+    needs: ['mask_indirection', 'mask_atlas_0123', 'cluster_weights_0123', { prefix: 'cluster_sh_' }],
+    textures: (names) => ({
+      uMaskIndirection: ['mask_indirection', 'volume-nearest'], uMaskAtlas0123: ['mask_atlas_0123', 'volume'],
+      ...(clusterCount(names) > 4 ? { uMaskAtlas4567: ['mask_atlas_4567', 'volume'] } : {}),
+      uClusterSh: [clusterShNames(names), 'stack'],
+      uClusterWeights: [clusterCount(names) > 4 ? ['cluster_weights_0123', 'cluster_weights_4567'] : ['cluster_weights_0123'], 'stack'],
+    }),
+    uniforms: maskUniforms,
   },
-  { id: 'prt', label: 'PRT relighting', shader: 'mode_prt.glsl', needs: ['prt', { prefix: 'prt_' }], textures: {} },
+  {
+    // workers/render/shading.py prepare_mode("prt"); the coefficients come from the viewer's relight
+    // (math/prt.js) every time the light gizmo moves
+    id: 'prt', label: 'PRT relighting', shader: 'mode_prt.glsl',
+    tooltip: 'PRT relighting: drag the light gizmo; the browser recomputes the coefficients every move. '
+      + 'The direct light at the measurement points is unshadowed here (the server relight traces shadow rays), '
+      + 'so a light behind a wall still feeds the other room.',
+    needs: ['prt', 'prt_points', 'prt_point_offsets', 'prt_sh_transfer', { prefix: 'prt_sh_basis_' }],
+    // the basis names are in the `prt` json: resolved by the viewer once it has the section
+    textures: (names, artifacts = {}) => ({
+      uPrtBasis: [artifacts.prt ? prtBasisNames(artifacts.prt) : names.filter((n) => /^prt_sh_basis_c[0-3]_/.test(n)), 'stack'],
+    }),
+    prerequisites: ['prt', 'prt_lights', 'prt_points', 'prt_point_offsets', 'prt_sh_transfer'],  // fetched first: `prt` names the basis
+    uniforms: ({ artifacts }) => ({ uPrtGroups: Math.ceil(Number(artifacts.prt.basis) / 4) }),
+  },
 ];
+
+/** Every sampler uniform any mode binds (the renderer creates their slots up front). */
+export const MODE_SAMPLERS = ['uShR', 'uShG', 'uShB', 'uIrradianceAtlas', 'uDepthAtlas', 'uProbeData', 'uMaskIndirection',
+  'uMaskAtlas0123', 'uMaskAtlas4567', 'uClusterSh', 'uClusterWeights', 'uPrtBasis'];
+
+/** A mode's {uniform: [artifact name | names, kind]} for a bake's artifact names (and artifacts loaded so far). */
+export function modeTextures(mode, names = [], artifacts = {}) {
+  return typeof mode.textures === 'function' ? mode.textures(names, artifacts) : mode.textures;
+}
 
 export function modeById(id) {
   return GI_MODES.find((m) => m.id === id);
@@ -55,7 +159,9 @@ export function modeAvailability(mode, artifactNames, hasShader) {
   return { available: true, reason: '', missing: [] };
 }
 
-/** Artifacts to stream for a mode (those its textures bind). */
-export function modeArtifacts(mode) {
-  return [...new Set(Object.values(mode.textures).map(([name]) => name))];
+/** Artifacts to stream for a mode (those its textures bind, plus its prerequisites). */
+export function modeArtifacts(mode, names = [], artifacts = {}) {
+  const out = [...(mode.prerequisites || [])];
+  for (const [name] of Object.values(modeTextures(mode, names, artifacts))) out.push(...(Array.isArray(name) ? name : [name]));
+  return [...new Set(out)];
 }

@@ -14,6 +14,7 @@ export function createViewerPage(app) {
   const progressLabel = h('span#stream-label.muted');
   const modeList = h('div#mode-list.modes');
   const modeError = h('p#mode-error.error');
+  const prtNote = h('p#prt-note.muted', { hidden: true });
   const frameTime = h('span#frame-time', '–');
   const shaderError = h('pre#shader-error.error');
   const bakeSelect = h('select#viewer-bake');
@@ -42,7 +43,7 @@ export function createViewerPage(app) {
         h('label', 'Bake ', bakeSelect),
         note,
         h('div.progress-row', progress, progressLabel),
-        h('h3', 'GI mode'), modeList, modeError,
+        h('h3', 'GI mode'), modeList, modeError, prtNote,
         h('h3', 'Display'),
         h('div.row', h('label', 'Output ', output)),
         h('div.row', h('label', 'Exposure ', exposure), exposureLabel),
@@ -67,7 +68,7 @@ export function createViewerPage(app) {
       const shown = status.shownMode === m.id;
       const btn = h('button.mode', {
         type: 'button', disabled: !m.available, dataset: { mode: m.id, available: m.available ? '1' : '0' },
-        title: m.available ? m.label : `${m.reason}${m.missing.length ? `: ${m.missing.join(', ')}` : ''}`,
+        title: m.available ? (m.tooltip || m.label) : `${m.reason}${m.missing.length ? `: ${m.missing.join(', ')}` : ''}`,
         on: { click: () => { setMode(m.id); } },
       }, m.label, m.available ? null : h('span.reason', ` ${m.reason}`));
       if (active) btn.classList.add('active');
@@ -100,6 +101,14 @@ export function createViewerPage(app) {
     if ('rendererInfo' in patch) gpuInfo.textContent = `${patch.rendererInfo.renderer} · float linear filtering: ${patch.rendererInfo.floatLinear ? 'yes' : 'no (half floats)'} · frame time: ${patch.rendererInfo.timer}`;
     if ('modes' in patch || 'mode' in patch || 'shownMode' in patch) renderModes();
     if ('shownMode' in patch) canvas.dataset.readyMode = patch.shownMode;
+    if ('prt' in patch || 'relightMs' in patch) {
+      prtNote.hidden = !status.prt;
+      const p = status.prtLight ? status.prtLight.map((x) => x.toFixed(2)).join(', ') : '';
+      prtNote.textContent = `Relight light at (${p}) · coefficients in ${(status.relightMs ?? 0).toFixed(2)} ms · `
+        + 'drag the gizmo to move it. Direct light at the measurement points is unshadowed in the browser '
+        + '(the server relight traces shadow rays).';
+      prtNote.title = prtNote.textContent;
+    }
   }
 
   function ensureViewer() {

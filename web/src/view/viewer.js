@@ -3,13 +3,17 @@
  * file when this session uploaded it), streams the artifacts the GI modes need with progress, switches
  * modes, drives the cameras and renders on demand. The renderer is the only GL code; the UI only listens.
  */
-import { PerspectiveCamera, Vector3 } from 'three';
+import { Mesh, MeshBasicMaterial, Object3D, PerspectiveCamera, SphereGeometry, Vector3 } from 'three';
+import { TransformControls } from 'three/addons/controls/TransformControls.js';
 import { ArtifactLoader, loadArtifacts } from '../loader/artifacts.js';
 import { loadSceneFile } from '../loader/scene.js';
 import { GIRenderer } from '../renderer/renderer.js';
 import { hasShader } from '../renderer/shaders.js';
-import { textureFromKTX2 } from '../renderer/textures.js';
-import { GI_MODES, modeArtifacts, modeAvailability, modeById } from '../state/modes.js';
+import { probeDataTexture, stackedVolumeTexture, textureFromKTX2 } from '../renderer/textures.js';
+import { parseNpy } from '../loader/npy.js';
+import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
+import { PRT_MAX_GROUPS } from '../renderer/renderer.js';
+import { GI_MODES, modeArtifacts, modeAvailability, modeById, modeTextures } from '../state/modes.js';
 import { autoCamera } from './autocamera.js';
 import { createControls } from './cameras.js';
 
@@ -199,14 +203,19 @@ export class Viewer {
     this.set({ exposure: 2 ** ev });
     this.status({ exposureEV: ev, note, modes: this.modes(), mode: this.mode, shownMode: 'direct', grid, hasScene: !!root, rendererInfo: this.renderer.info });
     // direct light at once: the scene's own lights now, the bake's resolved lights (+ config lights, sky) soon
-    this.renderer.setLights(gltfLights(root));
+    this.bakeLights = gltfLights(root);
+    this.renderer.setLights(this.bakeLights);
     this.renderer.setSky([0, 0, 0]);
+    this.prt = null;
+    this.prtLightsOn = false;
+    this.showGizmo(false);
     this.invalidate();
     if (!bake) return;
     if (this.artifactInfo('lights')) {
       const lights = await this.fetch(['lights']);
       if (stale()) return;
-      this.renderer.setLights(lights.lights.lights || []);
+      this.bakeLights = lights.lights.lights || [];
+      if (!this.prtLightsOn) this.renderer.setLights(this.bakeLights);
       this.renderer.setSky(lights.lights.sky || [0, 0, 0]);
       if (!this.userExposure) {
         const ev = autoExposureEV(bake, lights.lights.lights || []);
@@ -217,7 +226,8 @@ export class Viewer {
     }
     // stream the probe data and every available mode's volumes in the background, with progress
     const wanted = ['probe_positions_relocated', 'probe_states'];
-    for (const m of this.modes()) if (m.available) wanted.push(...modeArtifacts(m));
+    const names = (bake.artifacts || []).map((a) => a.name);
+    for (const m of this.modes()) if (m.available) wanted.push(...modeArtifacts(m, names, this.artifacts));
     const stream = this.fetch(wanted.filter((n) => this.artifactInfo(n)))
       .then(() => { if (!stale()) this.buildProbes(); })
       .catch((e) => this.onError(e));
@@ -257,18 +267,119 @@ export class Viewer {
     this.invalidate();
   }
 
+  artifactNames() {
+    return (this.bake?.artifacts || []).map((a) => a.name);
+  }
+
+  /** Upload and bind a mode's textures (as workers/render/shading.py prepare_mode) and set its uniforms. */
   bindModeTextures(mode) {
+    const names = this.artifactNames();
     const textures = {};
-    for (const [uniform, [name, kind]] of Object.entries(mode.textures)) {
-      const art = this.artifacts[name];
-      if (!art) return false;
-      if (this.renderer.hasTextures([uniform]) && this.renderer.modeTextures[uniform].value.userData.artifact === name) continue;
-      const tex = textureFromKTX2(art, { filter: kind.endsWith('nearest') ? 'nearest' : 'linear', floatLinear: this.renderer.floatLinear });
-      tex.userData.artifact = name;
+    const options = { floatLinear: this.renderer.floatLinear };
+    for (const [uniform, [src, kind]] of Object.entries(modeTextures(mode, names, this.artifacts))) {
+      const list = Array.isArray(src) ? src : [src];
+      if (list.some((n) => !this.artifacts[n])) return false;
+      const key = `${kind}:${list.join(',')}`;
+      if (this.renderer.hasTextures([uniform]) && this.renderer.modeTextures[uniform].value.userData.artifact === key) continue;
+      let tex;
+      if (kind === 'stack') tex = stackedVolumeTexture(list.map((n) => this.artifacts[n]), options);
+      else if (kind === 'probe-data') tex = probeDataTexture(this.artifacts[list[0]], this.artifacts[list[1]]);
+      else tex = textureFromKTX2(this.artifacts[list[0]], { ...options, filter: kind.endsWith('nearest') ? 'nearest' : 'linear' });
+      tex.userData.artifact = key;
       textures[uniform] = tex;
     }
     this.renderer.setTextures(textures);
+    if (mode.uniforms) {
+      const grid = bakeGrid(this.bake);
+      this.renderer.setModeUniforms(mode.uniforms({ grid, names, bake: this.bake, info: (n) => this.artifactInfo(n), artifacts: this.artifacts }));
+    }
     return true;
+  }
+
+  // ------------------------------------------------------------------ PRT relighting
+  /**
+   * Parse the PRT arrays once (npy: points, offsets, transfer) and place the relight light: the bake's
+   * first point light, else the centre of the grid with the first scenario light's colour and intensity.
+   */
+  setupPrt() {
+    if (this.prt) return this.prt;
+    const sec = this.artifacts.prt;
+    if (sec.channels !== 'mono' || (sec.gamma !== null && sec.gamma !== undefined)) {
+      throw new Error(`PRT relighting in the viewer needs a mono, linear basis (got channels ${sec.channels}, gamma ${sec.gamma})`);
+    }
+    const npy = (n) => { const a = this.artifacts[n]; return a && a.shape ? a : parseNpy(a); };
+    const points = npy(sec.points || 'prt_points');
+    const offsets = npy(sec.point_offsets || 'prt_point_offsets');
+    const transfer = npy(sec.sh?.transfer || 'prt_sh_transfer');
+    const n = Number(sec.basis);
+    if (transfer.shape[0] !== 3 || transfer.shape[1] !== n) throw new Error(`prt_sh_transfer has shape ${transfer.shape}, want (3, ${n}, M + 1)`);
+    const grid = bakeGrid(this.bake);
+    const base = (this.bakeLights || []).find((l) => l.type === 'point');
+    const scenario = (this.artifacts.prt_lights?.configurations || []).flat().find((l) => l.type === 'point');
+    const centre = grid ? grid.origin.map((o, a) => o + grid.spacing[a] * (grid.counts[a] - 1) / 2) : [0, 1, 0];
+    const light = {
+      type: 'point', position: [...(base?.position || centre)], color: [...(base?.color || scenario?.color || [1, 1, 1])],
+      intensity: base?.intensity ?? scenario?.intensity ?? 10, range: base?.range ?? null,
+    };
+    this.prt = { section: sec, n, points: points.data, offsets: offsets.data, transfer: transfer.data, light, x: null, u: null };
+    return this.prt;
+  }
+
+  /** Recompute the PRT coefficients for the relight light (unshadowed direct at the measurement points). */
+  relight() {
+    const p = this.prt;
+    if (!p) return null;
+    const t0 = performance.now();
+    p.x = directVector(p.points, p.offsets, [p.light]);
+    p.u = relightCoefficients(p.transfer, p.n, p.x);
+    this.renderer.setModeUniforms({ uPrtCoef: packPrtCoefficients(p.u, p.n, PRT_MAX_GROUPS) });
+    if (this.mode === 'prt') this.renderer.setLights([p.light]);
+    p.ms = performance.now() - t0;
+    this.status({ relightMs: p.ms, prtLight: p.light.position });
+    this.invalidate();
+    return p;
+  }
+
+  /** Move the relight light (world position, metres); the gizmo follows. */
+  setPrtLight(position) {
+    if (!this.prt) throw new Error('no PRT relighting loaded (switch to the PRT mode first)');
+    this.prt.light.position = [...position];
+    if (this.gizmoTarget) this.gizmoTarget.position.fromArray(position);
+    return this.relight();
+  }
+
+  showGizmo(on) {
+    if (on && !this.gizmo) {
+      const target = new Object3D();
+      const marker = new Mesh(new SphereGeometry(1, 16, 12), new MeshBasicMaterial({ color: 0xffee88 }));
+      target.add(marker);
+      this.gizmoTarget = target;
+      this.gizmoMarker = marker;
+      const tc = new TransformControls(this.camera, this.canvas);
+      tc.attach(target);
+      tc.addEventListener('dragging-changed', (e) => { this.controls.orbit.enabled = !e.value && this.controls.mode === 'orbit'; });
+      tc.addEventListener('objectChange', () => {
+        if (!this.prt) return;
+        this.prt.light.position = target.position.toArray();
+        this.relight();
+      });
+      tc.addEventListener('change', () => this.invalidate());
+      this.gizmo = tc;
+      this.renderer.overlay.add(target);  // the overlay casts no shadows (the marker encloses the light)
+      this.renderer.overlay.add(tc.getHelper());
+    }
+    if (!this.gizmo) return;
+    const visible = !!on && !!this.prt;
+    if (visible) {
+      this.gizmoTarget.position.fromArray(this.prt.light.position);
+      const grid = bakeGrid(this.bake);
+      const r = grid ? 0.08 * Math.min(...grid.spacing.filter((x) => x > 0)) : 0.05;
+      this.gizmoMarker.scale.setScalar(r || 0.05);
+    }
+    this.gizmoTarget.visible = visible;
+    this.gizmo.getHelper().visible = visible;
+    this.gizmo.enabled = visible;
+    this.invalidate();
   }
 
   /** Switch GI mode; resolves once the mode is on screen (its volumes streamed and bound). */
@@ -278,14 +389,30 @@ export class Viewer {
     if (!mode.available) { this.status({ modeError: `${mode.label}: ${mode.reason}${mode.missing.length ? ` (${mode.missing.join(', ')})` : ''}` }); return false; }
     this.mode = id;
     this.status({ mode: id, modeError: '' });
-    await this.fetch(modeArtifacts(mode));
+    if (mode.prerequisites) await this.fetch(mode.prerequisites.filter((n) => this.artifactInfo(n)));
+    if (this.mode !== id) return false;
+    const optional = new Set(mode.prerequisites || []);
+    await this.fetch(modeArtifacts(mode, this.artifactNames(), this.artifacts).filter((n) => !optional.has(n) || this.artifactInfo(n)));
     if (this.mode !== id) return false;  // the user moved on meanwhile
+    if (id === 'prt') {
+      try {
+        this.setupPrt();
+      } catch (e) {
+        this.mode = this.shownMode || 'direct';
+        this.status({ mode: this.mode, modeError: e.message });
+        return false;
+      }
+    }
     this.bindModeTextures(mode);
+    if (id === 'prt') this.relight();  // PRT mode: the relight light alone, direct and indirect
+    else if (this.prtLightsOn) this.renderer.setLights(this.bakeLights || []);
+    this.prtLightsOn = id === 'prt';
+    this.showGizmo(id === 'prt');
     this.renderer.setModeShader(mode.shader);
     this.shownMode = id;
     this.renderer.compile(this.camera);
     this.invalidate();
-    this.status({ shownMode: id });
+    this.status({ shownMode: id, prt: id === 'prt' });
     return true;
   }
 
