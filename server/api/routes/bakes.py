@@ -62,7 +62,8 @@ def public(bake: dict, store: Store | None = None) -> dict:
                      for s in bake["stages"]]
     out["metrics"] = bake.get("metrics", {})
     if store is not None:
-        out["artifacts"] = [{k: a[k] for k in ("name", "file", "format", "shape", "dtype", "bytes", "sha256", "stage")}
+        out["artifacts"] = [{k: a.get(k) for k in ("name", "file", "format", "shape", "dtype", "bytes", "sha256", "stage",
+                                                   "meta")}
                             for a in _artifact_infos(store, bake)]
     out["links"] = links(bake["id"])
     return out
