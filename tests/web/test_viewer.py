@@ -169,12 +169,30 @@ def test_upload_bake_and_view_every_mode(page, tmp_path, kiln_server, shots):
     _shot(canvas, shots / "probes-by-sh.png")
     page.uncheck("#show-probes")
 
-    # debug images: the irradiance atlas, the depth atlas and a θ slice
-    for view, name in (("irradiance", "atlas-irradiance"), ("depth", "atlas-depth"), ("theta", "theta-slice")):
+    # debug images: the irradiance atlas, the depth atlas, a θ slice and a slice of the dense masks
+    for view, name in (("irradiance", "atlas-irradiance"), ("depth", "atlas-depth"), ("theta", "theta-slice"),
+                       ("masks", "mask-slice")):
         page.select_option("#debug-view", view)
         page.wait_for_selector(f"#debug-image[data-view={view}]:not([hidden])", timeout=30000)
         img = _shot(page.locator("#debug-image"), shots / f"{name}.png")
         assert img.std() > 5, f"debug view {view} is flat"
+    assert len(np.unique(img.reshape(-1, 3), axis=0)) > 2, "the mask slice has hardly any distinct colours"
+
+    # the clusters view (MD Fig 2): probe spheres in a palette of 8 colours, >= 2 clusters on screen
+    page.select_option("#debug-view", "clusters")
+    page.wait_for_function("document.getElementById('debug-note').textContent.includes('coloured by cluster')")
+    _after(page, lambda: page.evaluate("window.kiln.viewer.invalidate()"), "leaking")
+    with_probes = _shot(canvas, shots / "probes-by-cluster.png")
+    page.select_option("#debug-view", "")  # back to the colouring before (hidden probes)
+    _after(page, lambda: page.evaluate("window.kiln.viewer.invalidate()"), "leaking")
+    without = _pixels(canvas.screenshot())
+    sphere = (np.abs(with_probes - without).sum(-1) > 40) & (with_probes.max(-1) > 60)
+    palette = np.array([[.90, .10, .29], [.24, .71, .29], [.26, .39, .85], [1, .88, .10], [.96, .51, .19],
+                        [.57, .12, .71], [.27, .94, .94], [.94, .20, .90]])
+    chroma = with_probes[sphere] / with_probes[sphere].max(-1, keepdims=True)
+    nearest = np.linalg.norm(chroma[:, None] - (palette / palette.max(-1, keepdims=True))[None], axis=-1)
+    hits = np.bincount(nearest.argmin(1)[nearest.min(1) < 0.12], minlength=8)
+    assert (hits > 40).sum() >= 2, f"fewer than 2 cluster colours on screen: {hits.tolist()}"
     page.screenshot(path=str(shots / "viewer-page.png"))
     assert not page.kiln_errors, page.kiln_errors
 
@@ -222,6 +240,7 @@ def test_dashboard_lists_bakes_and_compares_two(page, tmp_path, kiln_server, sho
     table = page.inner_text("#compare-table")
     assert "bake seconds" in table and "memory MiB" in table
     assert "place.counts" in page.inner_text("#config-delta")
+    assert "no previews: bake with evaluate.enabled" in page.inner_text("#compare")
     page.wait_for_selector("#chart[data-points] canvas", timeout=10000)
     assert int(page.get_attribute("#chart", "data-points")) >= 2
     page.screenshot(path=str(shots / "dashboard.png"), full_page=True)
@@ -371,4 +390,37 @@ def test_md_ddgi_and_prt_modes_and_relight(page, tmp_path, kiln_server, shots):
     np.testing.assert_allclose(got, _prt_expected(kiln_server, bake_id, light), rtol=1e-4, atol=1e-6)
     assert _stats(after)["mean"] > _stats(before)["mean"] + 10, (_stats(before), _stats(after))
     _assert_not_blank(after, "prt with the light in room B")
+    assert not page.kiln_errors, page.kiln_errors
+
+
+EVAL = {"evaluate": {"enabled": True, "cameras": 1, "width": 64, "height": 48, "spp": 2, "repeats": 1, "flip": False},
+        "place": {"counts": [6, 3, 4]}, "visibility": {"samples_per_cell": 4}}
+
+
+def test_dashboard_compares_evaluate_previews(page, tmp_path, kiln_server, shots):
+    """Two small bakes with the evaluate stage: the compare view shows their PNG previews side by side."""
+    glb = _scene(tmp_path)
+    with open(glb, "rb") as f:
+        scene = kiln_server.api("/v1/scenes", "POST", files={"file": (glb.name, f, "model/gltf-binary")})
+    ids = []
+    for rays in (64, 32):
+        cfg = {**EVAL, "trace": {"rays_per_probe": rays}}
+        ids.append(kiln_server.api("/v1/bakes", "POST", json={"scene_id": scene["id"], "config": cfg})["id"])
+    for i in ids:
+        b = kiln_server.wait_bake(i, timeout=150)
+        assert b["status"] == "succeeded", b.get("error")
+    page.goto(f"/#/dashboard?scene={scene['id']}")
+    for i in ids:
+        page.wait_for_selector(f'input[data-pick="{i}"]', timeout=30000)
+        page.check(f'input[data-pick="{i}"]')
+    page.wait_for_selector("#compare-previews img", timeout=10000)
+    loaded = "e => e.filter(i => i.complete && i.naturalWidth > 0).length"
+    page.wait_for_function(f"({loaded})([...document.querySelectorAll('#compare-previews img')]) >= 2", timeout=20000)
+    imgs = page.locator("#compare-previews img")
+    widths = imgs.evaluate_all("e => e.map(i => i.naturalWidth)")
+    assert sum(w > 0 for w in widths) >= 2, widths
+    row = page.locator("#compare-previews tbody tr").first
+    assert row.locator("img").count() >= 2 and all(w > 0 for w in row.locator("img").evaluate_all("e => e.map(i => i.naturalWidth)"))
+    assert page.locator("#compare-previews img[data-artifact$=_error]").count() >= 2  # the error heatmaps
+    page.locator("#compare").screenshot(path=str(shots / "compare-previews.png"))
     assert not page.kiln_errors, page.kiln_errors

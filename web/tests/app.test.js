@@ -4,7 +4,7 @@ import { fileURLToPath } from 'node:url';
 import { SSEParser } from '../src/api/sse.js';
 import { buildFieldTree, configDiff, fieldErrors, walkFields } from '../src/state/schema.js';
 import { GI_MODES, modeAvailability } from '../src/state/modes.js';
-import { bakeSeconds, compareBakes, configDelta, flattenMetrics, memoryBytes, stageGroups } from '../src/state/stats.js';
+import { bakeSeconds, compareBakes, comparePreviews, configDelta, evalPreviews, flattenMetrics, memoryBytes, stageGroups } from '../src/state/stats.js';
 
 const schema = JSON.parse(readFileSync(fileURLToPath(new URL('../../proto/schema/bake-config.schema.json', import.meta.url)), 'utf8'));
 
@@ -87,5 +87,28 @@ describe('dashboard numbers', () => {
     expect(rows['leaking.rmse'].delta).toBeCloseTo(-0.1);
     expect(rows.flip).toMatchObject({ a: 0.1, b: null, delta: null });
     expect(configDelta(a.config, b.config)).toEqual([{ path: 'place.counts', a: [8, 8, 8], b: [4, 4, 4] }]);
+  });
+});
+
+describe('evaluate previews (bundle.md 5.4)', () => {
+  const png = (name) => ({ name, format: 'png' });
+  const bake = (names) => ({ artifacts: names.map(png).concat([{ name: 'eval_metrics', format: 'json' }]) });
+  it('pairs previews with heatmaps per camera and mode, reference first', () => {
+    const p = evalPreviews(bake(['eval_contact', 'eval_cam-0_mask_normalized', 'eval_cam-0_mask_normalized_error',
+      'eval_cam-0_leaking', 'eval_cam-0_leaking_error', 'eval_cam-0_reference', 'eval_my_cam_mask', 'eval_cam-1_ddgi']));
+    expect(p.map((x) => [x.camera, x.mode, x.name, x.error])).toEqual([
+      ['cam-0', 'reference', 'eval_cam-0_reference', null],
+      ['cam-0', 'leaking', 'eval_cam-0_leaking', 'eval_cam-0_leaking_error'],
+      ['cam-0', 'mask_normalized', 'eval_cam-0_mask_normalized', 'eval_cam-0_mask_normalized_error'],
+      ['cam-1', 'ddgi', 'eval_cam-1_ddgi', null],
+      ['my_cam', 'mask', 'eval_my_cam_mask', null],
+    ]);
+  });
+  it('compares only when both bakes have previews', () => {
+    const a = bake(['eval_cam-0_reference', 'eval_cam-0_leaking']);
+    const b = bake(['eval_cam-0_reference', 'eval_cam-0_ddgi']);
+    expect(comparePreviews(a, bake([]))).toEqual([]);
+    const rows = comparePreviews(a, b);
+    expect(rows.map((r) => [r.mode, !!r.a, !!r.b])).toEqual([['reference', true, true], ['leaking', true, false], ['ddgi', false, true]]);
   });
 });

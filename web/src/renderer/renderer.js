@@ -8,7 +8,9 @@ import {
   Scene, SphereGeometry, Vector3, Vector4, WebGLRenderer,
 } from 'three';
 import { formatCompileErrors } from './preprocess.js';
-import { shaderSource } from './shaders.js';
+import { GLSL_SOURCES, shaderSource } from './shaders.js';
+import { preprocess } from './preprocess.js';
+import probeClusterFrag from './glsl/probe_cluster.frag.glsl?raw';
 import { MODE_SAMPLERS } from '../state/modes.js';
 import { FrameTimer } from './timer.js';
 import { ShadowMaps } from './shadows.js';
@@ -256,9 +258,18 @@ export class GIRenderer {
     for (const m of this.materials.values()) { m.fragmentShader = frag; m.needsUpdate = true; }
   }
 
+  /** The cluster-colouring fragment shader (web-only: src/renderer/glsl), preprocessed like ours. */
+  clusterSource() {
+    const s = preprocess('probe_cluster.frag.glsl', { ...GLSL_SOURCES, 'probe_cluster.frag.glsl': probeClusterFrag });
+    const code = s.code.slice(s.code.indexOf('\n') + 1);
+    this.sources.set(code, s.lineMap.slice(1));
+    return code;
+  }
+
   /**
-   * Probe spheres at `positions` (n·3 floats, x fastest probe order), coloured by `states` (n bytes).
-   * @param {{positions: Float32Array, states: Uint8Array|null, counts: number[], radius: number}} probes
+   * Probe spheres at `positions` (n·3 floats, x fastest probe order), coloured by `states` (n bytes), or by
+   * `clusters` (n bytes, bundle.md 5.2; the 'cluster' colouring) when given.
+   * @param {{positions: Float32Array, states: Uint8Array|null, clusters?: Uint8Array|null, counts: number[], radius: number}} probes
    */
   setProbes(probes) {
     if (this.probeMesh) { this.world.remove(this.probeMesh); this.probeMesh.geometry.dispose(); this.probeMesh = null; }
@@ -277,7 +288,8 @@ export class GIRenderer {
     geo.setAttribute('aProbeIndex', new InstancedBufferAttribute(idx, 3));
     const st = new Float32Array(n).fill(1);
     if (probes.states) for (let p = 0; p < n; p++) st[p] = probes.states[p];
-    geo.setAttribute('aProbeState', new InstancedBufferAttribute(st, 1));
+    const stateAttr = new InstancedBufferAttribute(st, 1);
+    geo.setAttribute('aProbeState', stateAttr);
     geo.instanceCount = n;
     const mat = new RawShaderMaterial({
       name: 'kiln:probes',
@@ -287,15 +299,38 @@ export class GIRenderer {
       uniforms: { ...this.shared, ...this.modeTextures, uProbeRadius: { value: probes.radius }, uProbeColoring: { value: 0 } },
     });
     this.probeMesh = new Mesh(geo, mat);
+    this.probeMesh.userData = { stateAttr, stateMaterial: mat, clusterAttr: null, clusterMaterial: null };
+    if (probes.clusters) this.setProbeClusters(probes.clusters, probes.states);
     this.probeMesh.frustumCulled = false;
     this.probeMesh.visible = false;
     this.world.add(this.probeMesh);
   }
 
+  /** Per-probe cluster indices (the `clusters` artifact), for the 'cluster' colouring; OFF probes drawn dark. */
+  setProbeClusters(clusters, states) {
+    const ud = this.probeMesh?.userData;
+    if (!ud || !clusters) return;
+    const n = ud.stateAttr.count;
+    const g = new Float32Array(n);
+    for (let p = 0; p < n; p++) g[p] = Math.min(7, clusters[p] ?? 0) + (states && states[p] === 0 ? 8 : 0);
+    ud.clusterAttr = new InstancedBufferAttribute(g, 1);
+    if (!ud.clusterMaterial) {
+      ud.clusterMaterial = new RawShaderMaterial({
+        name: 'kiln:probes-clusters', glslVersion: GLSL3,
+        vertexShader: this.source('probe.vert.glsl'), fragmentShader: this.clusterSource(),
+        uniforms: { uProbeRadius: ud.stateMaterial.uniforms.uProbeRadius },
+      });
+    }
+  }
+
   setProbeDisplay({ visible, coloring }) {
     if (!this.probeMesh) return;
+    const ud = this.probeMesh.userData;
     this.probeMesh.visible = !!visible;
-    this.probeMesh.material.uniforms.uProbeColoring.value = coloring === 'sh' ? 1 : 0;
+    const clusters = coloring === 'cluster' && ud.clusterAttr;
+    this.probeMesh.material = clusters ? ud.clusterMaterial : ud.stateMaterial;
+    this.probeMesh.geometry.setAttribute('aProbeState', clusters ? ud.clusterAttr : ud.stateAttr);
+    ud.stateMaterial.uniforms.uProbeColoring.value = coloring === 'sh' ? 1 : 0;
   }
 
   /** Draw one frame; returns the latest frame time in ms (GPU when measurable). */

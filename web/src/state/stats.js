@@ -104,3 +104,46 @@ export function formatSeconds(s) {
   if (s < 60) return `${s.toFixed(s < 10 ? 2 : 1)} s`;
   return `${Math.floor(s / 60)} min ${Math.round(s % 60)} s`;
 }
+
+const EVAL_MODES = ['reference', 'mask_normalized', 'mask', 'ddgi', 'leaking', 'direct', 'prt'];
+
+/**
+ * The evaluate stage's PNG previews of a bake (bundle.md 5.4: `eval_<camera>_<mode>` and
+ * `eval_<camera>_<mode>_error`; `eval_contact` and the json are left out): [{camera, mode, name, error}]
+ * with `error` the heatmap's artifact name (or null), `name` the preview's (or null).
+ */
+export function evalPreviews(bake) {
+  const byKey = new Map();
+  for (const a of bake?.artifacts || []) {
+    if (!a.name.startsWith('eval_') || (a.format && a.format !== 'png')) continue;
+    let rest = a.name.slice(5);
+    const isError = rest.endsWith('_error');
+    if (isError) rest = rest.slice(0, -6);
+    const known = EVAL_MODES.find((m) => rest.endsWith(`_${m}`));
+    const cut = known ? rest.length - known.length - 1 : rest.indexOf('_');
+    if (cut <= 0) continue;  // eval_contact, eval_metrics, eval_cameras
+    const camera = rest.slice(0, cut), mode = rest.slice(cut + 1);
+    const key = `${camera}\u0000${mode}`;
+    const cur = byKey.get(key) || { camera, mode, name: null, error: null };
+    cur[isError ? 'error' : 'name'] = a.name;
+    byKey.set(key, cur);
+  }
+  const order = ['reference', 'direct', 'leaking', 'ddgi', 'mask', 'mask_normalized', 'prt'];
+  const rank = (m) => (order.includes(m) ? order.indexOf(m) : order.length);
+  return [...byKey.values()].sort((x, y) => x.camera.localeCompare(y.camera, undefined, { numeric: true }) || rank(x.mode) - rank(y.mode)
+    || x.mode.localeCompare(y.mode));
+}
+
+/**
+ * Previews of two bakes side by side: one row per (camera, mode) either has, {camera, mode, a, b} with a/b
+ * the evalPreviews entries (null where that bake lacks it). [] unless both bakes have previews.
+ */
+export function comparePreviews(a, b) {
+  const pa = evalPreviews(a), pb = evalPreviews(b);
+  if (!pa.length || !pb.length) return [];
+  const key = (p) => `${p.camera}\u0000${p.mode}`;
+  const ma = new Map(pa.map((p) => [key(p), p])), mb = new Map(pb.map((p) => [key(p), p]));
+  const rows = [];
+  for (const p of [...pa, ...pb.filter((x) => !ma.has(key(x)))]) rows.push({ camera: p.camera, mode: p.mode, a: ma.get(key(p)) || null, b: mb.get(key(p)) || null });
+  return rows;
+}

@@ -6,7 +6,7 @@
 import uPlot from 'uplot';
 import 'uplot/dist/uPlot.min.css';
 import {
-  bakeSeconds, chartValues, compareBakes, configDelta, formatBytes, formatSeconds, memoryBytes, metricColumns, stageGroups,
+  bakeSeconds, chartValues, compareBakes, comparePreviews, configDelta, formatBytes, formatSeconds, memoryBytes, metricColumns, stageGroups,
 } from '../state/stats.js';
 import { clear, formatTime, h, shortId } from './dom.js';
 
@@ -35,6 +35,8 @@ export function createDashboardPage(app) {
   let bakes = [];
   let picked = [];
   let plot = null;
+  let objectUrls = [];  // previews fetched with the API key (an <img> cannot send the Authorization header)
+  let compareToken = 0;
 
   async function fullBake(b) {
     const done = ['succeeded', 'failed', 'cancelled'].includes(b.status);
@@ -111,8 +113,45 @@ export function createDashboardPage(app) {
     if (!bakes.length) table.append(h('tbody', h('tr', h('td', { colSpan: 8 }, 'No bakes for this scene yet.'))));
   }
 
+  /** An <img> of a PNG artifact: a plain URL, or with an API key set, fetched with the header into an object URL. */
+  function artifactImage(bakeId, name, alt, token) {
+    const img = h('img.eval-img', { alt, title: alt, dataset: { artifact: name } });
+    const path = api.url(api.artifactPath(bakeId, name));
+    if (!api.key) {
+      img.src = path;
+      return img;
+    }
+    fetch(path, { headers: api.headers() })
+      .then((r) => { if (!r.ok) throw new Error(`HTTP ${r.status}`); return r.blob(); })
+      .then((blob) => {
+        if (token !== compareToken) return;
+        const url = URL.createObjectURL(blob);
+        objectUrls.push(url);
+        img.src = url;
+      })
+      .catch((e) => { img.alt = `${alt}: ${e.message}`; img.classList.add('failed'); });
+    return img;
+  }
+
+  function renderPreviews(a, b, token) {
+    const rows = comparePreviews(a, b);
+    if (!rows.length) return h('p.muted#compare-previews-none', 'no previews: bake with evaluate.enabled');
+    const cell = (x, p, which) => {
+      const name = p && p[which];
+      return h('td', name ? artifactImage(x.id, name, `${shortId(x.id)} ${p.camera} ${p.mode}${which === 'error' ? ' error' : ''}`, token) : h('span.muted', '–'));
+    };
+    return h('table.data#compare-previews', h('thead', h('tr', h('th', 'camera · mode'), h('th', `A ${shortId(a.id)}`), h('th', `B ${shortId(b.id)}`),
+      h('th', 'A error'), h('th', 'B error'))),
+    h('tbody', rows.map((r) => h('tr', { dataset: { camera: r.camera, mode: r.mode } },
+      h('td', `${r.camera} · ${r.mode}`), cell(a, r.a, 'name'), cell(b, r.b, 'name'),
+      r.mode === 'reference' ? [h('td'), h('td')] : [cell(a, r.a, 'error'), cell(b, r.b, 'error')]))));
+  }
+
   function renderCompare() {
     clear(compare);
+    compareToken += 1;
+    for (const u of objectUrls) URL.revokeObjectURL(u);
+    objectUrls = [];
     if (picked.length !== 2) return;
     const [a, b] = picked.map((id) => bakes.find((x) => x.id === id)).sort((x, y) => (x.created || 0) - (y.created || 0));
     if (!a || !b) return;
@@ -131,6 +170,8 @@ export function createDashboardPage(app) {
           h('td', r.name), h('td.num', fmt(r.a)), h('td.num', fmt(r.b)),
           h('td.num', { className: r.delta > 0 ? 'num up' : r.delta < 0 ? 'num down' : 'num' }, r.delta == null ? '–' : `${r.delta > 0 ? '+' : ''}${fmt(r.delta)}`),
           h('td.num', r.relative == null ? '–' : `${r.relative > 0 ? '+' : ''}${(r.relative * 100).toFixed(1)}%`))))),
+      h('h3', 'Previews (evaluate stage; error heatmaps 0 … 0.25)'),
+      renderPreviews(a, b, compareToken),
       h('h3', 'Config differences'),
       cfg.length ? h('table.data#config-delta', h('tbody', cfg.map((d) => h('tr', h('td', h('code', d.path)), h('td', JSON.stringify(d.a)), h('td', JSON.stringify(d.b)))))) : h('p.muted', 'Same config.'));
   }

@@ -51,32 +51,60 @@ export function drawDepthAtlas(canvas, atlas) {
 }
 
 /**
- * One slice of θ for one cell corner (0-7), along an axis: 'z' shows an x-y slice (y up), 'y' an x-z
- * slice, 'x' a z-y slice. theta0123/theta4567: RGBA8 volumes (Z, Y, X, 4); dontCare: R8 volume or null.
+ * Draw one axis slice of a (Z, Y, X, C) volume: 'z' shows an x-y slice (y up), 'y' an x-z slice, 'x' a z-y
+ * slice. `pixel(t, out, o)` writes the RGB of voxel t (linear index, x fastest) at out[o..o+2].
  */
-export function drawThetaSlice(canvas, { theta0123, theta4567, dontCare }, corner, axis, index) {
-  const vol = corner < 4 ? theta0123 : theta4567;
-  const ch = corner % 4;
-  const { width: X, height: Y, depth: Z, data } = vol;
-  const dims = { z: [X, Y], y: [X, Z], x: [Z, Y] }[axis];
+export function drawVolumeSlice(canvas, { width: X, height: Y, depth: Z }, axis, index, pixel) {
+  const [w, hgt] = { z: [X, Y], y: [X, Z], x: [Z, Y] }[axis];
   const at = (u, v) => {  // u right, v up -> (x, y, z)
     if (axis === 'z') return [u, v, index];
     if (axis === 'y') return [u, index, v];
     return [index, v, u];
   };
-  const [w, hgt] = dims;
   return toCanvas(canvas, w, hgt, (px) => {
     for (let row = 0; row < hgt; row++) for (let u = 0; u < w; u++) {
       const v = hgt - 1 - row;  // up is +v
       const [x, y, z] = at(u, v);
-      const t = (z * Y + y) * X + x;
       const o = (row * w + u) * 4;
-      const dc = dontCare && dontCare.data[t];
-      const g = data[t * 4 + ch];
-      px[o] = dc ? 200 : g;
-      px[o + 1] = dc ? 40 : g;
-      px[o + 2] = dc ? 40 : g;
+      pixel((z * Y + y) * X + x, px, o);
       px[o + 3] = 255;
     }
+  });
+}
+
+/**
+ * One slice of θ for one cell corner (0-7), along an axis (drawVolumeSlice). theta0123/theta4567: RGBA8
+ * volumes (Z, Y, X, 4); dontCare: R8 volume or null.
+ */
+export function drawThetaSlice(canvas, { theta0123, theta4567, dontCare }, corner, axis, index) {
+  const vol = corner < 4 ? theta0123 : theta4567;
+  const ch = corner % 4;
+  const { data } = vol;
+  return drawVolumeSlice(canvas, vol, axis, index, (t, px, o) => {
+    const dc = dontCare && dontCare.data[t];
+    const g = data[t * 4 + ch];
+    px[o] = dc ? 200 : g;
+    px[o + 1] = dc ? 40 : g;
+    px[o + 2] = dc ? 40 : g;
+  });
+}
+
+/**
+ * One slice of the dense masks (bundle.md 5.2 `masks_0123` / `masks_4567`, RGBA8 (Z, Y, X, 4), round(255·m_k)):
+ * `channel` 0-7 as grey (4-7 from masks4567), or 'rgb' = m_0, m_1, m_2 as red, green, blue.
+ */
+export function drawMaskSlice(canvas, { masks0123, masks4567 }, channel, axis, index) {
+  if (channel === 'rgb') {
+    const d = masks0123.data;
+    return drawVolumeSlice(canvas, masks0123, axis, index, (t, px, o) => {
+      px[o] = d[t * 4]; px[o + 1] = d[t * 4 + 1]; px[o + 2] = d[t * 4 + 2];
+    });
+  }
+  const k = Number(channel);
+  const vol = k < 4 ? masks0123 : masks4567;
+  const d = vol.data;
+  return drawVolumeSlice(canvas, vol, axis, index, (t, px, o) => {
+    const g = d[t * 4 + (k % 4)];
+    px[o] = g; px[o + 1] = g; px[o + 2] = g;
   });
 }

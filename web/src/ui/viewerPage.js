@@ -3,7 +3,7 @@
  * cameras, probes, exposure, the streaming progress bar, the frame-time readout, and debug images.
  */
 import { Viewer } from '../view/viewer.js';
-import { drawDepthAtlas, drawIrradianceAtlas, drawThetaSlice } from './debugImages.js';
+import { drawDepthAtlas, drawIrradianceAtlas, drawMaskSlice, drawThetaSlice } from './debugImages.js';
 import { clear, h, shortId } from './dom.js';
 
 export function createViewerPage(app) {
@@ -27,8 +27,10 @@ export function createViewerPage(app) {
   const camFly = h('button.small#cam-fly', { type: 'button', dataset: { cam: 'fly' } }, 'Fly (WASD QE, drag)');
   const camLink = h('button.small#cam-link', { type: 'button' }, 'Link to this view');
   const probesBox = h('input#show-probes', { type: 'checkbox' });
-  const probeColor = h('select#probe-coloring', h('option', { value: 'state' }, 'by state (OFF red / ACTIVE green / SLEEPING blue)'), h('option', { value: 'sh' }, 'by own SH irradiance'));
-  const debugSelect = h('select#debug-view', h('option', { value: '' }, '— none —'), h('option', { value: 'irradiance' }, 'irradiance atlas'), h('option', { value: 'depth' }, 'depth atlas (mean distance)'), h('option', { value: 'theta' }, 'θ slices (visibility)'));
+  const probeColor = h('select#probe-coloring', h('option', { value: 'state' }, 'by state (OFF red / ACTIVE green / SLEEPING blue)'), h('option', { value: 'sh' }, 'by own SH irradiance'),
+    h('option', { value: 'cluster' }, 'by MD cluster (8 colours; OFF dark)'));
+  const debugSelect = h('select#debug-view', h('option', { value: '' }, '— none —'), h('option', { value: 'irradiance' }, 'irradiance atlas'), h('option', { value: 'depth' }, 'depth atlas (mean distance)'), h('option', { value: 'theta' }, 'θ slices (visibility)'),
+    h('option', { value: 'clusters' }, 'clusters (probe spheres by MD cluster)'), h('option', { value: 'masks' }, 'mask channels (dense masks slice)'));
   const debugCanvas = h('canvas#debug-image');
   const debugHolder = h('div.debug-overlay', { hidden: true }, debugCanvas);
   const debugControls = h('div#debug-controls');
@@ -149,15 +151,70 @@ export function createViewerPage(app) {
   probesBox.addEventListener('change', () => viewer.setProbes({ visible: probesBox.checked }));
   probeColor.addEventListener('change', () => viewer.setProbes({ coloring: probeColor.value }));
 
+  /**
+   * A slice view of RGBA8 (Z, Y, X, 4) volumes: axis, a selector (θ corner / mask channel) and a slider;
+   * `paint(axis, selector, index)` draws on the debug canvas; `legend` labels it.
+   */
+  function sliceControls(vol, { id, options, paint, legend }) {
+    const axis = h(`select#${id}-axis`, ['z', 'y', 'x'].map((a) => h('option', { value: a }, `${a} slice`)));
+    const pick = h(`select#${id}-${id === 'theta' ? 'corner' : 'channel'}`, options.map(([v, text]) => h('option', { value: v }, text)));
+    const slice = h(`input#${id}-slice`, { type: 'range', min: 0, value: 0 });
+    const label = h('span.muted');
+    const draw = () => {
+      const n = { z: vol.depth, y: vol.height, x: vol.width }[axis.value];
+      slice.max = String(n - 1);
+      const i = Math.min(n - 1, Number(slice.value));
+      paint(axis.value, pick.value, i);
+      // show the slice in world proportions (cells are rarely cubes)
+      const sp = viewer.renderer.grid?.spacing || [1, 1, 1];
+      const [a, b] = { z: [0, 1], y: [0, 2], x: [2, 1] }[axis.value];
+      debugCanvas.style.aspectRatio = String((debugCanvas.width * sp[a]) / (debugCanvas.height * sp[b]));
+      label.textContent = `${axis.value} = ${i} / ${n - 1} · ${legend(pick.value)}`;
+    };
+    slice.value = String(Math.floor(vol.depth / 2));
+    [axis, pick].forEach((e) => e.addEventListener('change', draw));
+    slice.addEventListener('input', draw);
+    debugControls.append(h('div.row', axis, pick), h('div.row', slice, label));
+    draw();
+  }
+
+  /** Debug views and the cluster colouring are offered only when the bake has their artifacts. */
+  const DEBUG_NEEDS = { irradiance: 'irradiance', depth: 'depth_moments', theta: 'theta_0123', clusters: 'clusters', masks: 'masks_0123' };
+  function updateDebugOptions() {
+    const has = (n) => !!viewer?.artifactInfo(n);
+    for (const opt of debugSelect.options) {
+      const need = DEBUG_NEEDS[opt.value];
+      opt.disabled = !!need && !has(need);
+      opt.title = opt.disabled ? `not baked: ${need}` : '';
+    }
+    const clusterOpt = [...probeColor.options].find((o) => o.value === 'cluster');
+    clusterOpt.disabled = !has('clusters');
+    clusterOpt.title = clusterOpt.disabled ? 'not baked: clusters' : '';
+  }
+
+  let coloringBeforeClusters = null;  // the probe colouring to restore when the clusters view is left
+
   async function showDebug() {
     const which = debugSelect.value;
     clear(debugControls);
     debugNote.textContent = '';
-    debugCanvas.hidden = !which;
-    debugHolder.hidden = !which;
+    if (coloringBeforeClusters && which !== 'clusters' && viewer) {
+      const prev = coloringBeforeClusters;
+      coloringBeforeClusters = null;
+      probeColor.value = prev.coloring;
+      probesBox.checked = prev.visible;
+      viewer.setProbes({ coloring: prev.coloring, visible: prev.visible });
+    }
+    const image = !!which && which !== 'clusters';  // the clusters view is drawn in 3D, on the probe spheres
+    debugCanvas.hidden = !image;
+    debugHolder.hidden = !image;
     if (!which || !viewer?.bake) return;
-    const need = { irradiance: ['irradiance'], depth: ['depth_moments'], theta: ['theta_0123', 'theta_4567', 'dont_care'] }[which];
-    const missing = need.filter((n) => !viewer.artifactInfo(n) && n !== 'dont_care');
+    const need = {
+      irradiance: ['irradiance'], depth: ['depth_moments'], theta: ['theta_0123', 'theta_4567', 'dont_care'],
+      clusters: ['clusters'], masks: ['masks_0123', 'masks_4567'],
+    }[which];
+    const optional = new Set(['dont_care', 'masks_4567']);
+    const missing = need.filter((n) => !viewer.artifactInfo(n) && !optional.has(n));
     if (missing.length) { debugNote.textContent = `not baked: ${missing.join(', ')}`; debugCanvas.hidden = true; debugHolder.hidden = true; return; }
     debugNote.textContent = 'loading…';
     const got = await viewer.fetch(need.filter((n) => viewer.artifactInfo(n)));
@@ -170,28 +227,33 @@ export function createViewerPage(app) {
     } else if (which === 'depth') {
       drawDepthAtlas(debugCanvas, got.depth_moments);
       debugNote.textContent = `${got.depth_moments.width}×${got.depth_moments.height} RG32F: mean ray distance per octahedral texel (black near, white far)`;
-    } else {
+    } else if (which === 'theta') {
       const vols = { theta0123: got.theta_0123, theta4567: got.theta_4567, dontCare: got.dont_care || null };
-      const axis = h('select#theta-axis', ['z', 'y', 'x'].map((a) => h('option', { value: a }, `${a} slice`)));
-      const corner = h('select#theta-corner', [...Array(8).keys()].map((c) => h('option', { value: c }, `corner ${c} (${c & 1},${(c >> 1) & 1},${(c >> 2) & 1})`)));
-      const slice = h('input#theta-slice', { type: 'range', min: 0, value: 0 });
-      const label = h('span.muted');
-      const draw = () => {
-        const n = { z: vols.theta0123.depth, y: vols.theta0123.height, x: vols.theta0123.width }[axis.value];
-        slice.max = String(n - 1);
-        const i = Math.min(n - 1, Number(slice.value));
-        drawThetaSlice(debugCanvas, vols, Number(corner.value), axis.value, i);
-        // show the slice in world proportions (cells are rarely cubes)
-        const sp = viewer.renderer.grid?.spacing || [1, 1, 1];
-        const [a, b] = { z: [0, 1], y: [0, 2], x: [2, 1] }[axis.value];
-        debugCanvas.style.aspectRatio = String((debugCanvas.width * sp[a]) / (debugCanvas.height * sp[b]));
-        label.textContent = `${axis.value} = ${i} / ${n - 1} · θ white = visible, black = occluded, red = inside geometry`;
-      };
-      slice.value = String(Math.floor(vols.theta0123.depth / 2));
-      [axis, corner].forEach((e) => e.addEventListener('change', draw));
-      slice.addEventListener('input', draw);
-      debugControls.append(h('div.row', axis, corner), h('div.row', slice, label));
-      draw();
+      sliceControls(vols.theta0123, {
+        id: 'theta',
+        options: [...Array(8).keys()].map((c) => [c, `corner ${c} (${c & 1},${(c >> 1) & 1},${(c >> 2) & 1})`]),
+        paint: (axis, corner, i) => drawThetaSlice(debugCanvas, vols, Number(corner), axis, i),
+        legend: () => 'θ white = visible, black = occluded, red = inside geometry',
+      });
+    } else if (which === 'masks') {
+      const vols = { masks0123: got.masks_0123, masks4567: got.masks_4567 || null };
+      const K = Number(viewer.artifactInfo('clusters')?.meta?.clusters) || (vols.masks4567 ? 8 : 4);
+      const channels = [...Array(vols.masks4567 ? Math.min(8, K) : Math.min(4, K)).keys()];
+      sliceControls(vols.masks0123, {
+        id: 'mask',
+        options: [['rgb', 'RGB = m0, m1, m2'], ...channels.map((k) => [k, `channel ${k} (m${k})`])],
+        paint: (axis, ch, i) => drawMaskSlice(debugCanvas, vols, ch, axis, i),
+        legend: (ch) => (ch === 'rgb' ? 'red m0, green m1, blue m2 (white: 255 = unread / don\'t care)' : `m${ch}: black 0, white 1`),
+      });
+      debugNote.textContent = `${vols.masks0123.width}×${vols.masks0123.height}×${vols.masks0123.depth} RGBA8 refined grid, K = ${K}`;
+    } else {
+      // clusters: the probe spheres coloured by their cluster, in the 3D view
+      if (!coloringBeforeClusters) coloringBeforeClusters = { coloring: probeColor.value, visible: probesBox.checked };
+      probeColor.value = 'cluster';
+      probesBox.checked = true;
+      viewer.setProbes({ coloring: 'cluster', visible: true });
+      const K = viewer.artifactInfo('clusters')?.meta?.clusters;
+      debugNote.textContent = `probe spheres coloured by cluster${K ? ` (K = ${K})` : ''}: 0 red, 1 green, 2 blue, 3 yellow, 4 orange, 5 purple, 6 cyan, 7 magenta; OFF probes dark`;
     }
   }
   debugSelect.addEventListener('change', () => showDebug().catch((e) => { debugNote.textContent = e.message; }));
@@ -208,6 +270,11 @@ export function createViewerPage(app) {
       status = {};
       shaderError.textContent = '';
       debugSelect.value = '';
+      if (coloringBeforeClusters) {
+        probeColor.value = coloringBeforeClusters.coloring;
+        v.setProbes({ coloring: coloringBeforeClusters.coloring });
+        coloringBeforeClusters = null;
+      }
       debugCanvas.hidden = true;
       debugHolder.hidden = true;
       clear(debugControls);
@@ -236,6 +303,7 @@ export function createViewerPage(app) {
       await v.open({ bake, sceneFile: bake ? app.sessionFiles.get(bake.scene_id) || null : null, camera, mode: q.get('mode') || undefined });
       if (probesBox.checked !== v.state.probes) v.setProbes({ visible: probesBox.checked });
       renderModes();
+      updateDebugOptions();
     },
   };
 }

@@ -225,7 +225,7 @@ export class Viewer {
       this.invalidate();
     }
     // stream the probe data and every available mode's volumes in the background, with progress
-    const wanted = ['probe_positions_relocated', 'probe_states'];
+    const wanted = ['probe_positions_relocated', 'probe_states', 'clusters'];  // clusters: MD anneal (colouring)
     const names = (bake.artifacts || []).map((a) => a.name);
     for (const m of this.modes()) if (m.available) wanted.push(...modeArtifacts(m, names, this.artifacts));
     const stream = this.fetch(wanted.filter((n) => this.artifactInfo(n)))
@@ -261,7 +261,8 @@ export class Viewer {
     if (!grid || !pos) return;
     const states = this.artifacts.probe_states ? this.artifacts.probe_states.data : null;
     const radius = 0.12 * Math.min(...grid.spacing);
-    this.renderer.setProbes({ positions: pos.data, stride: pos.components, states, counts: grid.counts, radius });
+    const clusters = this.artifacts.clusters ? this.artifacts.clusters.data : null;
+    this.renderer.setProbes({ positions: pos.data, stride: pos.components, states, clusters, counts: grid.counts, radius });
     if (this.artifacts.sh_l1_r) this.bindModeTextures(modeById('leaking'));
     this.renderer.setProbeDisplay({ visible: this.state.probes, coloring: this.state.probeColoring });
     this.invalidate();
