@@ -47,7 +47,7 @@ def run(scene, counts, S, K) -> dict:
             rec, _ = pipeline.execute_stage(store, sid, cfg, st.name)
             times[st.name] = time.perf_counter() - t0
             recs[st.name] = rec
-        a, m, c = recs["anneal"]["stats"], recs["masks"]["stats"], recs["compress"]["stats"]
+        a, c = recs["anneal"]["stats"], recs["compress"]["stats"]
         arts = {x["name"]: x for st in ("light", "masks", "compress", "visibility") for x in recs[st]["artifacts"]}
 
         def gpu_bytes(name):  # uncompressed texture bytes (what the GPU holds)
