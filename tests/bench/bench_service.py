@@ -17,9 +17,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import os
 import signal
-import socket
 import statistics
 import struct
 import subprocess
@@ -37,6 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from proto.catalog import Catalog  # noqa: E402
+from tests.serve_process import spawn_serve  # noqa: E402
 
 
 def big_glb(path: Path, target_mb: float) -> int:
@@ -69,12 +68,6 @@ def big_glb(path: Path, target_mb: float) -> int:
         f.write(struct.pack("<I4s", len(js), b"JSON") + js)
         f.write(struct.pack("<I4s", len(binary), b"BIN\x00") + binary)
     return total
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 class Sampler(threading.Thread):
@@ -112,26 +105,9 @@ def main() -> int:
     args = ap.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="kiln-bench-"))
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env.pop("REDIS_URL", None)
-    env.pop("KILN_API_KEYS", None)
-    proc = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--port", str(port), "--workers", "2",
-                             "--data", str(tmp / "data")], cwd=ROOT, env=env,
-                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    proc, url = spawn_serve(tmp / "data", workers=2)
     results: dict = {}
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(url + "/healthz", timeout=2).json()["status"] == "ok":
-                    break
-            except httpx.HTTPError:
-                pass
-            if time.monotonic() > deadline:
-                raise SystemExit("server did not start")
-            time.sleep(0.2)
         service_children = {c.pid for c in psutil.Process(proc.pid).children(recursive=True)}
         client = httpx.Client(base_url=url, timeout=600)
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import time
@@ -16,6 +15,7 @@ import pytest
 
 from proto import bundle
 from tests.conftest import shared_path
+from tests.serve_process import free_port, spawn_serve
 
 KILN = [sys.executable, "-m", "server.cli"]
 
@@ -103,31 +103,9 @@ def test_bake_bad_config_names_the_field(tmp_path, scene_files):
     assert r.returncode == 2  # --out is required
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):
-    port = _free_port()
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env.pop("REDIS_URL", None)
-    env.pop("KILN_API_KEYS", None)
-    proc = subprocess.Popen([*KILN, "serve", "--port", str(port), "--workers", "2", "--data", tmp_path / "data"],
-                            env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    url = f"http://127.0.0.1:{port}"
+    proc, url = spawn_serve(tmp_path / "data", workers=2, log=tmp_path / "serve.log")
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(url + "/healthz", timeout=2).json()["status"] == "ok":
-                    break
-            except httpx.HTTPError:
-                pass
-            assert proc.poll() is None, proc.stdout.read()
-            assert time.monotonic() < deadline, "server did not come up"
-            time.sleep(0.2)
         kids = psutil.Process(proc.pid).children(recursive=True)
         names = " ".join(" ".join(k.cmdline()) for k in kids)
         assert "redis-server" in names and names.count("server.cli worker") >= 2
@@ -165,5 +143,5 @@ def test_serve_refuses_open_public_bind(tmp_path):
 
 
 def test_bake_server_unreachable(tmp_path, scene_files):
-    r = kiln("bake", scene_files["cornell"], "--server", f"http://127.0.0.1:{_free_port()}", "--out", tmp_path / "o")
+    r = kiln("bake", scene_files["cornell"], "--server", f"http://127.0.0.1:{free_port()}", "--out", tmp_path / "o")
     assert r.returncode == 5 and "cannot talk to" in r.stderr

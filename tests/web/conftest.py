@@ -10,14 +10,14 @@ from __future__ import annotations
 import contextlib
 import os
 import signal
-import socket
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import httpx
 import pytest
+
+from tests.serve_process import spawn_serve
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path(os.environ.get("KILN_CHROMIUM", "/usr/bin/chromium"))
@@ -49,12 +49,6 @@ def pytest_collection_modifyitems(config, items):
             item.add_marker(pytest.mark.skip(reason=_why))
 
 
-def _free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class KilnServer:
     def __init__(self, url: str, proc: subprocess.Popen, log: Path):
         self.url, self.proc, self.log = url, proc, log
@@ -77,28 +71,9 @@ class KilnServer:
 @contextlib.contextmanager
 def _serve(tmp: Path, api_keys: str = ""):
     """`kiln serve --workers 2` on a free port with its data in `tmp`; stopped with Ctrl-C (SIGINT)."""
-    port = _free_port()
-    env = dict(os.environ, PYTHONUNBUFFERED="1")
-    env.pop("REDIS_URL", None)
-    env.pop("KILN_API_KEYS", None)
-    if api_keys:
-        env["KILN_API_KEYS"] = api_keys
     log = tmp / "serve.log"
-    out = open(log, "w")
-    proc = subprocess.Popen([sys.executable, "-m", "server.cli", "serve", "--port", str(port), "--workers", "2",
-                             "--data", str(tmp / "data")], cwd=ROOT, env=env, stdout=out, stderr=subprocess.STDOUT)
-    url = f"http://127.0.0.1:{port}"
+    proc, url = spawn_serve(tmp / "data", workers=2, api_keys=api_keys, log=log)
     try:
-        deadline = time.monotonic() + 60
-        while True:
-            try:
-                if httpx.get(url + "/healthz", timeout=2).json()["status"] == "ok":
-                    break
-            except (httpx.HTTPError, ValueError):
-                pass
-            assert proc.poll() is None, log.read_text()
-            assert time.monotonic() < deadline, "kiln serve did not come up:\n" + log.read_text()
-            time.sleep(0.2)
         yield KilnServer(url, proc, log)
     finally:
         proc.send_signal(signal.SIGINT)
@@ -107,7 +82,6 @@ def _serve(tmp: Path, api_keys: str = ""):
         except subprocess.TimeoutExpired:
             proc.kill()
             proc.wait(10)
-        out.close()
 
 
 @pytest.fixture(scope="session")
