@@ -29,6 +29,8 @@ class Settings(BaseSettings):
     max_upload_mb: int = Field(512, ge=1, le=1 << 20)
     max_triangles: int = Field(5_000_000, ge=1)
     recover_interval_s: float = Field(5.0, gt=0, description="seconds between checks for lost bakes")
+    ready_interval_s: float = Field(1.0, gt=0, description="seconds between drains of RQ's ready registry "
+                                                            "(stage jobs whose dependencies are met)")
 
     @field_validator("api_keys")
     @classmethod

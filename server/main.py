@@ -4,6 +4,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import time
 from pathlib import Path
 
 from fastapi import FastAPI
@@ -25,16 +26,22 @@ WEB_DIST = Path(__file__).resolve().parents[1] / "web" / "dist"
 
 
 async def _recover_loop(app: FastAPI) -> None:
-    """Re-enqueue bakes that lost their jobs (Redis restarted, workers died), now and every few seconds."""
+    """Keep every bake moving, from startup on.
+
+    - Every ``ready_interval_s``: enqueue stage jobs RQ left ready but not queued (``queue.drain_ready``).
+    - Every ``recover_interval_s``: re-enqueue bakes that lost their jobs (Redis restarted, workers died).
+    """
     st = app.state
-    first = True
+    first, last_recover = True, -float("inf")
     while True:
         try:
-            await asyncio.to_thread(queue.recover, st.redis, st.catalog, 0.0 if first else 10.0)
-            first = False
+            await asyncio.to_thread(queue.drain_ready, st.redis)
+            if time.monotonic() - last_recover >= st.settings.recover_interval_s:
+                await asyncio.to_thread(queue.recover, st.redis, st.catalog, 0.0 if first else 10.0)
+                first, last_recover = False, time.monotonic()
         except Exception as e:  # Redis unreachable (it comes back later) or a bug: say so, keep serving
             log.warning("recovery skipped: %s", e)
-        await asyncio.sleep(st.settings.recover_interval_s)
+        await asyncio.sleep(min(st.settings.ready_interval_s, st.settings.recover_interval_s))
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:

@@ -23,7 +23,7 @@ log = logging.getLogger("kiln.queue")
 QUEUE_NAME = "kiln"
 RETRIES = 2
 """Extra attempts of a stage job after a crash (a killed worker, an unexpected exception)."""
-LIVE = {JobStatus.QUEUED, JobStatus.STARTED, JobStatus.DEFERRED, JobStatus.SCHEDULED}
+LIVE = {JobStatus.QUEUED, JobStatus.STARTED, JobStatus.DEFERRED, JobStatus.SCHEDULED, JobStatus.READY_TO_ENQUEUE}
 
 
 def connect(url: str) -> redis.Redis:
@@ -93,6 +93,22 @@ def cancel_jobs(conn: redis.Redis, bake: dict) -> None:
 
 def queue_depth(conn: redis.Redis) -> int:
     return len(Queue(QUEUE_NAME, connection=conn))
+
+
+def drain_ready(conn: redis.Redis) -> list[str]:
+    """Enqueue the jobs whose dependencies are met but that RQ left in its ready registry; returns their ids.
+
+    When a stage job finishes, RQ 3 moves its dependents to ``ReadyJobRegistry`` and then enqueues them,
+    each under WATCH of that registry (one per queue) and the job. If another worker touches the registry
+    at the same moment (two bakes' stages finishing together, or a sharded stage's shards), RQ concedes
+    the job to ``ReadyJobRegistry.cleanup()``, which its workers run only once per maintenance interval
+    (10 minutes). The API's recovery loop calls this every second, so a conceded stage waits at most
+    about a second. Each job is enqueued at most once (RQ's own claim check).
+    """
+    jobs = Queue(QUEUE_NAME, connection=conn).ready_job_registry.cleanup()
+    for j in jobs:
+        log.info("enqueued job %s, left ready by RQ", j.id)
+    return [j.id for j in jobs]
 
 
 def recover(conn: redis.Redis, catalog: Catalog, grace_s: float = 10.0) -> list[str]:
