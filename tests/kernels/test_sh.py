@@ -7,8 +7,10 @@ import pytest
 from workers.kernels.sampling import fibonacci_sphere, random_rotation, rotated_directions
 from workers.kernels.sh import (
     SH_BAND_CONVOLUTION,
+    SH_C0,
     sh_basis,
     sh_irradiance,
+    sh_irradiance_l1_nonlinear,
     sh_project,
 )
 
@@ -139,3 +141,55 @@ def test_validation():
         sh_irradiance(np.ones((5, 1)), np.ones(3))
     with pytest.raises(ValueError):
         sh_basis(np.ones(3), order=3)
+
+
+def _sphere(n=40000, seed=0):
+    d = np.random.default_rng(seed).normal(size=(n, 3))
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def test_nonlinear_l1_keeps_the_mean_and_is_never_negative():
+    rng = np.random.default_rng(5)
+    c = rng.normal(size=(6, 4, 3))
+    c[:, 0] = np.abs(c[:, 0]) * 2.0                        # positive mean radiance, L1 up to ringing
+    d = _sphere()
+    e = sh_irradiance_l1_nonlinear(c[:, None], d[None])   # (6, N, 3)
+    assert e.min() >= 0.0
+    lin = sh_irradiance(c[:, None], d[None])
+    assert lin.min() < 0.0                                 # the linear one rings on some of these
+    # mean over the sphere = R0 = π·Y00·L0 (Monte Carlo, 40k directions)
+    np.testing.assert_allclose(e.mean(axis=1), np.pi * SH_C0 * c[:, 0], rtol=0.02)
+    # constant radiance: π·L for every normal
+    k = np.zeros((4, 3))
+    k[0] = [1.0, 2.0, 3.0]
+    np.testing.assert_allclose(sh_irradiance_l1_nonlinear(k, d[:50]), np.tile(np.pi * SH_C0 * k[0], (50, 1)))
+    # weak L1: the linear evaluation (the non-linear one is its r -> 0 limit)
+    w = c.copy()
+    w[:, 1:] *= 1e-3
+    np.testing.assert_allclose(sh_irradiance_l1_nonlinear(w[:, None], d[None]), sh_irradiance(w[:, None], d[None]),
+                               rtol=1e-4, atol=1e-6)
+    # negative mean: 0; homogeneous of degree 1
+    assert np.all(sh_irradiance_l1_nonlinear(-k, d[:10]) == 0)
+    np.testing.assert_allclose(sh_irradiance_l1_nonlinear(3.5 * c[:, None], d[None]), 3.5 * e, rtol=1e-9, atol=1e-12)
+
+
+def test_nonlinear_l1_of_a_directional_probe_follows_its_light():
+    """Radiance from one direction (a probe in a doorway): the linear L1 irradiance is negative behind it,
+    the non-linear one small and positive, and both peak towards the light."""
+    d = _sphere(20000, 1)
+    light = np.array([-1.0, 0.0, 0.0])
+    radiance = (d @ light > 0.9).astype(np.float64)[:, None] * np.ones(3)   # a cone of 25.8 degrees
+    c = sh_project(d, radiance, order=1)                                    # (4, 3)
+    back, front = np.array([[1.0, 0, 0]]), light[None]
+    assert sh_irradiance(c, back)[0, 0] < 0
+    nb = sh_irradiance_l1_nonlinear(c, back)[0, 0]
+    nf = sh_irradiance_l1_nonlinear(c, front)[0, 0]
+    assert 0 <= nb < 0.05 * nf
+    assert nf > sh_irradiance(c, front)[0, 0] * 0.9
+
+
+def test_nonlinear_l1_rejects_bad_shapes():
+    with pytest.raises(ValueError):
+        sh_irradiance_l1_nonlinear(np.ones((9, 3)), np.ones(3))
+    with pytest.raises(ValueError):
+        sh_irradiance_l1_nonlinear(np.ones((4, 3)), np.ones(2))

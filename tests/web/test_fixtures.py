@@ -11,7 +11,7 @@ import numpy as np
 
 from proto.ktx2 import read_ktx2
 from workers.kernels.octahedral import oct_decode, oct_encode
-from workers.kernels.sh import sh_irradiance
+from workers.kernels.sh import sh_irradiance, sh_irradiance_l1_nonlinear
 
 ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "proto" / "fixtures"
@@ -47,6 +47,8 @@ def test_python_decodes_fixtures_to_expected():
     assert np.array_equal(sh.ravel(), np.asarray(e["sh"]["coeffs"], np.float32))
     irr = sh_irradiance(sh.astype(np.float64)[..., None, :, :], np.asarray(e["sh"]["normals"]))
     np.testing.assert_allclose(irr.ravel(), e["sh"]["irradiance"], rtol=1e-12)
+    irr_nl = sh_irradiance_l1_nonlinear(sh.astype(np.float64)[..., None, :, :], np.asarray(e["sh"]["normals"]))
+    np.testing.assert_allclose(irr_nl.ravel(), e["sh"]["irradiance_nonlinear"], rtol=1e-12)
     o = e["octahedral"]
     np.testing.assert_allclose(oct_encode(np.asarray(o["dirs"])), o["encoded"], atol=1e-12)
     np.testing.assert_allclose(oct_decode(np.asarray(o["uv"])), o["decoded"], atol=1e-12)

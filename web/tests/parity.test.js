@@ -4,7 +4,7 @@ import { describe, expect, it } from 'vitest';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 import { parseKTX2, texelsAsNumbers } from '../src/loader/ktx2.js';
-import { probeGridUVW, sampleVolumeTrilinear, shIrradianceL1 } from '../src/math/sh.js';
+import { probeGridUVW, sampleVolumeTrilinear, shIrradianceL1, shIrradianceL1Nonlinear } from '../src/math/sh.js';
 import { atlasTexel, octDecode, octEncode, octTexelDirection } from '../src/math/octahedral.js';
 
 const FIX = fileURLToPath(new URL('../../proto/fixtures/', import.meta.url));
@@ -98,6 +98,8 @@ describe('L1 SH irradiance', () => {
       s.normals.forEach((nrm, ni) => {
         const e = shIrradianceL1(ch[0], ch[1], ch[2], nrm);
         e.forEach((x, c) => expect(x).toBeCloseTo(s.irradiance[(p * N + ni) * 3 + c], 4));
+        const enl = shIrradianceL1Nonlinear(ch[0], ch[1], ch[2], nrm);   // sh_irradiance_l1_nonlinear
+        enl.forEach((x, c) => expect(x).toBeCloseTo(s.irradiance_nonlinear[(p * N + ni) * 3 + c], 4));
       });
     }
   });
@@ -111,5 +113,31 @@ describe('L1 SH irradiance', () => {
         shIrradianceL1(ch[0], ch[1], ch[2], nrm).forEach((x, c) => expect(x).toBeCloseTo(smp.irradiance[ni][c], 4));
       });
     }
+  });
+});
+
+describe('mask lookup offset (workers/kernels/samplers.MASK_OFFSET_SAMPLES)', () => {
+  it('is one refined sample, whatever the grid', async () => {
+    const { modeById, MASK_OFFSET_SAMPLES } = await import('../src/state/modes.js');
+    expect(MASK_OFFSET_SAMPLES).toBe(1);
+    const mask = modeById('mask_normalized');
+    const u = mask.uniforms({ names: ['cluster_sh_0_r'], info: () => undefined, grid: { counts: [5, 4, 3], spacing: [1, 0.25, 2] },
+      bake: { stages: [{ name: 'compress', stats: { block_size: 8, layout: 'cell', border_lo: 0, border_hi: 0 } }] } });
+    expect(u).toMatchObject({ uMaskOffset: 1, uMaskS: 8, uMaskT: 8, uMaskLo: 0, uClusterCount: 1 });
+  });
+});
+
+describe('mask atlas parameters (workers/kernels/compress.py layouts)', () => {
+  it('reads the atlas meta, else the compress stats, else the dense masks', async () => {
+    const { maskParams } = await import('../src/state/modes.js');
+    const none = () => undefined;
+    const meta = { samples_per_cell: 8, block_size: 8, border_lo: 0 };
+    expect(maskParams({ names: [], info: (n) => (n === 'mask_atlas_0123' ? { meta } : undefined) })).toEqual({ S: 8, T: 8, lo: 0 });
+    const bake = (stats) => ({ stages: [{ name: 'compress', stats }] });
+    expect(maskParams({ names: [], info: none, bake: bake({ block_size: 8, layout: 'cell', border_lo: 0, border_hi: 0 }) })).toEqual({ S: 8, T: 8, lo: 0 });
+    expect(maskParams({ names: [], info: none, bake: bake({ block_size: 9, layout: 'shared' }) })).toEqual({ S: 8, T: 9, lo: 0 });
+    expect(maskParams({ names: [], info: none, bake: bake({ block_size: 10, layout: 'bordered' }) })).toEqual({ S: 8, T: 10, lo: 1 });
+    const masks = (n) => (n === 'masks_0123' ? { shape: [16, 24, 32, 4] } : undefined);
+    expect(maskParams({ names: [], info: masks, grid: { counts: [5, 4, 3] } })).toEqual({ S: 8, T: 8, lo: 0 });
   });
 });

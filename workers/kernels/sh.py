@@ -51,6 +51,7 @@ __all__ = [
     "sh_basis",
     "sh_project",
     "sh_irradiance",
+    "sh_irradiance_l1_nonlinear",
 ]
 
 SH_C0 = 0.5 / np.sqrt(np.pi)  # 0.282095, Y00
@@ -181,3 +182,41 @@ def sh_irradiance(coeffs, normals) -> np.ndarray:
         raise ValueError(f"sh_irradiance: normals must have shape (..., 3), got {n.shape}")
     y = _sh_basis(n, count) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:count]]  # Â_l · Y_k(n)
     return np.einsum("...k,...kc->...c", y, c)
+
+
+def sh_irradiance_l1_nonlinear(coeffs, normals) -> np.ndarray:
+    """Non-linear L1 irradiance reconstruction (Hazel 2017, "Reducing the ringing of L1 spherical
+    harmonics"; the Geomerics / Enlighten evaluation). The runtime GI modes' default
+    (``proto/glsl/sh.glsl`` ``shIrradianceL1``).
+
+    Per colour channel, with ``R0 = Â_0 Y00 L0`` (the mean irradiance) and ``R1 = ½ Â_1 Y1 (L1x, L1y, L1z)``
+    (the linear reconstruction is ``R0 + 2 R1·n``)::
+
+        r = min(|R1| / R0, 1),  q = (1 + n·R1/|R1|) / 2,  p = 1 + 2r,  a = (1 − r) / (1 + r)
+        E(n) = R0 · (a + (1 − a)(p + 1) q^p)            (0 where R0 ≤ 0; R0 where |R1| ≤ 1e-6 R0)
+
+    Its mean over the sphere is R0, as the linear one's; as r → 0 it tends to the linear one; it is never
+    negative, where the linear one rings below zero on the far side of a strongly directional probe.
+
+    coeffs : (..., 4, C) L1 radiance SH (order L0, L1y, L1z, L1x as :func:`sh_project`); normals : (..., 3)
+    unit, broadcasting with coeffs' leading dimensions. Returns (..., C) float64.
+    """
+    c = np.asarray(coeffs, dtype=np.float64)
+    n = np.asarray(normals, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-2] != 4:
+        raise ValueError(f"sh_irradiance_l1_nonlinear: coeffs must have shape (..., 4, C), got {c.shape}")
+    if n.shape[-1:] != (3,):
+        raise ValueError(f"sh_irradiance_l1_nonlinear: normals must have shape (..., 3), got {n.shape}")
+    r0 = SH_BAND_CONVOLUTION[0] * SH_C0 * c[..., 0, :]                                    # (..., C)
+    r1 = 0.5 * SH_BAND_CONVOLUTION[1] * SH_C1 * np.stack([c[..., 3, :], c[..., 1, :], c[..., 2, :]], -1)
+    length = np.linalg.norm(r1, axis=-1)                                                  # (..., C)
+    pos = r0 > 0
+    safe_r0 = np.where(pos, r0, 1.0)
+    directional = pos & (length > 1e-6 * np.abs(safe_r0))
+    safe_len = np.where(directional, length, 1.0)
+    r = np.minimum(length / safe_r0, 1.0)
+    q = np.clip(0.5 * (1.0 + np.einsum("...ck,...k->...c", r1, n) / safe_len), 0.0, 1.0)
+    p_ = 1.0 + 2.0 * r
+    a = (1.0 - r) / (1.0 + r)
+    e = r0 * (a + (1.0 - a) * (p_ + 1.0) * q ** p_)
+    return np.where(directional, e, np.where(pos, r0, 0.0))

@@ -17,9 +17,31 @@ export function shIrradianceL1Channel(c, n) {
   return SH_IRR_C0 * c[0] + SH_IRR_C1 * (c[1] * n[1] + c[2] * n[2] + c[3] * n[0]);
 }
 
-/** RGB irradiance from the three channel vectors (as the sh_l1_r/g/b volumes store them). */
+/** RGB irradiance from the three channel vectors (as the sh_l1_r/g/b volumes store them), linear evaluation. */
 export function shIrradianceL1(r, g, b, n) {
   return [shIrradianceL1Channel(r, n), shIrradianceL1Channel(g, n), shIrradianceL1Channel(b, n)];
+}
+
+/**
+ * The non-linear L1 reconstruction (Hazel 2017; sh.glsl's default shIrradianceL1, workers/kernels/sh.py
+ * sh_irradiance_l1_nonlinear): same mean as the linear one, never negative.
+ */
+export function shIrradianceL1NonlinearChannel(c, n) {
+  const R0 = SH_IRR_C0 * c[0];
+  if (R0 <= 0) return 0;
+  const R1 = [0.5 * SH_IRR_C1 * c[3], 0.5 * SH_IRR_C1 * c[1], 0.5 * SH_IRR_C1 * c[2]];
+  const len = Math.hypot(R1[0], R1[1], R1[2]);
+  if (len <= 1e-6 * R0) return R0;
+  const r = Math.min(len / R0, 1);
+  const q = Math.min(Math.max(0.5 * (1 + (R1[0] * n[0] + R1[1] * n[1] + R1[2] * n[2]) / len), 0), 1);
+  const p = 1 + 2 * r;
+  const a = (1 - r) / (1 + r);
+  return R0 * (a + (1 - a) * (p + 1) * q ** p);
+}
+
+/** RGB irradiance, non-linear L1 reconstruction. */
+export function shIrradianceL1Nonlinear(r, g, b, n) {
+  return [r, g, b].map((c) => shIrradianceL1NonlinearChannel(c, n));
 }
 
 /** uvw of world point p in a probe volume: ((p - origin)/spacing + 0.5)/counts (bundle.md section 5). */

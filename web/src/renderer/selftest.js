@@ -31,7 +31,9 @@ void main() {
     vec3 uvw = probeGridUVW(a.xyz);
     fragColor = vec4(shIrradianceL1(texture(uShR, uvw), texture(uShG, uvw), texture(uShB, uvw), b.xyz), 1.0);
   } else if (uTest == 2) fragColor = vec4(octEncode(a.xyz), 0.0, 1.0);
-  else fragColor = vec4(octDecode(a.xy), 1.0);
+  else if (uTest == 3) fragColor = vec4(octDecode(a.xy), 1.0);
+  else fragColor = vec4(shIrradianceL1LinearChannel(a, d.xyz), shIrradianceL1LinearChannel(b, d.xyz),
+                        shIrradianceL1LinearChannel(c, d.xyz), 1.0);
 }`;
 
 function compile(gl, type, src) {
@@ -44,7 +46,7 @@ function compile(gl, type, src) {
 
 /**
  * @param {object} fx  proto/fixtures/expected.json
- * @returns {{sh: number[][], trilinear: number[][], octEncode: number[][], octDecode: number[][], renderer: string}}
+ * @returns {{sh: number[][], shLinear: number[][], trilinear: number[][], octEncode: number[][], octDecode: number[][], renderer: string}}
  */
 export function glslParity(fx) {
   const canvas = document.createElement('canvas');
@@ -112,7 +114,8 @@ export function glslParity(fx) {
     const ch = [0, 1, 2].map((c) => [0, 1, 2, 3].map((q) => s.coeffs[(p * 4 + q) * 3 + c]));
     for (const n of s.normals) { cases[0].push(ch[0]); cases[1].push(ch[1]); cases[2].push(ch[2]); cases[3].push(n); }
   }
-  const sh = run(0, cases).map((v) => v.slice(0, 3));
+  const sh = run(0, cases).map((v) => v.slice(0, 3));          // shIrradianceL1: the non-linear default
+  const shLinear = run(4, cases).map((v) => v.slice(0, 3));    // the linear evaluation
   // 1: hardware trilinear at world points, then irradiance per normal
   const tri = [[], [], [], []];
   for (const smp of s.samples) for (const n of s.normals) { tri[0].push(smp.p); tri[1].push(n); tri[2].push([]); tri[3].push([]); }
@@ -123,5 +126,5 @@ export function glslParity(fx) {
   const dbg = gl.getExtension('WEBGL_debug_renderer_info');
   const renderer = dbg ? gl.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
   gl.getExtension('WEBGL_lose_context')?.loseContext();
-  return { sh, trilinear, octEncode: enc, octDecode: dec, renderer };
+  return { sh, shLinear, trilinear, octEncode: enc, octDecode: dec, renderer };
 }
