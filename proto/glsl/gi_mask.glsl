@@ -1,22 +1,40 @@
 // Mask GI (MD eq 3) from compressed masks (MD §3.4.2), shared by mode_mask.glsl and mode_mask_normalized.glsl.
 // Python references: workers/kernels/samplers.py mask / mask_normalized (dense masks) and
 // workers/kernels/compress.py sample_compressed (the atlas path, same arithmetic as below).
-//   m = the K masks at p: 1 indirection texelFetch + 1 atlas fetch per 4 clusters (LINEAR, inside the block)
+//   m = the K masks at the lookup point: 1 indirection texelFetch + 1 atlas fetch per 4 clusters (LINEAR, in the block)
 //   E = Σ_{k < K, m_k > 0} m_k · E(trilinear(cluster_sh_k)(p), n)         3 fetches per cluster with m_k > 0
-//   normalized: E / Σ_k m_k w_k, w_k = channel k of trilinear(cluster_weights) (1 fetch per 4 clusters,
-//   only when some m_k > 0); 0 where that sum is 0.
-// Fetches per pixel: mask 1 + A + 3·z, normalized 1 + A + A·[z > 0] + 3·z, with A = ceil(K / 4) and z the
-// clusters with m_k > 0 at the pixel.
+//   normalized: E / Σ_k m_k w_k, w_k = channel k of trilinear(cluster_weights) (1 fetch per 4 clusters); 0 where
+//   that sum is 0.
+// A mask channel is 0 wherever its cluster has no probe in the cell (masks.canonicalize), so m_k > 0 marks the
+// clusters to sample ("only sample probe volumes whose masks are marked", MD §1).
+// Fetches per pixel: mask 1 + A + 3·z, normalized 1 + 2A + 3·z, with A = ceil(K / 4) and z the clusters with m_k > 0
+// at the pixel. The sampled clusters are listed first and then looped over with a data-dependent trip count: a GPU
+// wave or a llvmpipe SIMD group runs max(z) iterations. (llvmpipe runs the body of an `if` for every lane, fetches
+// included, even when no lane takes it; only loops exit early.)
+// Callers that know K may `#define KILN_MASK_CLUSTERS K` (1..8; the evaluate pass does): the code of the
+// atlas and weights of clusters 4-7 is then left out when K <= 4. Without it the shader serves any K <= 8.
 // Textures (all 3D, CLAMP_TO_EDGE):
 //   uMaskIndirection  mask_indirection (RGBA8 UNORM, NEAREST): per cell the block coordinates of its block
 //   uMaskAtlas0123    mask_atlas_0123 (RGBA8 UNORM, LINEAR); uMaskAtlas4567 mask_atlas_4567 when K > 4
 //   uClusterSh        the 3·K volumes cluster_sh_{k}_{r,g,b} stacked along z in the order k0 r, k0 g, k0 b,
 //                     k1 r, ... (their bytes concatenated): depth 3·K·nz, RGBA32F, LINEAR
 //   uClusterWeights   cluster_weights_0123 (+ _4567) stacked the same way, RGBA32F, LINEAR
-// Uniforms from the atlas meta: uMaskS (S, samples_per_cell), uMaskT (block_size), uMaskLo (border_lo).
+// Uniforms from the atlas meta: uMaskS (S, samples_per_cell), uMaskT (block_size), uMaskLo (border_lo);
+// uMaskOffset: refined samples (1, samplers.MASK_OFFSET_SAMPLES) the lookup moves along d = n + giViewDir, per axis
+// (g' = g + uMaskOffset·d/S on axes with more than one probe; compress.mask_lookup_texel), read from p's own cell's
+// samples only. The normal term puts the footprint one sample in front of the surface: refined samples inside a
+// wall see no probe and hold masks filled from both sides, so a footprint half inside a thin wall weights the far
+// side's clusters by up to 1/2. The view term (DDGI-P eq 2's idea) moves it towards the camera's side, away from a
+// neighbouring wall at a corner. The own cell: a channel is free (0) where its cluster has no probe, and must not
+// filter across a face into a cell where that cluster is present.
 #include "common.glsl"
 #include "sh.glsl"
 #include "gi_grid.glsl"
+#include "gi_view.glsl"
+
+#ifndef KILN_MASK_CLUSTERS
+#define KILN_MASK_CLUSTERS 8
+#endif
 
 uniform highp sampler3D uMaskIndirection;
 uniform highp sampler3D uMaskAtlas0123;
@@ -27,50 +45,65 @@ uniform int uClusterCount;  // K, 1..8
 uniform float uMaskS;
 uniform float uMaskT;
 uniform float uMaskLo;
+uniform float uMaskOffset;
 
-// The compressed masks of clusters 0-3 (atlas 0) or 4-7 (atlas 1) at p (compress.py module doc).
-void giMasks(vec3 p, out vec4 m0, out vec4 m1) {
+// The compressed masks of clusters 0-3 (atlas 0) or 4-7 (atlas 1) at the mask lookup point of (p, n)
+// (workers/kernels/compress.py module doc, "Sampling"; mask_lookup_texel): uMaskOffset samples along n + giViewDir,
+// the texel coordinate clamped to the S³ samples of p's own cell, so the footprint never reads a neighbouring cell.
+void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 live = vec3(greaterThan(uGridCounts, vec3(1.5)));
   vec3 cells = max(uGridCounts - 1.0, vec3(1.0));
   vec3 g = giGridCoord(p) + 0.5 * (1.0 - live);
-  vec3 t = clamp(g * uMaskS - 0.5, vec3(0.0), cells * uMaskS - 1.0);
-  vec3 cell = min(floor((t + 0.5 * uMaskLo) / uMaskS), cells - 1.0);
+  vec3 cell = clamp(floor(g), vec3(0.0), cells - 1.0);
+  g += live * (uMaskOffset / uMaskS) * (n + giViewDir);
+  vec3 t = clamp(g * uMaskS - 0.5, cell * uMaskS, cell * uMaskS + uMaskS - 1.0);
   vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);
-  vec3 local = clamp(t - cell * uMaskS + uMaskLo, 0.0, uMaskT - 1.0);
-  vec3 tc = blk * uMaskT + local + 0.5;
+  vec3 tc = blk * uMaskT + (t - cell * uMaskS + uMaskLo) + 0.5;
   m0 = texture(uMaskAtlas0123, tc / vec3(textureSize(uMaskAtlas0123, 0)));
   m1 = vec4(0.0);
+#if KILN_MASK_CLUSTERS > 4
   if (uClusterCount > 4) m1 = texture(uMaskAtlas4567, tc / vec3(textureSize(uMaskAtlas4567, 0)));
+#endif
+}
+
+// m_k E_k(n) of cluster k (slots 3k, 3k+1, 3k+2 of uClusterSh): 3 fetches. Called in non-uniform control flow
+// (the data-dependent loop below), where implicit derivatives are undefined: explicit LOD 0 (no mipmaps).
+vec3 giClusterTerm(vec3 texel, int k, float slots, float mk, vec3 n) {
+  float s = 3.0 * float(k);
+  vec4 r = textureLod(uClusterSh, giStackedUVW(texel, s, slots), 0.0);
+  vec4 g = textureLod(uClusterSh, giStackedUVW(texel, s + 1.0, slots), 0.0);
+  vec4 b = textureLod(uClusterSh, giStackedUVW(texel, s + 2.0, slots), 0.0);
+  return mk * shIrradianceL1(r, g, b, n);
 }
 
 // Σ_k m_k E_k(n) (rgb) and, when `normalized`, Σ_k m_k w_k (returned in den; else 1).
 vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
   vec4 m0, m1;
-  giMasks(p, m0, m1);
-  float m[8] = float[8](m0.x, m0.y, m0.z, m0.w, m1.x, m1.y, m1.z, m1.w);
+  giMasks(p, n, m0, m1);
   vec3 texel = giProbeTexel(p);
+  // the clusters to sample, in increasing k, 3 bits each (no fetches in this loop)
+  int count = 0;
+  int list = 0;
+  for (int k = 0; k < KILN_MASK_CLUSTERS; ++k) {
+    float mk = k < 4 ? m0[k] : m1[k - 4];
+    if (k < uClusterCount && mk > 0.0) {
+      list |= k << (3 * count);
+      count += 1;
+    }
+  }
   float slots = 3.0 * float(uClusterCount);
   vec3 e = vec3(0.0);
-  bool hit = false;
-  for (int k = 0; k < 8; ++k) {
-    if (k >= uClusterCount) break;
-    if (m[k] <= 0.0) continue;  // clusters with m_k = 0 are skipped: no fetches
-    hit = true;
-    float s = 3.0 * float(k);
-    vec4 r = texture(uClusterSh, giStackedUVW(texel, s, slots));
-    vec4 gg = texture(uClusterSh, giStackedUVW(texel, s + 1.0, slots));
-    vec4 b = texture(uClusterSh, giStackedUVW(texel, s + 2.0, slots));
-    e += m[k] * shIrradianceL1(r, gg, b, n);
+  for (int i = 0; i < count; ++i) {
+    int k = (list >> (3 * i)) & 7;
+    e += giClusterTerm(texel, k, slots, k < 4 ? m0[k] : m1[k - 4], n);
   }
   den = 1.0;
   if (normalized) {
-    den = 0.0;
-    if (hit) {
-      float wslots = uClusterCount > 4 ? 2.0 : 1.0;
-      vec4 w0 = texture(uClusterWeights, giStackedUVW(texel, 0.0, wslots));
-      den = dot(m0, w0);
-      if (uClusterCount > 4) den += dot(m1, texture(uClusterWeights, giStackedUVW(texel, 1.0, wslots)));
-    }
+    float wslots = uClusterCount > 4 ? 2.0 : 1.0;
+    den = dot(m0, texture(uClusterWeights, giStackedUVW(texel, 0.0, wslots)));
+#if KILN_MASK_CLUSTERS > 4
+    if (uClusterCount > 4) den += dot(m1, texture(uClusterWeights, giStackedUVW(texel, 1.0, wslots)));
+#endif
   }
   return e;
 }

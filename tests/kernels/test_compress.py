@@ -36,10 +36,14 @@ def random_points(rng, n, counts, origin, spacing, margin=0.0):
     return lo + rng.random((n, 3)) * ext * (1 + 2 * margin)
 
 
-def bordered_blocks_reference(vol, S, lo):
-    """Every cell's block straight from the definition: dense sample clamp(c·S − lo + a) per axis."""
+BORDERS = {"bordered": (1, 1), "shared": (0, 1), "cell": (0, 0)}
+
+
+def bordered_blocks_reference(vol, S, lo, hi=1):
+    """Every cell's block straight from the definition: dense sample clamp(c·S − lo + a) per axis,
+    0 <= a < T = S + lo + hi."""
     Z, Y, X = vol.shape[:3]
-    T = S + 1 + lo
+    T = S + lo + hi
     out = {}
     for k in range(Z // S):
         for j in range(Y // S):
@@ -99,9 +103,10 @@ def test_lossless_blocks_decompress_and_sampling(layout, S):
     vol = blocky_volume(rng, counts, S, soft=True)
     cm = C.compress_masks(vol, counts, S, layout=layout)
     st, meta = cm.stats, cm.meta
-    lo = 1 if layout == "bordered" else 0
-    T = S + 1 + lo
-    assert meta["block_size"] == T and meta["border_lo"] == lo and meta["layout"] == layout
+    lo, hi = BORDERS[layout]
+    T = S + lo + hi
+    assert meta["block_size"] == T and meta["border_lo"] == lo and meta["border_hi"] == hi
+    assert meta["layout"] == layout
     assert st["blocks"] == 5 * 4 * 3 and st["max_block_error"] == 0.0
     assert st["atlas_blocks"] == st["unique_blocks"] <= st["blocks"]
     (atlas,) = cm.atlases
@@ -110,7 +115,7 @@ def test_lossless_blocks_decompress_and_sampling(layout, S):
     assert cm.indirection.shape == (3, 4, 5, 4) and cm.indirection.dtype == np.uint8
     assert np.all(cm.indirection[..., 3] == 0)
     # every cell's block in the atlas is its bordered block, by definition
-    for (k, j, i), ref in bordered_blocks_reference(vol, S, lo).items():
+    for (k, j, i), ref in bordered_blocks_reference(vol, S, lo, hi).items():
         np.testing.assert_array_equal(atlas_block(atlas, cm.indirection, meta, k, j, i), ref)
     np.testing.assert_array_equal(C.decompress(atlas, cm.indirection, meta), vol)
     assert st["dense_bytes"] == vol.nbytes
@@ -146,8 +151,22 @@ def test_sample_dense_hits_texel_centres_and_matches_field_convention():
         return
     q = random_points(rng, 2000, counts, origin, spacing, margin=0.2)
     grid = {"counts": list(counts), "origin": origin, "spacing": spacing}
+    # the own-cell rule: plain trilinear inside the box of a cell's sample centres, ...
+    g = (q - np.asarray(origin)) / np.asarray(spacing)
+    frac = g - np.floor(g)
+    inside = np.all((frac > 0.5 / S) & (frac < 1 - 0.5 / S), axis=1) & np.all((g > 0) & (g < C.cells_of(counts)), 1)
+    assert inside.sum() > 100
+    np.testing.assert_allclose(C.sample_dense(vol, q[inside], counts, origin, spacing, np.float64),
+                               trilinear(vol, field_uvw(q[inside], grid)), atol=1e-12)
+    # ... and within half a sample of a face the texel coordinate stops at the cell's own last sample
+    cells = C.cells_of(counts)
+    cell = np.clip(np.floor(g), 0, cells - 1)
+    t = np.clip(g * S - 0.5, cell * S, cell * S + S - 1)
+    dims = np.array(vol.shape[2::-1], np.float64)
     np.testing.assert_allclose(C.sample_dense(vol, q, counts, origin, spacing, np.float64),
-                               trilinear(vol, field_uvw(q, grid)), atol=1e-12)
+                               trilinear(vol, (t + 0.5) / dims), atol=1e-12)
+    assert not np.allclose(C.sample_dense(vol, q[~inside], counts, origin, spacing, np.float64),
+                           trilinear(vol, field_uvw(q[~inside], grid)), atol=1e-6)
 
 
 # ---------------------------------------------------------------------------- merging
@@ -162,8 +181,8 @@ def test_identical_blocks_merge(layout):
     vol[5:9, 9:14, 10:13] = (10, 20, 30, 40)                    # one small box: only nearby cells differ
     cm = C.compress_masks(vol, counts, S, layout=layout)
     touched = set()
-    lo = 1 if layout == "bordered" else 0
-    for (k, j, i), ref in bordered_blocks_reference(vol, S, lo).items():
+    lo, hi = BORDERS[layout]
+    for (k, j, i), ref in bordered_blocks_reference(vol, S, lo, hi).items():
         if not np.all(ref == ref[0, 0, 0]):
             touched.add((k, j, i))
     assert cm.stats["unique_blocks"] == len(touched) + 1
@@ -209,8 +228,7 @@ def test_tolerance_merges_within_the_reported_bound(layout):
     noise = rng.integers(-3, 4, base.shape) * (rng.random(base.shape[:3]) < 0.02)[..., None]
     vol = np.clip(base.astype(int) + noise, 0, 255).astype(np.uint8)   # sparse ±3 noise: blocks differ slightly
     exact = C.compress_masks(vol, counts, S, layout=layout)
-    lo = 1 if layout == "bordered" else 0
-    refs = bordered_blocks_reference(vol, S, lo)
+    refs = bordered_blocks_reference(vol, S, *BORDERS[layout])
     prev = exact
     for tol in (1 / 255, 3 / 255, 0.05):
         cm = C.compress_masks(vol, counts, S, tol, layout=layout)
@@ -347,7 +365,8 @@ def test_stage_run_compress(two):
     assert st["max_sample_error"] <= 1e-4 and st["ratio"] > 1 and st["compressed_bytes"] < st["dense_bytes"]
     arts = {a.name: a for a in out.artifacts}
     meta = arts["mask_indirection"].meta
-    assert meta["samples_per_cell"] == S and meta["block_size"] == S + 1 + meta["border_lo"]
+    assert meta["samples_per_cell"] == S and meta["block_size"] == S + meta["border_lo"] + meta["border_hi"]
+    assert meta["layout"] == "cell" and meta["block_size"] == S
     assert meta["volumes"] == [n for n in names if n.startswith("mask_atlas")]
     ind = arts["mask_indirection"].data
     assert ind.shape == (4, 3, 6, 4) and ind.dtype == np.uint8

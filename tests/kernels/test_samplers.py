@@ -8,7 +8,7 @@ import pytest
 
 from workers.kernels import masks as M
 from workers.kernels import samplers as SM
-from workers.kernels.sh import SH_C0, sh_irradiance
+from workers.kernels.sh import SH_C0, sh_irradiance, sh_irradiance_l1_nonlinear
 
 
 def _grid(counts=(4, 3, 5), origin=(-1.0, 0.5, 2.0), spacing=(0.5, 0.75, 0.4)):
@@ -61,12 +61,15 @@ def test_leaking_constant_volume_is_the_constant_irradiance():
     sh = _const_sh(g, [0.3, 1.0, 2.5], l1=(0.1, -0.2, 0.05))
     pts = _points(g, 200, margin=1.0)                          # inside and outside the grid box
     n = _normals(200)
-    e = SM.leaking(pts, n, *sh, g)
+    e = SM.leaking(pts, n, *sh, g, linear=True)
     coeffs = np.stack([s[0, 0, 0] for s in sh], -1)              # (4, 3)
     assert np.allclose(e, sh_irradiance(coeffs, n), rtol=1e-6)
-    # L0 only: E = π·c0·L0 for every normal
-    e0 = SM.leaking(pts, n, *_const_sh(g, [1.0, 2.0, 3.0]), g)
-    assert np.allclose(e0, math.pi * SH_C0 * np.array([1.0, 2.0, 3.0]), rtol=1e-6)
+    # the default evaluation is the non-linear L1 reconstruction of the same coefficients
+    assert np.allclose(SM.leaking(pts, n, *sh, g), sh_irradiance_l1_nonlinear(coeffs, n), rtol=1e-6)
+    # L0 only: E = π·c0·L0 for every normal, in both evaluations
+    for linear in (True, False):
+        e0 = SM.leaking(pts, n, *_const_sh(g, [1.0, 2.0, 3.0]), g, linear=linear)
+        assert np.allclose(e0, math.pi * SH_C0 * np.array([1.0, 2.0, 3.0]), rtol=1e-6)
 
 
 def test_leaking_interpolates_probes_trilinearly():
@@ -77,13 +80,15 @@ def test_leaking_interpolates_probes_trilinearly():
     p = np.array([[1, 2, 3], [0, 0, 0], [3, 2, 4]])
     pts = g.origin + p * g.spacing
     n = np.tile([0.0, 1.0, 0.0], (3, 1))
-    e = SM.leaking(pts, n, *sh, g)
+    e = SM.leaking(pts, n, *sh, g, linear=True)
     for r, (i, j, k) in enumerate(p):
         P = np.stack([s[k, j, i] for s in sh], -1)
         assert np.allclose(e[r], sh_irradiance(P, n[r]), rtol=1e-6)
     mid = g.origin + np.array([[1.5, 2, 3]]) * g.spacing
     P = 0.5 * (np.stack([s[3, 2, 1] for s in sh], -1) + np.stack([s[3, 2, 2] for s in sh], -1))
-    assert np.allclose(SM.leaking(mid, n[:1], *sh, g)[0], sh_irradiance(P, n[0]), rtol=1e-6)
+    assert np.allclose(SM.leaking(mid, n[:1], *sh, g, linear=True)[0], sh_irradiance(P, n[0]), rtol=1e-6)
+    # non-linear: the coefficients are interpolated, then evaluated
+    assert np.allclose(SM.leaking(mid, n[:1], *sh, g)[0], sh_irradiance_l1_nonlinear(P, n[0]), rtol=1e-6)
 
 
 def test_one_probe_axes():
@@ -183,19 +188,19 @@ def test_parity_masks_reproduce_visibility_weighting_at_samples():
     masks = [q[..., :4], q[..., 4:]]
     cl = [tuple(np.ascontiguousarray(v[..., c]) for c in range(3)) for v in vols]
     wts = [w[..., :4], w[..., 4:]]
-    ref = SM.visibility_weighted(pts, n, *shv, theta[..., :4], theta[..., 4:], g)
-    ref_un = SM.visibility_weighted(pts, n, *shv, theta[..., :4], theta[..., 4:], g, normalize=False)
-    assert np.allclose(SM.mask_normalized(pts, n, masks, cl, wts, g), ref, rtol=1e-9, atol=1e-12)
-    assert np.allclose(SM.mask(pts, n, masks, cl, g), ref_un, rtol=1e-9, atol=1e-12)
-    # with no don't-care samples it also holds between the samples, inside the box of a cell's sample
-    # centres (both read that cell's texels); within half a sample of a cell face the masks filter
-    # across cells and θ does not, so there the two differ
+    # (MD §3.2 is an identity of the linear SH evaluation: the non-linear one is not additive)
+    ref = SM.visibility_weighted(pts, n, *shv, theta[..., :4], theta[..., 4:], g, linear=True)
+    ref_un = SM.visibility_weighted(pts, n, *shv, theta[..., :4], theta[..., 4:], g, normalize=False, linear=True)
+    assert np.allclose(SM.mask_normalized(pts, n, masks, cl, wts, g, linear=True), ref, rtol=1e-9, atol=1e-12)
+    assert np.allclose(SM.mask(pts, n, masks, cl, g, linear=True), ref_un, rtol=1e-9, atol=1e-12)
+    # with no don't-care samples it also holds between the samples, anywhere in a cell, faces included
+    # (masks and θ are both read from the point's own cell's samples)
     q0 = M.quantize(M.fit_masks(theta, np.zeros_like(dc), g.counts, S, gcol, 8))
     cell = rng.integers(0, cells, (500, 3))
-    inner = g.origin + g.spacing * (cell + rng.uniform(0.5 / S, 1 - 0.5 / S, (500, 3)))
+    inner = g.origin + g.spacing * (cell + rng.uniform(0.0, 1.0, (500, 3)))
     n2 = _normals(500, 3)
-    assert np.allclose(SM.mask_normalized(inner, n2, [q0[..., :4], q0[..., 4:]], cl, wts, g),
-                       SM.visibility_weighted(inner, n2, *shv, theta[..., :4], theta[..., 4:], g),
+    assert np.allclose(SM.mask_normalized(inner, n2, [q0[..., :4], q0[..., 4:]], cl, wts, g, linear=True),
+                       SM.visibility_weighted(inner, n2, *shv, theta[..., :4], theta[..., 4:], g, linear=True),
                        rtol=1e-9, atol=1e-12)
 
 

@@ -163,13 +163,16 @@ def test_parity_masks_reproduce_visibility_weighting(tmp_path, scene_files, scen
     rng = np.random.default_rng(0)
     n = rng.normal(size=pts.shape)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
-    ref = SM.irradiance("visibility_weighted", arrays, grid, pts, n)
-    got = SM.irradiance("mask_normalized", arrays, grid, pts, n)
+    # (masks read at the point itself: the runtime's normal offset moves the lookup off the sample)
+    # (and with the linear SH evaluation: the non-linear one is not additive)
+    ref = SM.irradiance("visibility_weighted", arrays, grid, pts, n, linear=True)
+    got = SM.irradiance("mask_normalized", arrays, grid, pts, n, mask_offset_samples=0, linear=True)
     assert np.abs(ref).max() > 0.01
     assert np.allclose(got, ref, rtol=1e-9, atol=1e-12)
     ref_un = SM.visibility_weighted(pts, n, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"],
-                                    arrays["theta_0123"], arrays["theta_4567"], grid, normalize=False)
-    assert np.allclose(SM.irradiance("mask", arrays, grid, pts, n), ref_un, rtol=1e-9, atol=1e-12)
+                                    arrays["theta_0123"], arrays["theta_4567"], grid, normalize=False, linear=True)
+    assert np.allclose(SM.irradiance("mask", arrays, grid, pts, n, mask_offset_samples=0, linear=True), ref_un,
+                       rtol=1e-9, atol=1e-12)
 
 
 def _six_normals(n):
@@ -223,13 +226,120 @@ def test_two_rooms_wall_mask_gi_matches_visibility_weighting(tmp_path, scene_fil
     pts = _near_wall_points(3000)
     n = _six_normals(len(pts))
     ref = SM.irradiance("visibility_weighted", arrays, grid, pts, n)
-    err = {mode: np.abs(SM.irradiance(mode, arrays, grid, pts, n) - ref).mean() for mode in SM.MODES}
+    # free-space points with normals along ± each axis (not surfaces): masks read at the point; the
+    # runtime's normal offset is for surface points (next test)
+    err = {mode: np.abs(SM.irradiance(mode, arrays, grid, pts, n, mask_offset_samples=0) - ref).mean()
+           for mode in SM.MODES}
     scale = ref.mean()
     assert scale > 0.1
     assert err["leaking"] > 1.0 * scale                      # room A's light through the wall
     assert err["mask_normalized"] < 0.02 * scale
     assert err["mask"] < 0.8 * scale                         # eq 3 is darker (MD Fig 4), but no leak
     assert SM.irradiance("mask", arrays, grid, pts, n).mean() <= 1.02 * scale
+
+
+def test_two_rooms_mask_gi_on_the_thin_wall_surface_does_not_leak(tmp_path, scene_files):
+    """Surface points on both faces of the 5 cm shared wall (x = 4.0 in lit room A, x = 4.05 in room B),
+    normals into their room. Refined samples inside the wall are don't-care (every channel 1), so masks
+    read *at* the surface weight the far room's clusters by about ½; the runtime reads them one refined
+    sample along the normal, clamped to the point's cell (samplers module doc)."""
+    cfg = _two_rooms_cfg(8)
+    scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
+    _, m = _md(scene, s, cfg)
+    arrays = _arrays(s, m)
+    grid = s["place"].stats
+    rng = np.random.default_rng(0)
+    for face, sign in ((4.05, 1.0), (4.0, -1.0)):
+        N = 2000
+        p = np.stack([np.full(N, face + 1e-4 * sign), rng.uniform(0.3, 2.7, N), rng.uniform(0.3, 1.3, N)], 1)
+        n = np.tile([sign, 0.0, 0.0], (N, 1))
+        ref = SM.irradiance("visibility_weighted", arrays, grid, p + 0.01 * n, n)     # 1 cm in front
+        leak = SM.irradiance("leaking", arrays, grid, p, n).mean()
+        off = np.abs(SM.irradiance("mask_normalized", arrays, grid, p, n) - ref).mean()
+        if sign > 0:                                  # room B: dark but for the light through the door
+            assert ref.mean() < 0.1 * leak
+            assert off < 0.01 * leak, (off, leak)
+        else:                                         # room A: lit
+            assert off < 0.01 * ref.mean(), (off, ref.mean())
+        assert SM.irradiance("mask", arrays, grid, p, n).mean() <= 1.02 * ref.mean() + 1e-3
+    # a vertical line on room B's face across the cell face y = 1.067: a cluster free in the cell below must not
+    # bleed into the cell above, where it is present but masked out (with free values 255: a bright line)
+    y = np.linspace(0.6, 1.6, 201)
+    p = np.stack([np.full_like(y, 4.0501), y, np.full_like(y, 0.8)], 1)
+    n = np.tile([1.0, 0.0, 0.0], (len(y), 1))
+    e = SM.irradiance("mask_normalized", arrays, grid, p, n)[:, 0]
+    ref = SM.irradiance("visibility_weighted", arrays, grid, p + 0.01 * n, n)[:, 0]
+    assert np.abs(e - ref).max() < 0.1 * leak, (np.abs(e - ref).max(), leak)
+
+
+def test_mask_lookup_offsets_within_the_own_cell():
+    from workers.kernels.compress import mask_lookup_texel
+
+    grid = {"counts": [3, 3, 1], "origin": [0.0, 0.0, 0.0], "spacing": [1.0, 0.5, 0.0]}
+    S = 4
+    p = np.array([[0.2, 0.2, 0.0], [0.95, 0.1, 0.0], [1.0, 0.5, 0.0], [0.5, 0.6, 7.0]])
+    d = np.array([[1.0, 0, 0], [1.0, 0, 0], [-1.0, 0, 0], [0, 1.0, 1.0]])
+    args = (grid["counts"], grid["origin"], grid["spacing"], S)
+    t0, cell = mask_lookup_texel(p, *args, dtype=np.float64)
+    # own cells (z: the one-probe axis, its middle); texel coordinate g·S − 0.5 clamped to [c·S, c·S + 3]
+    assert np.array_equal(cell, [[0, 0, 0], [0, 0, 0], [1, 1, 0], [0, 1, 0]])
+    # the second point (3.3) stops at its cell's last sample, the third (on the faces, cell (1, 1)) at its first
+    assert np.allclose(t0, [[0.3, 1.1, 1.5], [3.0, 0.3, 1.5], [4.0, 4.0, 1.5], [1.5, 4.3, 1.5]])
+    t, cell2 = mask_lookup_texel(p, *args, d, 1.0, dtype=np.float64)
+    assert np.array_equal(cell2, cell)                  # the cell is the point's, not the lookup point's
+    # one sample per unit of d on each live axis, whatever the spacing (x 0.25 m, y 0.125 m); z is not live;
+    # the third point's lookup moves into cell 0 and is clamped back to cell 1's first sample
+    assert np.allclose(t, [[1.3, 1.1, 1.5], [3.0, 0.3, 1.5], [4.0, 4.0, 1.5], [1.5, 5.3, 1.5]])
+
+
+def test_two_rooms_mask_gi_at_a_corner_reads_the_camera_side(tmp_path, scene_files):
+    """The default grid (probes on the outer walls, 1.16 m apart in x; S = 4): a point on room B's side wall
+    (z = 0) next to the shared wall (x = 4.05) has the shared wall and room A's samples inside its footprint
+    along x, which its normal (+z) does not move away from; the view term of the lookup (a camera in room
+    B) does, and the corner reads as the wall further along."""
+    cfg = {"visibility": {"samples_per_cell": 4}, "masks": {"clusters": 4}}
+    scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
+    _, m = _md(scene, s, cfg)
+    arrays = _arrays(s, m)
+    grid = s["place"].stats
+    x = np.array([4.0505, 4.06, 4.08, 4.1, 4.12])
+    p = np.stack([x, np.full_like(x, 1.5), np.full_like(x, 1e-4)], 1)
+    far = np.array([[4.4, 1.5, 1e-4]])
+    n = np.tile([0.0, 0.0, 1.0], (len(x), 1))
+    eye = np.array([7.8, 1.5, 3.8])                                         # room B's far corner
+    view = lambda q: (eye - q) / np.linalg.norm(eye - q, axis=1, keepdims=True)  # noqa: E731
+    e = SM.irradiance("mask_normalized", arrays, grid, p, n, views=view(p))[:, 0]
+    e_far = SM.irradiance("mask_normalized", arrays, grid, far, n[:1], views=view(far))[0, 0]
+    e_normal_only = SM.irradiance("mask_normalized", arrays, grid, p, n)[:, 0]
+    assert e_far > 0
+    np.testing.assert_allclose(e, e_far, rtol=0.05)
+    assert e_normal_only[0] > 2 * e_far                                      # the corner line without v
+
+
+def test_free_mask_channels_are_zero(tmp_path, scene_files):
+    """A cluster with no (non-OFF) probe among a cell's corners has mask 0 at every sample of that cell, so
+    the shader's m_k > 0 test alone picks the clusters to sample (MD §1; masks.canonicalize)."""
+    cfg = _two_rooms_cfg(4)
+    scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
+    a, m = _md(scene, s, cfg)
+    arrays = _arrays(s, m)
+    nx, ny, nz = 9, 4, 5
+    S, K = 4, 4
+    g = next(x.data for x in a.artifacts if x.name == "clusters").reshape(nz, ny, nx)
+    on = np.asarray(s["trace"]["probe_states"]).reshape(nz, ny, nx) != OFF
+    q = arrays["masks_0123"]
+    free_cells = 0
+    for k in range(nz - 1):
+        for j in range(ny - 1):
+            for i in range(nx - 1):
+                corner = (slice(k, k + 2), slice(j, j + 2), slice(i, i + 2))
+                present = set(g[corner][on[corner]].tolist())
+                block = q[k * S:(k + 1) * S, j * S:(j + 1) * S, i * S:(i + 1) * S]
+                for c in range(K):
+                    if c not in present:
+                        free_cells += 1
+                        assert np.all(block[..., c] == 0), (k, j, i, c)
+    assert free_cells > 0
 
 
 def test_light_aware_fit_brings_mask_gi_closer(tmp_path, scene_files):

@@ -15,15 +15,18 @@ K ≤ 4 masks are one volume (``masks_0123``), K > 4 two (``masks_0123``, ``mask
 
 Blocks
 ------
-Two layouts (``layout``), both exact for hardware trilinear filtering; ``lo`` = the border below:
+Three layouts (``layout``), all exact for the own-cell lookup ("Sampling"); ``lo``/``hi`` = the border
+below/above, ``T = S + lo + hi``:
 
-* ``"bordered"`` (MD §3.4.2 + a border on every side; DESIGN stage 5): ``T = S + 2``, ``lo = 1``.
-* ``"shared"``: ``T = S + 1``, ``lo = 0``: the border only on the + side (the texel a block shares with
-  its + neighbour). (S+1)³ instead of (S+2)³ texels (0.73x at S = 8) and a block depends on one
-  neighbouring layer instead of two, so more blocks repeat: about 2x the ratio on θ volumes.
+* ``"cell"`` (the compress stage's; MD §3.4.2's "cubes formed by 8 probes"): ``T = S``, no border. The
+  own-cell lookup reads only the cell's S³ samples, so a block is exactly them: the smallest blocks, and
+  a block depends on nothing outside its cell, so the most blocks repeat.
+* ``"shared"``: ``T = S + 1``, ``lo = 0``, ``hi = 1``: the + neighbour's first layer too (needed when
+  masks were filtered across cell faces, before the own-cell rule; kept for comparison).
+* ``"bordered"`` (DESIGN stage 5 as written): ``T = S + 2``, ``lo = hi = 1``.
 
-The block of cell (ci, cj, ck) holds the dense samples ``x ∈ [ci·S − lo, ci·S + S]`` (and likewise y, z),
-indices clamped to the volume (clamp-to-edge): block texel (a, b, c) = dense sample
+The block of cell (ci, cj, ck) holds the dense samples ``x ∈ [ci·S − lo, ci·S + S − 1 + hi]`` (and likewise
+y, z), indices clamped to the volume (clamp-to-edge): block texel (a, b, c) = dense sample
 ``(clamp(ci·S − lo + a), clamp(cj·S − lo + b), clamp(ck·S − lo + c))``.
 Its key is the bytes of the blocks of *all* volumes of that cell together, so one indirection texel
 serves every volume. Identical keys are merged (lossless). With a tolerance ``tol > 0`` the distinct
@@ -53,24 +56,26 @@ Sampling (the GLSL; :func:`sample_compressed` does the same in numpy)
     uniform vec3 gridOrigin, invSpacing;   // invSpacing = 1/spacing, 0 on one-probe axes
     uniform vec3 gridHalf;                 // 0, and 0.5 on one-probe axes (middle of the zero-extent cell)
     uniform vec3 gridCells;                // max(counts - 1, 1)
-    uniform float S, T, LO;                // samples per cell; block size S + 1 + LO; LO = meta.border_lo
+    uniform vec3 live;                     // 1 on axes with more than one probe, else 0
+    uniform float S, T, LO;                // samples per cell; block size S + LO + HI (meta.block_size); LO = meta.border_lo
+    uniform float offset;                  // samples (1): the lookup moves offset samples along d = n + v
     uniform vec3 invAtlasSize;             // 1 / meta.atlas_size = 1 / (bx·T, by·T, bz·T)
-    vec3 g = (p - gridOrigin) * invSpacing + gridHalf;                     // grid coord, cell units
-    vec3 t = clamp(g * S - 0.5, vec3(0.0), gridCells * S - 1.0);          // dense texel coordinate
-    vec3 cell = min(floor((t + 0.5 * LO) / S), gridCells - 1.0);
+    vec3 cell = clamp(floor((p - gridOrigin) * invSpacing + gridHalf), 0.0, gridCells - 1.0);  // p's own cell
+    vec3 g = (p - gridOrigin) * invSpacing + gridHalf + live * offset * (n + v) / S;   // lookup, cell units
+    vec3 t = clamp(g * S - 0.5, cell * S, cell * S + S - 1.0);            // dense texel coordinate
     vec3 blk = floor(texelFetch(maskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);
-    vec3 local = clamp(t - cell * S + LO, 0.0, T - 1.0);                  // texel coord inside the block
+    vec3 local = t - cell * S + LO;                                       // in [LO, LO + S - 1]
     vec4 m = texture(maskAtlas0123, (blk * T + local + 0.5) * invAtlasSize);   // LINEAR filter
 
-The dense volume is sampled at texel coordinate ``t = g·S − 0.5`` (``uvw = g / cells``, g the grid
-coordinate in cell units); clamping t to ``[0, X − 1]`` changes nothing there (clamp-to-edge). Dense
-texel d is block texel ``d − cell·S + lo``, so both filters read the same 8 values with the same weights.
-``bordered``: ``cell = floor(g)`` (the cell holding p), ``local ∈ [0.5, S + 0.5]``; ``shared``: the cell
-whose samples start at or below t, ``local ∈ [0, S)``. Either way the 8 texels lie inside the block, so
-nothing bleeds from neighbouring blocks, cell faces included, and the atlas needs no clamping (the clamp
-of ``local`` only guards against float rounding of the division). Points outside the grid box clamp to it.
-In float32 the two paths round the texel coordinate differently (|Δt| ≲ 1e-5 texel for atlases and
-volumes of a few hundred texels), which is the only difference of a lossless atlas from the dense volume.
+**Own-cell rule.** The texel coordinate is clamped to the point's own cell's S³ samples (as θ is read:
+:mod:`workers.kernels.samplers`), so the trilinear footprint never reaches a neighbouring cell. Channels of
+clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.masks.canonicalize`, so the
+shader skips them); filtering across a face would blend the free value into the neighbour, where the cluster
+may be present (with the earlier canonical 255: a bright line along a cell face of the two-rooms wall). :func:`sample_dense` reads the
+dense volume by the same rule, and dense texel d is block texel ``d − cell·S + lo``, so both filters read
+the same 8 values with the same weights; a block's border layers (``shared``, ``bordered``) are not read. Points outside the
+grid box clamp to it. In float32 the two paths round the texel coordinate differently (|Δt| ≲ 1e-5 texel),
+which is the only difference of a lossless atlas from the dense volume.
 
 Consumers: stages/compress; the viewer's mask shader (proto/glsl) via the meta of the artifacts.
 """
@@ -83,10 +88,12 @@ import numba
 import numpy as np
 
 __all__ = ["CompressedMasks", "atlas_layout", "compress_masks", "decompress", "cells_of",
-           "sample_dense", "sample_compressed", "texture_linear", "sample_error", "LAYOUTS", "PREFERRED_TEXELS",
+           "sample_dense", "sample_compressed", "texture_linear", "sample_error", "mask_lookup_texel", "LAYOUTS",
+           "PREFERRED_TEXELS",
            "MAX_TEXELS"]
 
-LAYOUTS = ("bordered", "shared")
+LAYOUTS = ("bordered", "shared", "cell")
+_BORDERS = {"bordered": (1, 1), "shared": (0, 1), "cell": (0, 0)}   # (lo, hi)
 PREFERRED_TEXELS = 256   # WebGL2's guaranteed MAX_3D_TEXTURE_SIZE
 MAX_TEXELS = 2048        # the hard limit on any atlas axis
 MAX_BLOCKS_PER_AXIS = 256  # block coordinates are stored as bytes in the indirection
@@ -136,11 +143,11 @@ def atlas_layout(n_blocks: int, block: int, preferred: int = PREFERRED_TEXELS,
 
 
 # ---------------------------------------------------------------------------- blocks
-def _block_views(volume: np.ndarray, S: int, cells, lo: int) -> np.ndarray:
+def _block_views(volume: np.ndarray, S: int, cells, lo: int, hi: int = 1) -> np.ndarray:
     """Read-only view (cz, cy, cx, T, T, T, 4) of the blocks of an edge-padded volume: block texel a
-    of cell c is dense sample ``clamp(c·S − lo + a)``, T = S + 1 + lo."""
-    padded = np.pad(volume, ((lo, 1), (lo, 1), (lo, 1), (0, 0)), mode="edge")
-    T = S + 1 + lo
+    of cell c is dense sample ``clamp(c·S − lo + a)``, T = S + lo + hi."""
+    padded = np.pad(volume, ((lo, hi), (lo, hi), (lo, hi), (0, 0)), mode="edge")
+    T = S + lo + hi
     cx, cy, cz = (int(c) for c in cells)
     sz, sy, sx, sc = padded.strides
     return np.lib.stride_tricks.as_strided(
@@ -251,8 +258,8 @@ def compress_masks(volumes, counts, S: int, tolerance: float = 0.0, layout: str 
     volumes : (Z, Y, X, 4) uint8 array or a list of them (same shape), the refined grid of ``counts``/``S``.
     counts : (nx, ny, nz) probes. S : samples per cell axis.
     tolerance : max |Δm| (m in [0, 1]) allowed between a block and its representative; 0 = lossless.
-    layout : ``"bordered"`` ((S+2)³ blocks, border on both sides) or ``"shared"`` ((S+1)³, border on the
-        + side only); see the module doc.
+    layout : ``"cell"`` (S³ blocks, no border), ``"shared"`` ((S+1)³, border on the + side) or
+        ``"bordered"`` ((S+2)³, border on both sides); see the module doc.
 
     Returns a :class:`CompressedMasks` whose ``stats`` hold ``blocks`` (cells), ``unique_blocks``
     (exactly distinct), ``atlas_blocks`` (after the tolerance merge), ``max_block_error`` (max |Δm| of
@@ -263,11 +270,11 @@ def compress_masks(volumes, counts, S: int, tolerance: float = 0.0, layout: str 
     S = int(S)
     if layout not in LAYOUTS:
         raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
-    lo = 1 if layout == "bordered" else 0
-    T = S + 1 + lo
+    lo, hi = _BORDERS[layout]
+    T = S + lo + hi
     if not (0.0 <= float(tolerance) <= 1.0):
         raise ValueError(f"tolerance must be in [0, 1], got {tolerance}")
-    views = [_block_views(v, S, cells, lo) for v in volumes]
+    views = [_block_views(v, S, cells, lo, hi) for v in volumes]
     blocks, of_cell, n_cells = _unique_blocks(views, cells)
     U = blocks.shape[0]
     thr = int(math.floor(float(tolerance) * 255.0 + 1e-9))
@@ -300,7 +307,7 @@ def compress_masks(volumes, counts, S: int, tolerance: float = 0.0, layout: str 
     dense_bytes = int(sum(v.nbytes for v in volumes))
     comp_bytes = int(sum(a.nbytes for a in atlases) + indirection.nbytes)
     meta = {
-        "layout": layout, "samples_per_cell": S, "border_lo": lo, "border_hi": 1, "block_size": T,
+        "layout": layout, "samples_per_cell": S, "border_lo": lo, "border_hi": hi, "block_size": T,
         "cells": [int(c) for c in cells],
         "block_grid": [bx, by, bz],
         "atlas_size": [bx * T, by * T, bz * T],
@@ -311,13 +318,12 @@ def compress_masks(volumes, counts, S: int, tolerance: float = 0.0, layout: str 
         "atlas_texel": f"block (bx_, by_, bz_) texel (a, b, c), 0 <= a, b, c < T, is atlas texel "
                        f"(bx_·T + a, by_·T + b, bz_·T + c) = dense sample (clamp(ci·S - {lo} + a), "
                        f"clamp(cj·S - {lo} + b), clamp(ck·S - {lo} + c)) of every cell (ci, cj, ck) using it",
-        "sample": f"g = (p - origin)/spacing (:= 0.5 on one-probe axes); t = clamp(g·S - 0.5, 0, cells·S - 1); "
-                  f"cell = min(floor((t + {0.5 * lo})/S), cells - 1); "
-                  f"uvw = (block·T + clamp(t - cell·S + {lo}, 0, T - 1) + 0.5) / atlas_size; "
-                  f"texture(atlas, uvw), LINEAR filter",
+        "sample": f"g(y) = (y - origin)/spacing (:= 0.5 on one-probe axes); cell = clamp(floor(g(p)), 0, cells - 1); "
+                  f"t = clamp((g(p) + offset·(n + v)/S)·S - 0.5, cell·S, cell·S + S - 1) (live axes); "
+                  f"uvw = (block·T + t - cell·S + {lo} + 0.5) / atlas_size; texture(atlas, uvw), LINEAR filter",
     }
     stats = {
-        "layout": layout, "blocks": int(of_cell.size), "unique_blocks": int(U), "atlas_blocks": int(n_slots),
+        "layout": layout, "border_lo": lo, "border_hi": hi, "blocks": int(of_cell.size), "unique_blocks": int(U), "atlas_blocks": int(n_slots),
         "volumes": V, "block_size": T, "block_grid": [bx, by, bz], "atlas_size": [bx * T, by * T, bz * T],
         "fits_256": meta["fits_256"],
         "tolerance": float(tolerance), "max_block_error": float(err.max() / 255.0) if U else 0.0,
@@ -373,7 +379,8 @@ def texture_linear(tex: np.ndarray, uvw: np.ndarray) -> np.ndarray:
 
 
 def _grid_g(points, counts, origin, spacing, dtype):
-    """(N, 3) grid coordinates in cell units, ``(p − origin)·invSpacing + half``: invSpacing = 1/spacing and
+    """``(g, cells, live)``: (N, 3) grid coordinates in cell units, ``(p − origin)·invSpacing + half``; the (3,)
+    cells per axis; (3,) 1 on axes with more than one probe and a positive spacing, else 0. invSpacing = 1/spacing and
     half = 0 on axes with more than one probe, invSpacing = 0 and half = 0.5 on one-probe axes (the
     middle of the zero-extent cell, as :func:`workers.kernels.samplers.field_uvw` takes uvw = 0.5)."""
     counts = np.asarray(counts, np.int64)
@@ -382,36 +389,64 @@ def _grid_g(points, counts, origin, spacing, dtype):
     inv = np.where(live, 1.0 / np.where(live, sp, 1.0), 0.0).astype(dtype)
     half = np.where(live, 0.0, 0.5).astype(dtype)
     p = np.asarray(points, np.float64).reshape(-1, 3).astype(dtype)
-    return (p - np.asarray(origin, np.float64).astype(dtype)) * inv + half, cells_of(counts).astype(dtype)
+    return (p - np.asarray(origin, np.float64).astype(dtype)) * inv + half, cells_of(counts).astype(dtype), \
+        live.astype(dtype)
 
 
-def sample_dense(volume: np.ndarray, points, counts, origin, spacing, dtype=np.float32) -> np.ndarray:
-    """Trilinear sample of a dense refined-grid volume at world points, clamp to edge.
+def mask_lookup_texel(points, counts, origin, spacing, S: int, dirs=None, samples: float = 0.0,
+                      dtype=np.float32) -> tuple[np.ndarray, np.ndarray]:
+    """Where the runtime reads a refined-grid mask volume for surface points: ``(t, cell)``, both (N, 3)
+    in ``dtype`` — the dense texel coordinate (sample x at t = x) and the point's own cell (module doc,
+    "Sampling").
 
-    ``uvw = (p − origin)/(spacing·(counts − 1))`` (0.5 on one-probe axes), then :func:`texture_linear`.
+    ``cell = clamp(floor(g(p)), 0, cells − 1)``; the lookup moves ``samples`` refined samples along ``dirs``
+    per axis (``g' = g(p) + samples·d/S`` on axes with more than one probe; d = n + v, the unit normal plus
+    the unit direction to the viewer, as DDGI-P eq 2 biases: one sample in front of the surface, and
+    towards the side the camera is on, away from a neighbouring wall at a corner);
+    ``t = clamp(g'·S − 0.5, cell·S, cell·S + S − 1)``: the footprint never leaves the cell's own S³
+    samples, so a channel that is free in a cell (canonical 0: the cluster has no probe there) never
+    bleeds into a neighbour where it is not.
+    """
+    g, cells, live = _grid_g(points, counts, origin, spacing, dtype)
+    cell = np.clip(np.floor(g), dtype(0), cells - dtype(1))
+    if samples and dirs is not None:
+        d = np.asarray(dirs, np.float64).reshape(-1, 3).astype(dtype)
+        g = g + live * (dtype(samples) / dtype(S)) * d
+    f_s = dtype(S)
+    t = np.clip(g * f_s - dtype(0.5), cell * f_s, cell * f_s + f_s - dtype(1))
+    return t, cell
+
+
+def sample_dense(volume: np.ndarray, points, counts, origin, spacing, dtype=np.float32, *, dirs=None,
+                 samples: float = 0.0) -> np.ndarray:
+    """Trilinear sample of a dense refined-grid mask volume at world points by the lookup rule of
+    :func:`mask_lookup_texel` (the point's own cell's samples; ``samples`` refined samples along ``dirs``).
+
     Returns (N, C) float64 in [0, 1]. ``dtype``: float precision of the coordinate math (float32 = GLSL).
     """
-    g, cells = _grid_g(points, counts, origin, spacing, dtype)
-    return texture_linear(volume, g / cells)
+    counts = np.asarray(counts, np.int64)
+    S = volume.shape[2] // int(cells_of(counts)[0])
+    t, _ = mask_lookup_texel(points, counts, origin, spacing, S, dirs, samples, dtype)
+    dims = np.array(volume.shape[2::-1], np.float64).astype(dtype)
+    return texture_linear(volume, (t + dtype(0.5)) / dims)
 
 
 def sample_compressed(atlas: np.ndarray, indirection: np.ndarray, meta: dict, points, counts, origin,
-                      spacing, S: int, dtype=np.float32) -> np.ndarray:
-    """Sample a compressed mask atlas at world points exactly as the GLSL of the module doc does.
+                      spacing, S: int, dtype=np.float32, *, dirs=None, samples: float = 0.0) -> np.ndarray:
+    """Sample a compressed mask atlas at world points exactly as the GLSL of the module doc does
+    (the lookup rule of :func:`mask_lookup_texel`).
 
     atlas : (bz·T, by·T, bx·T, 4) uint8; indirection : (cz, cy, cx, 4) uint8; meta : the compress meta
     (``block_size``, ``border_lo``). Coordinate math in ``dtype`` (float32 = GLSL highp).
     Returns (N, 4) float64 in [0, 1].
     """
-    T, lo = int(meta["block_size"]), int(meta["border_lo"])
+    T, lo, hi = int(meta["block_size"]), int(meta["border_lo"]), int(meta.get("border_hi", 1))
     S = int(S)
-    if T != S + 1 + lo:
-        raise ValueError(f"block size {T} does not match S = {S} and border_lo = {lo}")
+    if T != S + lo + hi:
+        raise ValueError(f"block size {T} does not match S = {S}, border_lo = {lo} and border_hi = {hi}")
     one, f_s = dtype(1), dtype(S)
-    g, cells = _grid_g(points, counts, origin, spacing, dtype)
-    t = np.clip(g * f_s - dtype(0.5), dtype(0), cells * f_s - one)          # dense texel coordinate
-    cell = np.minimum(np.floor((t + dtype(0.5 * lo)) / f_s), cells - one)
-    local = np.clip(t - cell * f_s + dtype(lo), dtype(0), dtype(T - 1))      # texel coordinate in the block
+    t, cell = mask_lookup_texel(points, counts, origin, spacing, S, dirs, samples, dtype)
+    local = t - cell * f_s + dtype(lo)                                       # in [lo, lo + S - 1]
     ci = cell.astype(np.int64)
     blk = indirection[ci[:, 2], ci[:, 1], ci[:, 0], :3].astype(dtype)        # floor(texelFetch·255 + 0.5)
     inv_size = one / np.array(atlas.shape[2::-1], np.float64).astype(dtype)

@@ -933,16 +933,16 @@ def cluster_volumes(sh_l1, g, K: int, states=None) -> tuple[list[np.ndarray], np
 
 
 def canonicalize(q: np.ndarray, dont_care: np.ndarray, counts, S: int, g, K: int, states=None) -> np.ndarray:
-    """Give every mask value that no shading point can read one canonical value (255), so that
-    identical blocks merge in compression (MD §3.4.2); returns a new (Z, Y, X, K) uint8 array.
+    """Give every mask value that no shading point needs one canonical value, 0, so that identical blocks
+    merge in compression (MD §3.4.2) and the runtime skips the cluster (it samples only clusters whose
+    mask is marked, m_k > 0: MD §1); returns a new (Z, Y, X, K) uint8 array.
 
     - Channel k of a cell none of whose non-OFF corners is in cluster k: eq 3 multiplies m_k by
       cluster k's trilinear probe volume, which is 0 everywhere in that cell (and so is w_k of the
-      normalized variant), so m_k is free there. 255 is the value open space has anyway.
+      normalized variant), so m_k is free there. The runtime reads a cell's own samples only
+      (:func:`workers.kernels.compress.mask_lookup_texel`), so the 0 never filters into a neighbour.
     - Don't-care samples (inside geometry) with no care sample among their 26 neighbours: only points
       inside geometry read them. Samples next to a surface keep their filled values.
-    The filtered value within half a sample of a cell face mixes the two cells' samples (as the dense
-    volume always did); canonical values there equal what open space holds.
     """
     from scipy.ndimage import binary_dilation
 
@@ -965,8 +965,8 @@ def canonicalize(q: np.ndarray, dont_care: np.ndarray, counts, S: int, g, K: int
     Z, Y, X = q.shape[:3]
     rel = relevant[np.arange(Z)[:, None, None] // S, np.arange(Y)[None, :, None] // S,
                    np.arange(X)[None, None, :] // S]                       # (Z, Y, X, K)
-    out = np.where(rel, q, np.uint8(255))
+    out = np.where(rel, q, np.uint8(0))
     dc = np.asarray(dont_care, bool).reshape(Z, Y, X)
     deep = dc & ~binary_dilation(~dc, structure=np.ones((3, 3, 3), bool))
-    out[deep] = 255
+    out[deep] = 0
     return np.ascontiguousarray(out, np.uint8)

@@ -21,6 +21,11 @@ Addressing (proto/bundle.md §5)
 
 Modes (each ``(points (N, 3), normals (N, 3)) -> irradiance (N, 3) float64``, linear RGB)
 ------------------------------------------------------------------------------------------
+"E = SH·n" below is the **non-linear L1 reconstruction** (:func:`workers.kernels.sh.sh_irradiance_l1_nonlinear`,
+Hazel 2017; ``proto/glsl/sh.glsl``'s default): the same mean as the linear ``Σ Â_l L_lm Y_lm(n)`` but never
+negative (the linear one rings below zero on the far side of a probe lit through a doorway). It is
+homogeneous of degree 1, so scaling (normalization, masks) commutes with it, but it is not additive:
+``linear=True`` selects the linear evaluation, which MD §3.2's exact equivalence below needs.
 ``leaking`` (MD eq 1)
     SH = trilinear(``sh_l1_{r,g,b}``) at the point; E = SH·n.
 ``visibility_weighted`` (MD eq 2, normalized as RTXGI)
@@ -35,18 +40,29 @@ Modes (each ``(points (N, 3), normals (N, 3)) -> irradiance (N, 3) float64``, li
     (GLSL: ``t = clamp((p − origin)/spacing·S − 0.5, base·S, base·S + S − 1)``, then
     ``texture(theta, (t + 0.5) / dims)``.) OFF probes need no test: their θ is 0 (and P is 0).
 ``mask`` (MD eq 3)
-    ``Σ_k m_k(x) · (SH of trilinear(cluster_sh_k)(x))·n`` with m = trilinear(``masks_0123`` /
-    ``masks_4567``) at the point (plain trilinear: masks are per cluster, not per corner, so they
-    filter across cells, which is the point of MD).
+    ``Σ_k m_k(x') · (SH of trilinear(cluster_sh_k)(x))·n`` with m = trilinear(``masks_0123`` /
+    ``masks_4567``) (hardware trilinear: masks are per cluster, not per corner, which is the point of MD)
+    read at the **mask lookup point** ``x'`` (:func:`mask_values`): x moved ``offset`` refined samples (per
+    axis) along n + v (v: the unit direction to the viewer, when given), with the texel coordinate clamped
+    to x's own cell's S³ samples (θ's rule above; :func:`workers.kernels.compress.mask_lookup_texel`).
+    Why the offset: refined samples inside a wall see no probe, so their masks are don't-care, filled from
+    both sides; a surface point's trilinear footprint half inside a thin wall would read them and weight
+    the clusters of the far side by up to ½ (light through the wall). One refined sample
+    along the normal (:data:`MASK_OFFSET_SAMPLES`, like DDGI-P eq 2's self-shadow bias) puts the footprint
+    in front of the wall; the view term moves it towards the camera's side, away from a neighbouring wall
+    at a corner (which the normal alone does not). Why the own cell: a channel is free (canonical 0,
+    :func:`workers.kernels.masks.canonicalize`) in a cell where its cluster has no probe; filtered across a
+    face it would change that cluster's weight in the neighbour, where it is present. ``offset = 0`` reads
+    at x.
 ``mask_normalized`` (ours, DESIGN stage 4)
-    The ``mask`` sum divided by ``Σ_k m_k(x) · w_k(x)`` with ``w_k`` = channel k of trilinear
+    The ``mask`` sum divided by ``Σ_k m_k(x') · w_k(x)`` with ``w_k`` = channel k of trilinear
     (``cluster_weights_0123`` / ``_4567``) = ``Σ_i φ_i g_i^k``; 0 where that is 0.
 
-MD §3.2 in these terms: with K = 8, the parity colouring (eq 4) and masks from θ (no filter, no
-light-aware fit), ``mask_normalized`` equals ``visibility_weighted`` and ``mask`` equals eq 2
+MD §3.2 in these terms (linear SH evaluation): with K = 8, the parity colouring (eq 4) and masks from θ
+(no filter, no light-aware fit), ``mask_normalized`` equals ``visibility_weighted`` and ``mask`` equals eq 2
 unnormalized at every care refined-grid sample and anywhere inside the box of one cell's sample
-centres, to float64 rounding: the mask bytes are the θ bytes, so no 1/255 quantization enters. Within
-half a sample of a cell face they differ (masks filter across the face, θ is clamped to the cell).
+centres, to float64 rounding: the mask bytes are the θ bytes, so no 1/255 quantization enters. Both
+read the point's own cell's samples, so this holds within half a sample of a cell face too.
 
 Consumers: tests (MD §3.2 invariant, leak tests), stages/evaluate (reference for the GLSL modes).
 """
@@ -56,13 +72,17 @@ from typing import Mapping
 
 import numpy as np
 
+from workers.kernels.compress import mask_lookup_texel
 from workers.kernels.grid import cage_indices, cell_coords
-from workers.kernels.sh import sh_irradiance
+from workers.kernels.sh import sh_irradiance, sh_irradiance_l1_nonlinear
 
 __all__ = ["MODES", "Grid", "trilinear", "texel_fetch", "probe_uvw", "field_uvw", "field_samples_per_cell",
-           "leaking", "visibility_weighted", "mask", "mask_normalized", "irradiance"]
+           "leaking", "visibility_weighted", "mask", "mask_normalized", "irradiance", "mask_values",
+           "MASK_OFFSET_SAMPLES"]
 
 MODES = ("leaking", "visibility_weighted", "mask", "mask_normalized")
+MASK_OFFSET_SAMPLES = 1.0
+"""Runtime default of the mask lookup's offset: refined samples (per axis) along n + v."""
 
 
 class Grid:
@@ -185,9 +205,10 @@ def field_samples_per_cell(field_volume, grid) -> int:
     return S
 
 
-def _irr(sh_rgb: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(N, 4, 3) L1 radiance SH and (N, 3) normals → (N, 3) irradiance."""
-    return sh_irradiance(sh_rgb, normals)
+def _irr(sh_rgb: np.ndarray, normals: np.ndarray, linear: bool = False) -> np.ndarray:
+    """(N, 4, 3) L1 radiance SH and (N, 3) normals → (N, 3) irradiance: the non-linear L1 reconstruction
+    (:func:`workers.kernels.sh.sh_irradiance_l1_nonlinear`, the GLSL default), or the linear one."""
+    return sh_irradiance(sh_rgb, normals) if linear else sh_irradiance_l1_nonlinear(sh_rgb, normals)
 
 
 def _stack_rgb(parts) -> np.ndarray:
@@ -202,14 +223,14 @@ def _probe_check(vol, grid: Grid, name: str):
         raise ValueError(f"{name} must be a (nz, ny, nx, ...) = {want} probe volume, got {shape}")
 
 
-def leaking(points, normals, sh_r, sh_g, sh_b, grid) -> np.ndarray:
+def leaking(points, normals, sh_r, sh_g, sh_b, grid, *, linear: bool = False) -> np.ndarray:
     """MD eq 1: trilinear SH volume. sh_* (nz, ny, nx, 4) float (L0, L1y, L1z, L1x of one channel)."""
     g = Grid.of(grid)
     for v, n in ((sh_r, "sh_r"), (sh_g, "sh_g"), (sh_b, "sh_b")):
         _probe_check(v, g, n)
     uvw = probe_uvw(points, g)
     sh = _stack_rgb([trilinear(v, uvw) for v in (sh_r, sh_g, sh_b)])
-    return _irr(sh, _points(normals, "normals"))
+    return _irr(sh, _points(normals, "normals"), linear)
 
 
 def _theta_in_cell(theta_0123, theta_4567, points, g: Grid, base) -> np.ndarray:
@@ -225,7 +246,7 @@ def _theta_in_cell(theta_0123, theta_4567, points, g: Grid, base) -> np.ndarray:
 
 
 def visibility_weighted(points, normals, sh_r, sh_g, sh_b, theta_0123, theta_4567, grid, *,
-                        normalize: bool = True) -> np.ndarray:
+                        normalize: bool = True, linear: bool = False) -> np.ndarray:
     """MD eq 2: ``Σ θ_c φ_c P_c / Σ θ_c φ_c`` over the cell's 8 corners (0 where the sum is 0).
 
     ``normalize=False`` gives eq 2 as written, ``Σ θ_c φ_c P_c`` (what ``mask`` reproduces with K = 8
@@ -252,17 +273,38 @@ def visibility_weighted(points, normals, sh_r, sh_g, sh_b, theta_0123, theta_456
         ok = den > 0
         num[ok] /= den[ok, None, None]
         num[~ok] = 0.0
-    return _irr(num, _points(normals, "normals"))
+    return _irr(num, _points(normals, "normals"), linear)
 
 
-def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None):
+def mask_values(masks, points, normals, grid, samples: float = 0.0, views=None) -> np.ndarray:
+    """(N, C) the refined-grid mask volumes ``masks`` (list of (Z, Y, X, 4) uint8) read as the runtime reads
+    them for surface points with unit ``normals`` (and unit directions to the viewer ``views``, optional):
+    ``samples`` refined samples along d = n + v (d = n without views), the texel coordinate clamped to p's
+    own cell's samples (:func:`workers.kernels.compress.mask_lookup_texel`), trilinear. Channels of all
+    volumes concatenated, as bytes / 255."""
+    g = Grid.of(grid)
+    p = _points(points)
+    d = _points(normals, "normals")
+    if views is not None:
+        d = d + _points(views, "views")
+    S = field_samples_per_cell(masks[0], g)
+    t, _ = mask_lookup_texel(p, g.counts, g.origin, g.spacing, S, d, samples, np.float64)
+    out = []
+    for v in masks:
+        dims = np.array([v.shape[2], v.shape[1], v.shape[0]], np.float64)
+        out.append(trilinear(v, (t + 0.5) / dims))
+    return np.concatenate(out, axis=1)
+
+
+def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None, offset: float = 0.0,
+                linear: bool = False, views=None):
     g = Grid.of(grid)
     p = _points(points)
     n = _points(normals, "normals")
     K = len(cluster_sh)
     if K < 1:
         raise ValueError("cluster_sh must hold at least one cluster")
-    m = np.concatenate([trilinear(v, field_uvw(p, g)) for v in masks], axis=1)[:, :K]   # (N, K)
+    m = mask_values(masks, p, n, g, offset, views)[:, :K]                    # (N, K)
     if m.shape[1] < K:
         raise ValueError(f"masks hold {m.shape[1]} channels for {K} clusters")
     uvw = probe_uvw(p, g)
@@ -271,7 +313,7 @@ def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None):
         for v in (r, gg, b):
             _probe_check(v, g, f"cluster_sh[{k}]")
         sh = _stack_rgb([trilinear(v, uvw) for v in (r, gg, b)])
-        e += m[:, k:k + 1] * _irr(sh, n)
+        e += m[:, k:k + 1] * _irr(sh, n, linear)
     den = None
     if cluster_weights is not None:
         w = np.concatenate([trilinear(v, uvw) for v in cluster_weights], axis=1)[:, :K]
@@ -279,45 +321,54 @@ def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None):
     return e, den
 
 
-def mask(points, normals, masks, cluster_sh, grid) -> np.ndarray:
-    """MD eq 3: ``Σ_k m_k(x) · E(trilinear(cluster_sh_k)(x), n)``.
+def mask(points, normals, masks, cluster_sh, grid, offset: float = 0.0, *, linear: bool = False,
+         views=None) -> np.ndarray:
+    """MD eq 3: ``Σ_k m_k(x') · E(trilinear(cluster_sh_k)(x), n)``, x' the mask lookup point
+    (:func:`mask_values`: ``offset`` refined samples along n + v, v = ``views`` or 0; 0 = at x).
 
     masks : list of (Z, Y, X, 4) uint8 volumes (``masks_0123``[, ``masks_4567``]);
     cluster_sh : list of K ``(r, g, b)`` tuples of (nz, ny, nx, 4) float volumes.
     """
-    return _mask_terms(points, normals, masks, cluster_sh, grid)[0]
+    return _mask_terms(points, normals, masks, cluster_sh, grid, offset=offset, linear=linear, views=views)[0]
 
 
-def mask_normalized(points, normals, masks, cluster_sh, cluster_weights, grid) -> np.ndarray:
-    """``mask`` divided by ``Σ_k m_k(x) w_k(x)`` (0 where that is 0); cluster_weights : list of
+def mask_normalized(points, normals, masks, cluster_sh, cluster_weights, grid, offset: float = 0.0, *,
+                    linear: bool = False, views=None) -> np.ndarray:
+    """``mask`` divided by ``Σ_k m_k(x') w_k(x)`` (0 where that is 0); cluster_weights : list of
     (nz, ny, nx, 4) float volumes (``cluster_weights_0123``[, ``_4567``])."""
-    e, den = _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights)
+    e, den = _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights, offset=offset, linear=linear,
+                         views=views)
     out = np.zeros_like(e)
     ok = den > 0
     out[ok] = e[ok] / den[ok, None]
     return out
 
 
-def irradiance(mode: str, arrays: Mapping, grid, points, normals) -> np.ndarray:
+def irradiance(mode: str, arrays: Mapping, grid, points, normals,
+               mask_offset_samples: float = MASK_OFFSET_SAMPLES, linear: bool = False, views=None) -> np.ndarray:
     """Shade with ``mode`` (one of :data:`MODES`) from baked artifacts addressed by name.
 
     arrays : mapping artifact name → array (a dict, or the pipeline's LazyArtifacts merged), using
     ``sh_l1_{r,g,b}``; ``theta_0123``, ``theta_4567``; ``masks_0123``[, ``masks_4567``],
     ``cluster_sh_{k}_{r,g,b}``, ``cluster_weights_0123``[, ``_4567``] (K = number of cluster_sh_k_r).
+    The mask modes read the masks ``mask_offset_samples`` refined samples along n + v (``views``: unit
+    directions to the viewer, (N, 3); without them along n) — the runtime default, as the GLSL renders them
+    (0 = at the point). ``linear``: the linear L1 SH evaluation instead of the non-linear default.
     """
     if mode == "leaking":
-        return leaking(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid)
+        return leaking(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid, linear=linear)
     if mode == "visibility_weighted":
         return visibility_weighted(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"],
-                                   arrays["theta_0123"], arrays["theta_4567"], grid)
+                                   arrays["theta_0123"], arrays["theta_4567"], grid, linear=linear)
     if mode in ("mask", "mask_normalized"):
         K = 0
         while f"cluster_sh_{K}_r" in arrays:
             K += 1
         cl = [tuple(arrays[f"cluster_sh_{k}_{c}"] for c in "rgb") for k in range(K)]
         masks = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
+        off = float(mask_offset_samples)
         if mode == "mask":
-            return mask(points, normals, masks, cl, grid)
+            return mask(points, normals, masks, cl, grid, off, linear=linear, views=views)
         wts = [arrays["cluster_weights_0123"]] + ([arrays["cluster_weights_4567"]] if K > 4 else [])
-        return mask_normalized(points, normals, masks, cl, wts, grid)
+        return mask_normalized(points, normals, masks, cl, wts, grid, off, linear=linear, views=views)
     raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")

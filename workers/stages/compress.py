@@ -6,8 +6,8 @@ refined grid), ``place`` stats (counts, origin, spacing), ``visibility.samples_p
 
 Outputs:
 
-* ``mask_atlas_0123`` (+ ``mask_atlas_4567``): (bz·T, by·T, bx·T, 4) R8G8B8A8_UNORM 3D, zstd 3; T = S + 2
-  (``LAYOUT = "bordered"``) or S + 1 (``"shared"``), ``meta.block_size``;
+* ``mask_atlas_0123`` (+ ``mask_atlas_4567``): (bz·T, by·T, bx·T, 4) R8G8B8A8_UNORM 3D, zstd 3; T = S
+  (``LAYOUT = "cell"``: a cell's own S³ samples, all the own-cell lookup reads), ``meta.block_size``;
   block (bx_, by_, bz_) occupies texels [bx_·T, bx_·T + T) × … and holds the bordered block of the cells
   pointing at it. Sample with LINEAR filtering.
 * ``mask_indirection``: (cz, cy, cx, 4) R8G8B8A8_UNORM 3D, zstd 3; texel (i, j, k) of cell (i, j, k) =
@@ -29,9 +29,9 @@ from workers.stages.base import Artifact, StageContext, StageError, StageOutput
 
 ZSTD_LEVEL = 3
 ERROR_POINTS = 10000
-# "bordered": (S+2)^3 blocks, a 1-sample border on every side (DESIGN stage 5 as written);
-# "shared": (S+1)^3 blocks, the border on the + side only: same exactness, ~1.4-2.5x smaller atlases.
-LAYOUT = "shared"
+# "cell": S^3 blocks, a cell's own samples: all the runtime's own-cell lookup reads (kernels/compress.py);
+# "shared" (S+1)^3 and "bordered" (S+2)^3 carry neighbour layers the lookup no longer reads.
+LAYOUT = "cell"
 VOLUMES = ("0123", "4567")
 
 
@@ -66,8 +66,8 @@ def run_compress(ctx: StageContext) -> StageOutput:
     }
     meta = {**cm.meta, "volumes": [f"mask_atlas_{n}" for n in names]}
     arts = [Artifact(f"mask_atlas_{n}", a, zstd_level=ZSTD_LEVEL, meta=meta,
-                     description=f"mask atlas (MD §3.4.2) of masks_{n}: per-cell blocks of (S+2)^3 texels "
-                                 "(S^3 samples + 1-sample border), merged")
+                     description=f"mask atlas (MD §3.4.2) of masks_{n}: per-cell blocks of the cell's "
+                                 "S^3 samples, identical blocks merged")
             for n, a in zip(names, cm.atlases)]
     arts.append(Artifact("mask_indirection", cm.indirection, zstd_level=ZSTD_LEVEL, meta=meta,
                          description="per cell: its block's (x, y, z) in the mask atlas block grid, a = 0"))

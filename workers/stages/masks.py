@@ -91,7 +91,7 @@ def run_masks(ctx: StageContext) -> StageOutput:
     m, filled = fill_dont_care(m, dont_care)
     m = gaussian_filter(m, sec.sigma)                                                       # §3.4 step 6
     q = quantize(m)                                                                         # (Z, Y, X, K) bytes
-    q = canonicalize(q, dont_care, counts, S, g, K, states)                                 # free values -> 255
+    q = canonicalize(q, dont_care, counts, S, g, K, states)                                 # free values -> 0
     t_post = time.perf_counter() - t2
     rq, _ = mask_residual(theta, dont_care, counts, S, g, q, states)
     care = ~dont_care

@@ -61,6 +61,7 @@ export class GIRenderer {
       uMaskS: { value: 1 },
       uMaskT: { value: 2 },
       uMaskLo: { value: 0 },
+      uMaskOffset: { value: 0 },
       uPrtGroups: { value: 0 },
       uPrtCoef: { value: new Float32Array(3 * PRT_MAX_GROUPS * 4) },
       ...ShadowMaps.uniforms(MAX_LIGHTS),

@@ -28,8 +28,9 @@ const clusterShNames = (names) => Array.from({ length: clusterCount(names) }, (_
 
 /**
  * Mask atlas uniforms (S, block size T, border_lo): the atlas artifact's meta when the bake lists it, else the
- * compress stage's stats (block_size, layout: "shared" -> border_lo 0, "bordered" -> 1; S = T - 1 - border_lo),
- * else S from the dense masks' shape and the documented shared layout (proto/bundle.md 5.2: T = S + 1).
+ * compress stage's stats (block_size, border_lo, border_hi: S = T - border_lo - border_hi; older bakes without them:
+ * layout "shared" -> borders 0, 1; "bordered" -> 1, 1), else S from the dense masks' shape and the compress stage's
+ * layout (proto/bundle.md 5.2: "cell", T = S).
  */
 export function maskParams({ names, info, bake, grid }) {
   const meta = info('mask_atlas_0123')?.meta || info('mask_indirection')?.meta;
@@ -38,18 +39,26 @@ export function maskParams({ names, info, bake, grid }) {
   }
   const st = (bake?.stages || []).find((x) => x.name === 'compress')?.stats;
   if (st && st.block_size) {
-    const lo = st.layout === 'bordered' ? 1 : 0;
-    return { S: Number(st.block_size) - 1 - lo, T: Number(st.block_size), lo };
+    const borders = { cell: [0, 0], shared: [0, 1], bordered: [1, 1] }[st.layout] || [0, 0];
+    const lo = Number(st.border_lo ?? borders[0]);
+    const hi = Number(st.border_hi ?? borders[1]);
+    return { S: Number(st.block_size) - lo - hi, T: Number(st.block_size), lo };
   }
   const shape = info('masks_0123')?.shape;  // (Z, Y, X, 4), X = (nx - 1) · S
   const nx = grid?.counts?.[0] || 2;
   const S = shape ? Math.round(shape[2] / Math.max(1, nx - 1)) : Number(bake?.config?.visibility?.samples_per_cell ?? 1);
-  return { S, T: S + 1, lo: 0 };
+  return { S, T: S, lo: 0 };
 }
+
+/**
+ * uMaskOffset: refined samples the mask lookup moves along n + v (per axis; workers/kernels/samplers.MASK_OFFSET_SAMPLES,
+ * proto/glsl/gi_mask.glsl). A constant: the lookup works in the refined grid's own units.
+ */
+export const MASK_OFFSET_SAMPLES = 1.0;
 
 function maskUniforms(ctx) {
   const { S, T, lo } = maskParams(ctx);
-  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo };
+  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo, uMaskOffset: MASK_OFFSET_SAMPLES };
 }
 
 /** uDdgiBias = 0.75 · D · 0.3, D = min spacing over axes with spacing > 0 (workers/kernels/ddgi.bias_scale). */
