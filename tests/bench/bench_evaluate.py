@@ -1,7 +1,7 @@
 """Evaluate benchmark (Evaluate issue): run by hand, not part of the test command.
 
     .venv/bin/python tests/bench/bench_evaluate.py [--width 512 --height 384] [--spp 64] [--repeats 7]
-        [--zdm2-counts 16x8x16] [--skip-zdm2]
+        [--zdm2-counts 16x8x16] [--zdm2-cameras 1] [--skip-zdm2] [--skip-two-rooms] [--save DIR]
 
 Bakes (real pipeline up to `compress`, untimed) two-rooms (procedural; its 20 cd point light) and
 ../shared/scenes/zdm2-sauerbraten (a sun and a sky added: it has none), then runs the evaluate stage with a
@@ -23,7 +23,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from proto.models import BakeConfig  # noqa: E402
+from proto.models import BakeConfig, EvaluateSection  # noqa: E402
 from proto.stages import plan  # noqa: E402
 from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
@@ -61,10 +61,19 @@ def bake(scene_path: Path, cfg: dict, work: Path):
     return scene, out, c, time.perf_counter() - t0
 
 
+SAVE: Path | None = None
+
+
 def evaluate(scene, s, c, ev: dict) -> dict:
-    ctx = StageContext(config=_Cfg(c, ev), scene_loader=lambda: scene, inputs=s, report=lambda f: None)
+    sec = EvaluateSection.model_validate({**ev, "enabled": True})    # the stage is opt-in
+    ctx = StageContext(config=_Cfg(c, sec), scene_loader=lambda: scene, inputs=s, report=lambda f: None)
     t0 = time.perf_counter()
     out = run_evaluate(ctx)
+    if SAVE is not None:                              # --save: the contact sheet and every preview as PNG
+        SAVE.mkdir(parents=True, exist_ok=True)
+        for a in out.artifacts:
+            if a.format == "png":
+                (SAVE / f"{a.name}.png").write_bytes(a.data)
     return {"metrics": out.stats["metrics"], "seconds": time.perf_counter() - t0, "renderer": out.stats["renderer"],
             "cameras": out.stats["cameras"]}
 
@@ -84,6 +93,11 @@ def table(name: str, m: dict) -> list[str]:
     if ml and mm and md:
         rows.append(f"ratios: mask/leaking {mm / ml:.2f} (target <= 1.3; MD Table 1: 0.11/0.09 = 1.22), "
                     f"DDGI/mask {md / mm:.2f} (target >= 3; MD: visibility/mask 0.25-0.38/0.11 = 2.3-3.5)")
+        d = m.get("direct.pass_ms")
+        if d and min(ml, mm, md) > d:   # the GI's own cost: the pass minus the direct-only pass (same run)
+            gl, gm, gd = ml - d, mm - d, md - d
+            rows.append(f"GI only (pass - direct pass): leaking {gl:.2f} ms, mask {gm:.2f} ms, DDGI {gd:.2f} ms; "
+                        f"mask/leaking {gm / gl:.2f}, DDGI/mask {gd / gm:.2f}")
     return rows
 
 
@@ -96,33 +110,42 @@ def main() -> None:
     ap.add_argument("--repeats", type=int, default=7)
     ap.add_argument("--zdm2-counts", default="16x8x16")
     ap.add_argument("--skip-zdm2", action="store_true")
+    ap.add_argument("--skip-two-rooms", action="store_true")
+    ap.add_argument("--zdm2-cameras", type=int, default=1, help="auto-placed cameras in zdm2 (quality needs 3+)")
+    ap.add_argument("--save", type=Path, default=None, help="write the PNG previews and contact sheets here")
     args = ap.parse_args()
+    global SAVE
+    SAVE = args.save
     res = {}
     ev = {"width": args.width, "height": args.height, "repeats": args.repeats, "modes": list(MODES), "cameras": 1}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
-        write_scene("two-rooms", tmp / "two-rooms.glb")
-        cfg = {"place": {"counts": [9, 4, 5], "box": {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}},
-               "trace": {"rays_per_probe": 256}, "light": {"bounces": 3},
-               "visibility": {"samples_per_cell": 8, "slabs": 1}, "masks": {"clusters": 4, "sweeps": 1000}}
-        scene, s, c, tb = bake(tmp / "two-rooms.glb", cfg, tmp / "a")
-        cam = {"position": [7.5, 1.5, 2.0], "target": [4.05, 1.2, 1.2], "name": "roomb"}
-        cam_a = {"position": [0.6, 1.6, 3.4], "target": [4.0, 1.0, 1.0], "name": "rooma"}
-        res["two-rooms"] = evaluate(scene, s, c, {**ev, "spp": args.spp, "cameras": [cam_a, cam]})
-        res["two-rooms"]["bake_seconds"] = tb
+        if not args.skip_two_rooms:
+            write_scene("two-rooms", tmp / "two-rooms.glb")
+            cfg = {"place": {"counts": [9, 4, 5], "box": {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}},
+                   "trace": {"rays_per_probe": 256}, "light": {"bounces": 3},
+                   "visibility": {"samples_per_cell": 8, "slabs": 1}, "masks": {"clusters": 4, "sweeps": 1000}}
+            scene, s, c, tb = bake(tmp / "two-rooms.glb", cfg, tmp / "a")
+            cam = {"position": [7.5, 1.5, 2.0], "target": [4.05, 1.2, 1.2], "name": "roomb"}
+            cam_a = {"position": [0.6, 1.6, 3.4], "target": [4.0, 1.0, 1.0], "name": "rooma"}
+            res["two-rooms"] = evaluate(scene, s, c, {**ev, "spp": args.spp, "cameras": [cam_a, cam]})
+            res["two-rooms"]["bake_seconds"] = tb
         if not args.skip_zdm2 and ZDM2.exists():
             counts = [int(x) for x in args.zdm2_counts.split("x")]
             cfg = {"place": {"counts": counts}, "scene": {"lights": [SUN], "sky": [0.3, 0.35, 0.4]},
                    "trace": {"rays_per_probe": 128}, "light": {"bounces": 2},
                    "visibility": {"samples_per_cell": 4}, "masks": {"clusters": 4, "sweeps": 300}}
             scene, s, c, tb = bake(ZDM2, cfg, tmp / "b")
-            res["zdm2"] = evaluate(scene, s, c, {**ev, "spp": args.zdm2_spp, "flip": False})
+            res["zdm2"] = evaluate(scene, s, c, {**ev, "spp": args.zdm2_spp, "flip": False,
+                                                 "cameras": args.zdm2_cameras})
             res["zdm2"]["bake_seconds"] = tb
-    lines = [f"renderer: {res['two-rooms']['renderer']}; {args.width}x{args.height}; pass = direct (lights x Embree "
+    if not res:
+        raise SystemExit("nothing to run: both scenes skipped (or ../shared/scenes/zdm2-sauerbraten is missing)")
+    lines = [f"renderer: {next(iter(res.values()))['renderer']}; {args.width}x{args.height}; pass = direct (lights x Embree "
              f"shadow mask) + GI, median of {args.repeats}", f"MD Table 1 (RTX 3070, ms): {PAPER_MS}"]
     for name, r in res.items():
         lines += table(name, r["metrics"])
-    m = res["two-rooms"]["metrics"]
+    m = res.get("two-rooms", {}).get("metrics", {})
     rn, rd, rl = m.get("mask_normalized.rmse"), m.get("ddgi.rmse"), m.get("leaking.rmse")
     if rn is not None and rd and rl:
         lines.append(f"two-rooms quality: RMSE(mask_normalized) = {rn:.4f} = {rn / rd:.2f} x RMSE(DDGI) (target <= 1.1), "

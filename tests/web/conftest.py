@@ -64,7 +64,11 @@ class KilnServer:
             b = self.api(f"/v1/bakes/{bake_id}")
             if b["status"] in ("succeeded", "failed", "cancelled"):
                 return b
-            assert time.monotonic() < deadline, f"bake {bake_id} still {b['status']}"
+            if time.monotonic() >= deadline:
+                stages = {st["name"]: st.get("status") for st in b.get("stages", [])}
+                tail = self.log.read_text(errors="replace")[-3000:] if self.log.exists() else ""
+                raise AssertionError(f"bake {bake_id} still {b['status']} after {timeout} s; stages {stages}\n"
+                                     f"server log tail:\n{tail}")
             time.sleep(0.2)
 
 

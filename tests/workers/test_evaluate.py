@@ -59,12 +59,10 @@ def test_two_rooms_leaking_worst_mask_and_ddgi_far_better(tmp_path, scene_files)
     assert set(modes) >= {"direct", "leaking", "ddgi", "mask", "mask_normalized"}
     leak = {k: m[f"{k}.leak"] for k in ("leaking", "ddgi", "mask", "mask_normalized")}
     assert leak["leaking"] == max(leak.values())
-    for k in ("ddgi", "mask"):
+    for k in ("ddgi", "mask", "mask_normalized"):
         assert leak[k] <= 0.5 * leak["leaking"], leak
-    # normalized mask GI at S = 4, K = 4 leaks on the room-B side of the shared wall in this view (a cluster
-    # holding probes of both sides in one cell; dividing by Σ m_k w_k brings the lit side's SH back): better
-    # than leaking, not "far" better — see the report
-    assert leak["mask_normalized"] < leak["leaking"], leak
+    # normalized mask GI reads its masks in front of the wall (n + v, own cell): measured 0.09 x leaking
+    assert leak["mask_normalized"] <= 0.2 * leak["leaking"], leak
     for k in modes:
         assert m[f"{k}.pass_ms"] > 0 and m[f"{k}.rmse"] >= 0
     assert m["leaking.gi_fetches_per_pixel"] == 3
@@ -86,12 +84,11 @@ def test_sealed_box_leaking_worst(tmp_path, scene_files):
     # absolute excess indirect (lux) measures the leak
     leak = {k: m[f"{k}.indirect_excess"] for k in ("leaking", "ddgi", "mask", "mask_normalized")}
     assert leak["leaking"] == max(leak.values()) and leak["leaking"] > 0
-    for k in ("ddgi", "mask"):
+    for k in ("ddgi", "mask", "mask_normalized"):
         assert leak[k] <= 0.5 * leak["leaking"], leak
-    # normalized mask GI: 5 cm walls, samples 19 cm apart (S = 4): the cavity's surface points filter with
-    # outside samples and the division by Σ m_k w_k restores the outside probes' light (0.44 vs 0.46 lux;
-    # 0.32 at S = 8) — better than leaking only; see the report
-    assert leak["mask_normalized"] < leak["leaking"], leak
+    # 5 cm walls, samples 19 cm apart (S = 4): the cavity's surface points read masks in front of the wall
+    # (before: they filtered with outside samples, 0.44 vs leaking's 0.46 lux); measured 0.06 x leaking
+    assert leak["mask_normalized"] <= 0.2 * leak["leaking"], leak
 
 
 def test_furnace_every_mode_near_zero_error(tmp_path, scene_files):
@@ -103,7 +100,7 @@ def test_furnace_every_mode_near_zero_error(tmp_path, scene_files):
     place = s["place"].stats
     grid = {k: place[k] for k in ("counts", "origin", "spacing")}
     S, T = 4, s["compress"].stats["block_size"]
-    meta = {"samples_per_cell": S, "block_size": T, "border_lo": T - S - 1}
+    meta = {"samples_per_cell": S, "block_size": T, "border_lo": s["compress"].stats["border_lo"]}
     rng = np.random.default_rng(1)
     H, W = 24, 32
     p = np.asarray(lo) + rng.random((H, W, 3)) * (np.asarray(hi) - np.asarray(lo))

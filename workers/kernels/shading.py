@@ -31,6 +31,7 @@ from __future__ import annotations
 
 import math
 
+import numba
 import numpy as np
 
 __all__ = ["srgb_to_linear", "SRGB_TO_LINEAR_LUT", "surface_at_hits", "sample_texture", "direct_irradiance"]
@@ -99,6 +100,51 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     return top * (1.0 - fy) + bottom * fy
 
 
+@numba.njit(cache=True, nogil=True)
+def _interpolate_hits(tris, normals, uv0, t, u, v):  # pragma: no cover - compiled
+    """Per hit h on triangle t[h] with barycentrics (1 − u − v, u, v): world position, unit geometric
+    normal ``(v1 − v0) × (v2 − v0)`` (0 when degenerate), unit interpolated vertex normal (the geometric
+    one where that is 0), interpolated uv0. float64 arithmetic on the float32 scene arrays."""
+    H = t.shape[0]
+    pos = np.empty((H, 3))
+    geo = np.empty((H, 3))
+    nrm = np.empty((H, 3))
+    uv = np.empty((H, 2))
+    for h in range(H):
+        k = t[h]
+        b0 = 1.0 - u[h] - v[h]
+        b1 = u[h]
+        b2 = v[h]
+        for a in range(3):
+            pos[h, a] = b0 * np.float64(tris[k, 0, a]) + b1 * np.float64(tris[k, 1, a]) + b2 * np.float64(tris[k, 2, a])
+        e1x = np.float64(tris[k, 1, 0]) - np.float64(tris[k, 0, 0])
+        e1y = np.float64(tris[k, 1, 1]) - np.float64(tris[k, 0, 1])
+        e1z = np.float64(tris[k, 1, 2]) - np.float64(tris[k, 0, 2])
+        e2x = np.float64(tris[k, 2, 0]) - np.float64(tris[k, 0, 0])
+        e2y = np.float64(tris[k, 2, 1]) - np.float64(tris[k, 0, 1])
+        e2z = np.float64(tris[k, 2, 2]) - np.float64(tris[k, 0, 2])
+        gx = e1y * e2z - e1z * e2y
+        gy = e1z * e2x - e1x * e2z
+        gz = e1x * e2y - e1y * e2x
+        gl = math.sqrt(gx * gx + gy * gy + gz * gz)
+        if gl > 0:
+            gx, gy, gz = gx / gl, gy / gl, gz / gl
+        else:
+            gx, gy, gz = 0.0, 0.0, 0.0
+        geo[h, 0], geo[h, 1], geo[h, 2] = gx, gy, gz
+        nx = b0 * np.float64(normals[k, 0, 0]) + b1 * np.float64(normals[k, 1, 0]) + b2 * np.float64(normals[k, 2, 0])
+        ny = b0 * np.float64(normals[k, 0, 1]) + b1 * np.float64(normals[k, 1, 1]) + b2 * np.float64(normals[k, 2, 1])
+        nz = b0 * np.float64(normals[k, 0, 2]) + b1 * np.float64(normals[k, 1, 2]) + b2 * np.float64(normals[k, 2, 2])
+        nl = math.sqrt(nx * nx + ny * ny + nz * nz)
+        if nl > 0:
+            nrm[h, 0], nrm[h, 1], nrm[h, 2] = nx / nl, ny / nl, nz / nl
+        else:
+            nrm[h, 0], nrm[h, 1], nrm[h, 2] = gx, gy, gz
+        for a in range(2):
+            uv[h, a] = b0 * np.float64(uv0[k, 0, a]) + b1 * np.float64(uv0[k, 1, a]) + b2 * np.float64(uv0[k, 2, a])
+    return pos, geo, nrm, uv
+
+
 def surface_at_hits(scene, tri, u, v) -> dict:
     """Surface attributes at ray hits (the G-buffer of DDGI-I §3.3 "surfels").
 
@@ -149,17 +195,11 @@ def surface_at_hits(scene, tri, u, v) -> dict:
     if hit.size == 0:
         return out
     t = tri[hit]
-    b = np.stack([1.0 - u[hit] - v[hit], u[hit], v[hit]], axis=1)[:, :, None]  # (H, 3, 1) barycentric weights
-
-    verts = np.asarray(scene.triangles)[t].astype(np.float64)  # (H, 3, 3)
-    out["position"][hit] = (b * verts).sum(axis=1)
-    geo = _unit_rows(np.cross(verts[:, 1] - verts[:, 0], verts[:, 2] - verts[:, 0]))
+    pos, geo, nrm, uv = _interpolate_hits(np.asarray(scene.triangles), np.asarray(scene.normals),
+                                          np.asarray(scene.uv0), t, u[hit], v[hit])
+    out["position"][hit] = pos
     out["geo_normal"][hit] = geo
-    nrm = _unit_rows((b * np.asarray(scene.normals)[t].astype(np.float64)).sum(axis=1))
-    bad = ~np.any(nrm != 0, axis=1)
-    nrm[bad] = geo[bad]
     out["normal"][hit] = nrm
-    uv = (b * np.asarray(scene.uv0)[t].astype(np.float64)).sum(axis=1)  # (H, 2)
 
     mats = scene.materials
     mat = np.asarray(scene.material)[t].astype(np.int64)

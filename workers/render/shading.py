@@ -46,6 +46,7 @@ import numpy as np
 from proto.glsl_preprocess import ShaderSourceError, format_compile_errors, load_sources, preprocess
 from workers.kernels.ddgi import bias_scale
 from workers.kernels.grid import OFF
+from workers.kernels.samplers import MASK_OFFSET_SAMPLES
 from workers.kernels.shading import direct_irradiance
 
 from .context import create_context
@@ -134,6 +135,7 @@ class ModeResources:
     textures: dict = field(default_factory=dict)
     uniforms: dict = field(default_factory=dict)
     info: dict = field(default_factory=dict)
+    defines: dict = field(default_factory=dict)   # extra preprocessor #defines (KILN_MASK_CLUSTERS)
 
     @property
     def texture_bytes(self) -> int:
@@ -160,12 +162,14 @@ def cluster_count(arrays) -> int:
 
 
 def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask_meta: dict | None = None,
-                 prt_model=None, prt_coefficients=None) -> ModeResources:
+                 mask_offset_samples: float = MASK_OFFSET_SAMPLES, prt_model=None,
+                 prt_coefficients=None) -> ModeResources:
     """Textures and uniforms of one mode from baked artifacts addressed by name (``arrays[name]``).
 
     grid : counts (nx, ny, nz), origin, spacing. mask modes need ``mask_meta`` with ``samples_per_cell`` (S),
-    ``block_size`` (T) and ``border_lo``. prt needs ``prt_model`` (:class:`workers.prt_relight.PrtModel`,
-    mono, no gamma) and ``prt_coefficients`` (n, 3) (u of PRT eq 10 per colour channel).
+    ``block_size`` (T) and ``border_lo``; they read the masks ``mask_offset_samples`` refined samples along
+    n + v (``uMaskOffset``; :func:`workers.kernels.samplers.mask_values`). prt needs ``prt_model``
+    (:class:`workers.prt_relight.PrtModel`, mono, no gamma) and ``prt_coefficients`` (n, 3) (u of PRT eq 10 per colour channel).
     """
     r = ModeResources(mode, uniforms=_grid_uniforms(grid))
     nx, ny, nz = (int(c) for c in grid["counts"])
@@ -204,8 +208,11 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask
         if mode == "mask_normalized":
             names = ["cluster_weights_0123"] + (["cluster_weights_4567"] if K > 4 else [])
             r.textures["uClusterWeights"] = (stack_volumes([arrays[n] for n in names]), True)
-        r.uniforms.update(uClusterCount=K, uMaskS=float(mask_meta["samples_per_cell"]),
-                          uMaskT=float(mask_meta["block_size"]), uMaskLo=float(mask_meta["border_lo"]))
+        S = int(mask_meta["samples_per_cell"])
+        r.uniforms.update(uClusterCount=K, uMaskS=float(S),
+                          uMaskT=float(mask_meta["block_size"]), uMaskLo=float(mask_meta["border_lo"]),
+                          uMaskOffset=float(mask_offset_samples))
+        r.defines["KILN_MASK_CLUSTERS"] = K       # leaves out the code of absent clusters (gi_mask.glsl)
         r.info.update(clusters=K)
         return r
     if mode == "prt":
@@ -261,18 +268,31 @@ class ShadingRenderer:
         self._dummies: dict = {}
 
     # ------------------------------------------------------------------ setup
-    def program(self, mode: str):
-        if mode not in self.programs:
+    def _key(self, mode: str, defines: dict | None = None) -> tuple:
+        """(mode, defines) of a compiled pass; defines default to those of the mode's resources."""
+        if defines is None:
+            defines = self.modes[mode].defines if mode in self.modes else {}
+        return mode, tuple(sorted(defines.items()))
+
+    def program(self, mode: str, defines: dict | None = None):
+        """The compiled pass of ``mode`` with the extra ``defines`` (default: those of the mode's resources
+        set by :meth:`set_mode`, else none); compiled once per (mode, defines)."""
+        key = self._key(mode, defines)
+        defines = dict(key[1])
+        if key not in self.programs:
             pre = preprocess("deferred.frag.glsl", self.sources, target="desktop", slots={"mode": f"mode_{mode}.glsl"},
-                             defines={"MAX_LIGHTS": MAX_LIGHTS})
+                             defines={"MAX_LIGHTS": MAX_LIGHTS, **defines})
             try:
                 prog = self.ctx.program(vertex_shader=self.vert, fragment_shader=pre.code)
             except Exception as exc:  # moderngl raises plain Errors with the driver log
                 raise ShaderSourceError(f"mode {mode}: GLSL compile failed:\n{format_compile_errors(str(exc), pre)}"
                                         ) from exc
-            self.programs[mode] = prog
-            self._vaos[mode] = self.ctx.vertex_array(prog, [])
-        return self.programs[mode]
+            self.programs[key] = prog
+            self._vaos[key] = self.ctx.vertex_array(prog, [])
+        return self.programs[key]
+
+    def _vao(self, mode: str):
+        return self._vaos[self._key(mode)]
 
     def _texture(self, array: np.ndarray, linear: bool):
         a = np.ascontiguousarray(array)
@@ -297,7 +317,7 @@ class ShadingRenderer:
         """Upload a mode's textures (replacing an earlier upload of the same mode) and compile its program."""
         for t in self.mode_textures.pop(res.mode, {}).values():
             t.release()
-        self.program(res.mode)
+        self.program(res.mode, res.defines)
         self.modes[res.mode] = res
         self.mode_textures[res.mode] = {u: self._texture(a, lin) for u, (a, lin) in res.textures.items()}
 
@@ -375,7 +395,7 @@ class ShadingRenderer:
         self._fbo.use()
         self.ctx.viewport = (0, 0, *self._size)
         self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.BLEND)
-        self._vaos[mode].render(self._mgl.TRIANGLES, vertices=3)
+        self._vao(mode).render(self._mgl.TRIANGLES, vertices=3)
 
     def render(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> np.ndarray:
         """(H, W, 3) float32: radiance (output 0), E_indirect (1) or E_direct (2), row 0 = top."""
@@ -395,6 +415,23 @@ class ShadingRenderer:
             self.ctx.finish()
             times.append(time.perf_counter() - t0)
         return {"median_s": statistics.median(times), "min_s": min(times), "repeats": len(times)}
+
+    def time_passes(self, modes, eye=(0.0, 0.0, 0.0), repeats: int = 5) -> dict:
+        """:meth:`time_pass` of several modes measured side by side: one warm-up each, then ``repeats`` rounds
+        that time every mode once in turn, so load from other processes on this shared machine falls on all
+        modes alike and their ratios hold. Returns ``{mode: {median_s, min_s, repeats}}``."""
+        modes = list(modes)
+        for m in modes:
+            self.draw(m, 0, eye)
+            self.ctx.finish()
+        times = {m: [] for m in modes}
+        for _ in range(max(1, int(repeats))):
+            for m in modes:
+                t0 = time.perf_counter()
+                self.draw(m, 0, eye)
+                self.ctx.finish()
+                times[m].append(time.perf_counter() - t0)
+        return {m: {"median_s": statistics.median(t), "min_s": min(t), "repeats": len(t)} for m, t in times.items()}
 
     def release(self) -> None:
         for texs in self.mode_textures.values():

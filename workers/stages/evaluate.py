@@ -169,12 +169,9 @@ def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarr
         K = res.info["clusters"]
         A = 1 + (K > 4)
         vols = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
-        m = np.concatenate([SM.trilinear(v, SM.field_uvw(points, grid)) for v in vols], axis=1)[:, :K]
+        m = SM.mask_values(vols, points, normals, grid, float(res.uniforms.get("uMaskOffset", 0.0)), views)[:, :K]
         z = (m > 0).sum(axis=1)
-        f = 1.0 + A + 3.0 * z
-        if mode == "mask_normalized":
-            f += A * (z > 0)
-        return f
+        return 1.0 + A + 3.0 * z + (A if mode == "mask_normalized" else 0)
     if mode == "prt":
         return np.full(N, 4.0 * res.info["groups"])
     raise ValueError(mode)
@@ -230,7 +227,7 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
     if "mask" in modes or "mask_normalized" in modes:
         S = int(ctx.config.visibility.samples_per_cell)
         T = int(ctx.inputs["compress"].stats["block_size"])
-        mask_meta = {"samples_per_cell": S, "block_size": T, "border_lo": T - S - 1}
+        mask_meta = {"samples_per_cell": S, "block_size": T, "border_lo": int(ctx.inputs["compress"].stats.get("border_lo", T - S - 1))}
     arts: list[Artifact] = []
     per_camera = []
     sheet_rows = []
@@ -268,11 +265,12 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
                                         {"camera": cname, "exposure": k}))
             cam_metrics = {"camera": cam.to_dict(), "pixels": int(sel.sum()), "exposure": k,
                            "reference_seconds": t_ref, "reference_stats": ref["stats"], "modes": {}}
+            timings = shader.time_passes(modes, cam.position, settings.repeats)   # interleaved: fair ratios
             for m in modes:
                 eye = cam.position
                 rad = shader.render(m, 0, eye)
                 ind = shader.render(m, 1, eye)
-                timing = shader.time_pass(m, eye, settings.repeats)
+                timing = timings[m]
                 ldr = MT.tonemap(rad, k)
                 err = MT.pixel_error(ldr, ref_ldr)
                 fl = None
