@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import sqlite3
+import threading
 import time
 import uuid
 from contextlib import contextmanager
@@ -70,11 +71,17 @@ CREATE TABLE IF NOT EXISTS metrics (
 
 
 class Catalog:
-    """Thin data access over SQLite. Every method opens its own short transaction."""
+    """Thin data access over SQLite. Every write opens its own short transaction.
+
+    Reads reuse one connection per thread and process (autocommit: each statement sees the latest
+    commit). Opening a connection costs more than a bake's reads (0.5 ms of a 0.9 ms ``get_bake``),
+    and the API's request threads live long. A connection is never used across a fork.
+    """
 
     def __init__(self, path: str | os.PathLike):
         self.path = Path(path)
         self.path.parent.mkdir(parents=True, exist_ok=True)
+        self._local = threading.local()
         with self._read() as c:
             c.execute("PRAGMA journal_mode=WAL")
             c.executescript(_SCHEMA)
@@ -98,13 +105,18 @@ class Catalog:
 
     @contextmanager
     def _read(self) -> Iterator[sqlite3.Connection]:
-        c = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
-        c.row_factory = sqlite3.Row
-        c.execute("PRAGMA busy_timeout=30000")
+        c = getattr(self._local, "conn", None)
+        if c is None or self._local.pid != os.getpid():
+            c = sqlite3.connect(self.path, timeout=30.0, isolation_level=None)
+            c.row_factory = sqlite3.Row
+            c.execute("PRAGMA busy_timeout=30000")
+            self._local.conn, self._local.pid = c, os.getpid()
         try:
             yield c
-        finally:
+        except sqlite3.Error:
+            self._local.conn = None     # a broken connection is not reused (the file replaced, say)
             c.close()
+            raise
 
     # ------------------------------------------------------------------ scenes
     def add_scene(self, team: str, scene_id: str, summary: dict, filename: str | None) -> bool:

@@ -70,3 +70,33 @@ def test_catalog_bake_lifecycle(tmp_path):
     # a new Catalog on the same file (a restart) sees everything
     c2 = Catalog(tmp_path / "k.db")
     assert c2.get_bake(bid)["status"] == "cancelled" and c2.list_scenes("t", 10, 0)[1] == 1
+
+
+def test_catalog_reads_reuse_a_connection_per_thread_and_see_every_write(tmp_path):
+    """Reads keep one connection per thread (and process): each read still sees the latest commit, from
+    another Catalog (as the API sees the workers' progress), another thread, and a forked child."""
+    import threading
+
+    api, worker = Catalog(tmp_path / "k.db"), Catalog(tmp_path / "k.db")
+    bid = worker.create_bake("t", "s1", {"seed": 0}, [("ingest", "k1")])
+    assert api.get_bake(bid)["stages"][0]["progress"] == 0.0
+    first = api._local.conn
+    for p in (0.25, 0.5):
+        worker.update_stage(bid, "ingest", status="running", progress=p)
+        assert api.get_bake(bid)["stages"][0]["progress"] == p
+    assert api._local.conn is first                                 # reused, not reopened
+
+    seen = []
+    t = threading.Thread(target=lambda: seen.append((api.get_bake(bid)["status"], api._local.conn)))
+    t.start()
+    t.join()
+    assert seen[0][0] == "queued" and seen[0][1] is not first      # its own connection
+
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:                                                    # the child must not use the parent's connection
+        ok = api.get_bake(bid)["stages"][0]["progress"] == 0.5 and api._local.conn is not first
+        os.write(w, b"1" if ok else b"0")
+        os._exit(0)
+    os.waitpid(pid, 0)
+    assert os.read(r, 1) == b"1"

@@ -37,6 +37,13 @@ class BakeCreate(BaseModel):
     config: BakeConfig = Field(default_factory=BakeConfig)
 
 
+def json_response(obj) -> Response:
+    """``obj`` (plain JSON types, as the catalog returns them) as a JSON response, without FastAPI's
+    ``jsonable_encoder``: for a bake's 20 KB document that walk costs 3.3 ms against ``json.dumps``'s 0.4 ms,
+    and clients poll these routes."""
+    return Response(json.dumps(obj, separators=(",", ":"), allow_nan=False), media_type="application/json")
+
+
 def links(bake_id: str) -> dict:
     base = f"/v1/bakes/{bake_id}"
     return {"self": base, "events": f"{base}/events", "bundle": f"{base}/bundle", "artifacts": f"{base}/artifacts",
@@ -110,13 +117,13 @@ def list_bakes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.c
                limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0)):
     items, total = catalog.list_bakes(team, scene_id, status, limit, offset)
     full = [catalog.get_bake(b["id"]) for b in items]
-    return {"items": [public(b) for b in full if b], "total": total, "limit": limit, "offset": offset}
+    return json_response({"items": [public(b) for b in full if b], "total": total, "limit": limit, "offset": offset})
 
 
 @router.get("/{bake_id}", summary="A bake: status, per-stage progress, timings, error, artifacts")
-def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+async def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
              store: Store = Depends(deps.store)):
-    return public(_get(catalog, team, bake_id), store)
+    return json_response(public(_get(catalog, team, bake_id), store))
 
 
 @router.post("/{bake_id}/cancel", summary="Cancel a queued or running bake")
