@@ -267,7 +267,34 @@ def cmd_api(args) -> int:
     return EXIT_OK
 
 
+WORKER_NICE = 10
+"""Default niceness of a worker process and its work-horses: on a machine shared with the API (``kiln serve``),
+bakes yield the CPU to HTTP requests (``bench_service.py`` measures GET p99 at nice 0 and at this)."""
+
+
+def _lower_priority(nice: int | None) -> None:
+    """Set this process's niceness to ``nice`` (inherited by RQ's forked work-horses); 0 leaves it alone.
+
+    ``None``: ``KILN_WORKER_NICE``, else :data:`WORKER_NICE`. Never raises the priority above what it is.
+    """
+    if nice is None:
+        env = os.environ.get("KILN_WORKER_NICE", str(WORKER_NICE))
+        try:
+            nice = int(env)
+        except ValueError:
+            raise CliError(EXIT_USAGE, f"KILN_WORKER_NICE must be an integer in 0..19, got {env!r}") from None
+    if not 0 <= nice <= 19:
+        raise CliError(EXIT_USAGE, f"the worker's niceness must be in 0..19, got {nice}")
+    if nice == 0:
+        return
+    try:
+        os.setpriority(os.PRIO_PROCESS, 0, max(nice, os.getpriority(os.PRIO_PROCESS, 0)))
+    except OSError as e:  # not permitted here: run at the priority we have
+        print(f"kiln worker: could not set niceness {nice}: {e}", file=sys.stderr)
+
+
 def cmd_worker(args) -> int:
+    _lower_priority(args.nice)   # first, before the imports: the worker never runs a job at full priority
     import socket
 
     from rq import Queue, Worker
@@ -338,6 +365,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("worker", help="run one RQ worker (needs REDIS_URL)")
     s.add_argument("--data", default=None, help="data directory (or KILN_DATA)")
     s.add_argument("--burst", action="store_true", help="exit when the queue is empty")
+    s.add_argument("--nice", type=int, default=None,
+                   help=f"niceness 0..19 of the worker and its work-horses (default {WORKER_NICE}, or "
+                        "KILN_WORKER_NICE): bakes yield the CPU to the API on a shared machine")
     s.set_defaults(fn=cmd_worker)
 
     s = sub.add_parser("bake", help="bake a scene into a bundle (in-process, or through --server)")
