@@ -83,7 +83,8 @@ def cancel_jobs(conn: redis.Redis, bake: dict) -> None:
     for jid in job_ids(bake):
         try:
             job = Job.fetch(jid, connection=conn)
-            if job.get_status() in (JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED):
+            if job.get_status() in (JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED,
+                                    JobStatus.READY_TO_ENQUEUE):
                 job.cancel()
         except NoSuchJobError:
             continue

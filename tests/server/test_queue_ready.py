@@ -56,6 +56,13 @@ def test_a_ready_job_counts_as_live_so_recovery_does_not_re_enqueue_the_bake(con
     assert b.get_status() in kq.LIVE
 
 
+def test_cancelling_the_bake_cancels_a_ready_job_too(conn):
+    q, b = _conceded(conn)
+    kq.cancel_jobs(conn, {"id": "a", "attempt": 0, "stages": [{"name": "place"}, {"name": "relocate"}]})
+    assert b.get_status() == JobStatus.CANCELED
+    assert kq.drain_ready(conn) == [] and q.job_ids == []
+
+
 def test_the_api_drains_the_ready_registry_on_its_own(service):
     """The app's recovery loop (no worker running here) enqueues a conceded job within a few seconds."""
     import time
