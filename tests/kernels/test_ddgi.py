@@ -281,3 +281,34 @@ def test_speed_smoke():
     sample_irradiance(pts, nrm, view, counts, origin, spacing, pos, states, irr, dep)
     assert time.perf_counter() - t < 2.0
     assert math.isfinite(t)
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_cage_rays_equal_the_numpy_construction(seed):
+    """cage_rays (numba) gives exactly the rays the light stage built with numpy temporaries before."""
+    from workers.kernels.ddgi import cage_probes, cage_rays
+
+    rng = np.random.default_rng(seed)
+    counts, origin, spacing = (4, 3, 5), np.zeros(3), np.array([1.0, 1.5, 0.8])
+    P = int(np.prod(counts))
+    pos = grid.base_positions(counts, origin, spacing).reshape(-1, 3) + rng.normal(0, 0.1, (P, 3))
+    states = rng.choice([ACTIVE, OFF, SLEEPING], P, p=[0.7, 0.2, 0.1]).astype(np.uint8)
+    n = 500
+    pts = rng.uniform(-0.5, 4.5, (n, 3))
+    nrm = rng.normal(size=(n, 3))
+    nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
+    view = -nrm
+    biased, cage = cage_probes(pts, nrm, view, counts, origin, spacing, 0.3)
+    biased[:3] = pos[cage[:3, 0]]                 # points on a probe: the zero-length rays are skipped
+    live, o, d, tfar, slot = cage_rays(biased, cage, pos, states)
+
+    ref_live = states[cage] != OFF
+    dv = pos[cage] - biased[:, None, :]
+    dist = np.linalg.norm(dv, axis=-1)
+    trace = ref_live & (dist > 1e-9)
+    assert np.array_equal(live.astype(bool), ref_live)
+    assert np.array_equal(slot, np.flatnonzero(trace))
+    np.testing.assert_array_equal(o, np.broadcast_to(biased[:, None, :], dv.shape)[trace].astype(np.float32))
+    np.testing.assert_array_equal(d, (dv[trace] / dist[trace][:, None]).astype(np.float32))
+    np.testing.assert_array_equal(tfar, (dist[trace] * (1 - 1e-5)).astype(np.float32))
+    assert (~trace[:3, 0]).all()

@@ -368,6 +368,72 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     return out
 
 
+def cage_rays(biased: np.ndarray, cage: np.ndarray, probe_positions: np.ndarray, states: np.ndarray):
+    """Visibility rays from biased points to their live cage probes (``cage_probes``' outputs).
+
+    Parameters: biased (N, 3) float64, cage (N, 8) int64, probe_positions (P, 3), states (P,) uint8.
+
+    Returns ``live (N, 8) uint8`` (the probe is not OFF) and the rays of the live probes farther than
+    1e-9 m, in (point, corner) order: ``origins (M, 3) float32`` (the biased points), ``dirs (M, 3)
+    float32`` (unit, towards the probe), ``tfar (M,) float32`` (the distance less 1e-5 of it, so the
+    probe's own surface never occludes it) and ``slot (M,) int64`` (the flat index into ``live``).
+    Numba; replaces numpy temporaries of N x 8 x 3 float64 (0.5 s of the light stage at 16x8x16).
+    """
+    b = np.ascontiguousarray(biased, np.float64)
+    c = np.ascontiguousarray(cage, np.int64)
+    pos = np.ascontiguousarray(probe_positions, np.float64)
+    st = np.ascontiguousarray(states, np.uint8).ravel()
+    live = np.empty(c.shape, np.uint8)
+    m = _cage_live_kernel(c, pos, st, b, live)
+    o = np.empty((m, 3), np.float32)
+    d = np.empty((m, 3), np.float32)
+    tfar = np.empty(m, np.float32)
+    slot = np.empty(m, np.int64)
+    _cage_rays_kernel(c, pos, b, live, o, d, tfar, slot)
+    return live, o, d, tfar, slot
+
+
+@njit(cache=True, nogil=True)
+def _cage_dist(pos, p, b, i):
+    dx = pos[p, 0] - b[i, 0]
+    dy = pos[p, 1] - b[i, 1]
+    dz = pos[p, 2] - b[i, 2]
+    return dx, dy, dz, math.sqrt(dx * dx + dy * dy + dz * dz)
+
+
+@njit(cache=True, nogil=True)
+def _cage_live_kernel(cage, pos, states, b, live):
+    m = 0
+    for i in range(cage.shape[0]):
+        for k in range(8):
+            p = cage[i, k]
+            live[i, k] = states[p] != OFF
+            if live[i, k] and _cage_dist(pos, p, b, i)[3] > 1e-9:
+                m += 1
+    return m
+
+
+@njit(cache=True, nogil=True)
+def _cage_rays_kernel(cage, pos, b, live, o, d, tfar, slot):
+    m = 0
+    for i in range(cage.shape[0]):
+        for k in range(8):
+            if not live[i, k]:
+                continue
+            dx, dy, dz, dist = _cage_dist(pos, cage[i, k], b, i)
+            if dist <= 1e-9:
+                continue
+            o[m, 0] = b[i, 0]
+            o[m, 1] = b[i, 1]
+            o[m, 2] = b[i, 2]
+            d[m, 0] = dx / dist
+            d[m, 1] = dy / dist
+            d[m, 2] = dz / dist
+            tfar[m] = dist * (1 - 1e-5)
+            slot[m] = i * 8 + k
+            m += 1
+
+
 @njit(cache=True, nogil=True)
 def _cage_kernel(points, normals, views, counts, origin, spacing, bias, biased, cage):
     nx = counts[0]

@@ -32,7 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from workers.kernels.ddgi import cage_probes, sample_irradiance
+from workers.kernels.ddgi import cage_probes, cage_rays, sample_irradiance
 from workers.kernels.grid import OFF, pack_atlas, unpack_atlas
 from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
 from workers.kernels.sh import sh_project
@@ -110,17 +110,11 @@ def probe_visibility(surf: HitSurfaces, grid: dict, positions: np.ndarray, state
         b = min(H, a + VISIBILITY_CHUNK)
         biased, cage = cage_probes(surf.position[a:b], surf.normal[a:b], surf.view[a:b], grid["counts"],
                                    grid["origin"], grid["spacing"], bias)
-        live = states[cage] != OFF                                    # (h, 8)
-        d = positions[cage].astype(np.float64) - biased[:, None, :]   # biased point -> probe
-        dist = np.linalg.norm(d, axis=-1)
-        trace = live & (dist > 1e-9)
-        o = np.broadcast_to(biased[:, None, :], d.shape)[trace]
-        dirs = d[trace] / dist[trace][:, None]
-        occluded = caster.occluded(o, dirs, tfar=dist[trace] * (1 - 1e-5))
-        block = np.zeros(live.shape, bool)
-        block[trace] = occluded
-        vis[a:b] = live & ~block
-        rays += int(trace.sum())
+        live, o, dirs, tfar, slot = cage_rays(biased, cage, positions, states)   # biased point -> live probe
+        occluded = caster.occluded(o, dirs, tfar=tfar)
+        live.reshape(-1)[slot[occluded]] = 0
+        vis[a:b] = live
+        rays += int(slot.shape[0])
     return vis, rays
 
 
