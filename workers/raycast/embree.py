@@ -146,6 +146,16 @@ class EmbreeRayCaster:
         if d.shape != o.shape:
             raise ValueError(f"dirs must have the shape of origins {o.shape}, got {d.shape}")
         n = o.shape[0]
+        if np.ndim(tnear) == 0 and np.ndim(tfar) == 0:  # one interval for all rays: no per-ray float64 arrays
+            tn, tf = np.float64(tnear), np.float64(tfar)
+            if not np.isfinite(tn) or tn < 0:
+                raise ValueError("tnear must be finite and >= 0")
+            if np.isnan(tf) or tf < tn:
+                raise ValueError("tfar must be >= tnear (inf allowed)")
+            if tn > 0:
+                o = np.ascontiguousarray(np.asarray(origins, np.float64) + tn * np.asarray(dirs, np.float64),
+                                         dtype=np.float32)
+            return o, d, tn, np.full(n, tf - tn, np.float32)
         tn = _per_ray(tnear, n, "tnear")
         tf = _per_ray(tfar, n, "tfar")
         # finite / non-zero checks of origins and dirs run per chunk in the worker threads (_check_chunk)
