@@ -24,9 +24,11 @@ the rest is this wrapper's validation and output assembly.
 """
 from __future__ import annotations
 
+import math
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.sampling import rotated_directions
 
@@ -65,6 +67,48 @@ def _import_embreex():
             "workers.raycast needs the 'embreex' package (Embree 4 bindings): pip install embreex"
         ) from exc
     return rtcore_scene, TriangleMesh
+
+
+@njit(cache=True, nogil=True)
+def _any_nan_or_negative(a):
+    for i in range(a.shape[0]):
+        if not a[i] >= 0.0:   # NaN too
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True)
+def _bad_rays(o, d):
+    """0 when every ray is usable; 1: a non-finite origin or direction; 2: a zero direction."""
+    zero = False
+    for i in range(o.shape[0]):
+        for a in range(3):
+            if not (math.isfinite(o[i, a]) and math.isfinite(d[i, a])):
+                return 1
+        if d[i, 0] * d[i, 0] + d[i, 1] * d[i, 1] + d[i, 2] * d[i, 2] == 0.0:
+            zero = True
+    return 2 if zero else 0
+
+
+@njit(cache=True, nogil=True)
+def _store_hits(prim, tfar, u, v, ng, d, tri_out, t_out, u_out, v_out, back_out):
+    """embreex's per-ray results into Hits arrays; misses: tri -1, t inf, u = v = 0, not back.
+
+    Embree's Ng = (v1 - v0) x (v2 - v0), unnormalized: the back side is hit when dir . Ng > 0.
+    """
+    for i in range(prim.shape[0]):
+        if prim[i] >= 0:
+            tri_out[i] = prim[i]
+            t_out[i] = tfar[i]
+            u_out[i] = u[i]
+            v_out[i] = v[i]
+            back_out[i] = d[i, 0] * ng[i, 0] + d[i, 1] * ng[i, 1] + d[i, 2] * ng[i, 2] > 0
+        else:
+            tri_out[i] = -1
+            t_out[i] = np.inf
+            u_out[i] = 0.0
+            v_out[i] = 0.0
+            back_out[i] = False
 
 
 def _per_ray(x, n: int, name: str) -> np.ndarray:
@@ -156,6 +200,14 @@ class EmbreeRayCaster:
                 o = np.ascontiguousarray(np.asarray(origins, np.float64) + tn * np.asarray(dirs, np.float64),
                                          dtype=np.float32)
             return o, d, tn, np.full(n, tf - tn, np.float32)
+        if np.ndim(tnear) == 0 and float(tnear) == 0.0:   # per-ray tfar from 0: no float64 round trip
+            tf = np.asarray(tfar)
+            if tf.shape != (n,):
+                raise ValueError(f"tfar must be a scalar or have shape ({n},), got {tf.shape}")
+            tf = np.ascontiguousarray(tf, np.float32)   # (tf - 0) rounded once, as below
+            if _any_nan_or_negative(tf):
+                raise ValueError("tfar must be >= tnear (inf allowed)")
+            return o, d, np.float64(0.0), tf
         tn = _per_ray(tnear, n, "tnear")
         tf = _per_ray(tfar, n, "tfar")
         # finite / non-zero checks of origins and dirs run per chunk in the worker threads (_check_chunk)
@@ -171,9 +223,10 @@ class EmbreeRayCaster:
     @staticmethod
     def _check_chunk(o: np.ndarray, d: np.ndarray) -> None:
         """Validate one chunk of rays (in the worker thread: numpy releases the GIL on big arrays)."""
-        if not (np.isfinite(o).all() and np.isfinite(d).all()):
+        bad = _bad_rays(o, d)   # one pass, without the GIL
+        if bad == 1:
             raise ValueError("origins and dirs must be finite")
-        if not np.einsum("ij,ij->i", d, d).all():
+        if bad == 2:
             raise ValueError("dirs must be non-zero")
 
     def _map_chunks(self, fn, n: int):
@@ -218,14 +271,8 @@ class EmbreeRayCaster:
         def work(s: int, e: int) -> None:
             self._check_chunk(o[s:e], d[s:e])
             res = self._scene.run(o[s:e], d[s:e], dists=tf[s:e].copy(), output=1)  # run overwrites dists
-            prim = res["primID"]
-            hit = prim >= 0
-            tri[s:e] = np.where(hit, prim, -1)
-            t[s:e] = np.where(hit, res["tfar"], np.inf)
-            u[s:e] = np.where(hit, res["u"], 0.0)
-            v[s:e] = np.where(hit, res["v"], 0.0)
-            # Embree's Ng = (v1 - v0) x (v2 - v0), unnormalized: back side when dir . Ng > 0
-            back[s:e] = hit & (np.einsum("ij,ij->i", d[s:e], res["Ng"]) > 0)
+            _store_hits(res["primID"], res["tfar"], res["u"], res["v"], res["Ng"], d[s:e],
+                        tri[s:e], t[s:e], u[s:e], v[s:e], back[s:e])
 
         self._map_chunks(work, n)
         if np.any(tn > 0):
