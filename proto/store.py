@@ -51,21 +51,27 @@ class Store:
         finally:
             path.unlink(missing_ok=True)
 
-    def put_file(self, path: str | os.PathLike, move: bool = False) -> str:
-        """Add a finished file to the store; returns its sha256. ``move`` renames instead of copying."""
+    def put_file(self, path: str | os.PathLike, move: bool = False, sha256: str | None = None) -> str:
+        """Add a finished file to the store; returns its sha256.
+
+        ``move`` renames a file that lies under the store's ``tmp/`` instead of copying it. ``sha256``: the
+        caller already hashed this very file (``bundle.write_artifact`` does), so it is not read again.
+        """
         path = Path(path)
-        h = hashlib.sha256()
-        with open(path, "rb") as f:
-            while chunk := f.read(_CHUNK):
-                h.update(chunk)
-        digest = h.hexdigest()
+        if sha256 is None:
+            h = hashlib.sha256()
+            with open(path, "rb") as f:
+                while chunk := f.read(_CHUNK):
+                    h.update(chunk)
+            sha256 = h.hexdigest()
+        digest = sha256
         dest = self.blob_path(digest)
         if dest.exists():
             if move:
                 path.unlink(missing_ok=True)
             return digest
         dest.parent.mkdir(parents=True, exist_ok=True)
-        if move and path.parent.resolve() == (self.root / "tmp").resolve():
+        if move and path.resolve().is_relative_to((self.root / "tmp").resolve()):
             _fsync(path)
             os.replace(path, dest)
         else:

@@ -100,3 +100,18 @@ def test_catalog_reads_reuse_a_connection_per_thread_and_see_every_write(tmp_pat
         os._exit(0)
     os.waitpid(pid, 0)
     assert os.read(r, 1) == b"1"
+
+
+def test_put_file_moves_from_a_folder_under_tmp_and_trusts_a_given_hash(tmp_path):
+    s = Store(tmp_path / "store")
+    sub = s.root / "tmp" / "stage-x"
+    sub.mkdir(parents=True)
+    f = sub / "a.bin"
+    f.write_bytes(b"kiln" * 1000)
+    ino = f.stat().st_ino
+    digest = hashlib.sha256(b"kiln" * 1000).hexdigest()
+    assert s.put_file(f, move=True, sha256=digest) == digest
+    assert not f.exists() and s.blob_path(digest).stat().st_ino == ino   # renamed, not copied
+    g = tmp_path / "outside.bin"                                         # outside tmp/: copied, hashed
+    g.write_bytes(b"other")
+    assert s.put_file(g, move=True) == hashlib.sha256(b"other").hexdigest() and not g.exists()
