@@ -83,8 +83,7 @@ def cancel_jobs(conn: redis.Redis, bake: dict) -> None:
     for jid in job_ids(bake):
         try:
             job = Job.fetch(jid, connection=conn)
-            if job.get_status() in (JobStatus.QUEUED, JobStatus.DEFERRED, JobStatus.SCHEDULED,
-                                    JobStatus.READY_TO_ENQUEUE):
+            if job.get_status() in LIVE - {JobStatus.STARTED}:   # not yet running
                 job.cancel()
         except NoSuchJobError:
             continue

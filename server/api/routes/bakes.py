@@ -121,7 +121,7 @@ def list_bakes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.c
 
 
 @router.get("/{bake_id}", summary="A bake: status, per-stage progress, timings, error, artifacts")
-async def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
              store: Store = Depends(deps.store)):
     return json_response(public(_get(catalog, team, bake_id), store))
 
