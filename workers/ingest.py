@@ -12,7 +12,12 @@ allocates whatever a GLB chunk header claims). What is read:
 - meshes of the default scene, node transforms applied (TRS or matrix, ``EXT_mesh_gpu_instancing``,
   skins at their static pose, morph targets at their default weights), primitive modes TRIANGLES,
   TRIANGLE_STRIP and TRIANGLE_FAN (points and lines are dropped with a warning), sparse and
-  quantized/normalized accessors, interleaved buffer views;
+  quantized/normalized accessors (``KHR_mesh_quantization``), interleaved buffer views;
+- compressed geometry, decoded by :mod:`workers.gltf_compression` into the same accessor path:
+  ``KHR_draco_mesh_compression`` primitives (DracoPy; preferred over an uncompressed fallback) and
+  ``EXT_meshopt_compression`` / ``KHR_meshopt_compression`` buffer views (meshoptimizer; fallback
+  buffers without data are never read), the decoded bytes counted against
+  ``IngestLimits.max_decoded_bytes`` and the triangle limit;
 - materials: base colour factor and texture (``KHR_materials_pbrSpecularGlossiness`` diffuse when a
   material has no metallic-roughness block), emissive factor x ``KHR_materials_emissive_strength`` and
   emissive texture, ``doubleSided``; ``KHR_texture_transform`` is applied to the UVs;
@@ -32,6 +37,8 @@ References
    primitive modes), 3.7.3 (skins), 3.9 (materials).
 .. [KHR_lights_punctual] Khronos glTF extension: point, spot and directional lights.
 .. [KHR_texture_transform] Khronos glTF extension: offset, rotation, scale of texture coordinates.
+.. [KHR_draco_mesh_compression], [EXT_meshopt_compression] Khronos glTF extensions; see
+   :mod:`workers.gltf_compression`.
 """
 
 from __future__ import annotations
@@ -57,6 +64,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from workers import gltf_compression as _gc
 from workers.scene import NormalizedScene
 
 __all__ = ["IngestError", "IngestLimits", "ingest_file"]
@@ -106,6 +114,7 @@ ERROR_CODES: dict[str, int] = {
     "too_large": 413,  # upload larger than IngestLimits.max_bytes
     "too_many_triangles": 413,
     "zip_bomb": 413,
+    "decoded_too_large": 413,  # Draco/meshopt data decoding to more than IngestLimits.max_decoded_bytes
     "image_too_large": 413,
     "unreadable_upload": 500,  # the upload path itself cannot be read (a server fault, not bad input)
 }
@@ -145,6 +154,9 @@ class IngestLimits:
         Width x height of one image, read from its header before decoding (``image_too_large``, 413).
     max_json_depth : int
         Nesting of JSON objects/arrays (``json_too_deep``).
+    max_decoded_bytes : int or None
+        Draco and meshopt data: bytes after decoding, summed over the file (``decoded_too_large``, 413);
+        None means 16 x ``max_bytes``.
     """
 
     max_bytes: int = 512 * 2**20
@@ -154,6 +166,7 @@ class IngestLimits:
     max_zip_members: int = 10_000
     max_image_pixels: int = 64 * 2**20
     max_json_depth: int = 64
+    max_decoded_bytes: int | None = None
 
 
 # ---------------------------------------------------------------------------------------------- constants
@@ -190,16 +203,13 @@ HONOURED_EXTENSIONS = frozenset(
         "EXT_texture_webp",
         "EXT_mesh_gpu_instancing",
         "KHR_materials_pbrSpecularGlossiness",
+        "KHR_draco_mesh_compression",  # decoded with DracoPy (workers.gltf_compression)
+        "EXT_meshopt_compression",  # decoded with meshoptimizer (workers.gltf_compression)
+        "KHR_meshopt_compression",
     }
 )
 #: Extensions refused by name when required, with the reason given to the user.
 _REFUSED_EXTENSIONS = {
-    "KHR_draco_mesh_compression": "Draco-compressed meshes cannot be decoded here (DracoPy is not "
-    "installed); re-export the model without Draco compression",
-    "EXT_meshopt_compression": "meshoptimizer-compressed buffers cannot be decoded here; re-export the "
-    "model without meshopt compression",
-    "KHR_meshopt_compression": "meshoptimizer-compressed buffers cannot be decoded here; re-export the "
-    "model without meshopt compression",
     "KHR_texture_basisu": "KTX2/Basis Universal textures cannot be decoded here; re-export with PNG, "
     "JPEG or WebP textures",
 }
@@ -746,6 +756,9 @@ class _GltfReader:
         self._buffers: dict[int, np.ndarray] = {}
         self._accessors: dict[int, np.ndarray] = {}
         self._counts: Counter = Counter()  # things dropped, summarized as warnings at the end
+        self._meshopt_views: dict[int, np.ndarray] = {}  # bufferView -> decoded bytes
+        self._draco: dict[int, _gc.DracoGeometry] = {}  # Draco bufferView -> decoded mesh
+        self._decoded_bytes = 0  # Draco + meshopt output so far (IngestLimits.max_decoded_bytes)
 
     # ------------------------------------------------------------------ JSON access
     def _list(self, key: str, owner: dict | None = None) -> list:
@@ -813,8 +826,8 @@ class _GltfReader:
                     raise _invalid(f"{key}[{i}] is not an object")
                 if "uri" in obj:
                     kind, rel = _split_uri(obj["uri"], f"{noun} {i}")
-                    if kind == "file":
-                        self.files.locate(rel, f"{noun} {i}")
+                    if kind == "file" and not (key == "buffers" and self._meshopt_fallback(obj)):
+                        self.files.locate(rel, f"{noun} {i}")  # meshopt fallbacks are never read
 
     # ------------------------------------------------------------------ buffers and accessors
     def _buffer(self, idx, what: str) -> np.ndarray:
@@ -834,12 +847,10 @@ class _GltfReader:
         elif idx == 0 and self.bin_chunk is not None:
             data = _map_file(*self.bin_chunk)
         else:
-            meshopt = self._exts(b).get("EXT_meshopt_compression") or self._exts(b).get("KHR_meshopt_compression")
-            if isinstance(meshopt, dict) and meshopt.get("fallback"):
-                raise _err(
-                    "unsupported_extension",
-                    f"buffer {idx} is a meshopt fallback without data: "
-                    f"{_REFUSED_EXTENSIONS['EXT_meshopt_compression']}",
+            if self._meshopt_fallback(b):
+                raise _invalid(
+                    f"{what} reads buffers[{idx}], a meshopt fallback buffer without data (only "
+                    "meshopt-compressed bufferViews may refer to it)"
                 )
             raise _invalid(f"buffers[{idx}] has no uri and is not the GLB binary chunk")
         if data.size < length:
@@ -853,13 +864,8 @@ class _GltfReader:
         view = self._item("bufferViews", view_idx, what)
         what_v = f"bufferViews[{view_idx}]"
         ext = self._exts(view)
-        if "EXT_meshopt_compression" in ext or "KHR_meshopt_compression" in ext:
-            buf_obj = self._item("buffers", view.get("buffer"), what_v)
-            if "uri" not in buf_obj and not (view.get("buffer") == 0 and self.bin_chunk is not None):
-                raise _err(
-                    "unsupported_extension",
-                    f"{what_v} is meshopt-compressed: " f"{_REFUSED_EXTENSIONS['EXT_meshopt_compression']}",
-                )
+        if any(name in ext for name in _gc.MESHOPT_EXTENSIONS):
+            return self._meshopt_view(view_idx, view, ext), view  # the view's own buffer is a fallback
         buf = self._buffer(view.get("buffer"), what_v)
         off = view.get("byteOffset", 0)
         length = view.get("byteLength")
@@ -871,6 +877,115 @@ class _GltfReader:
                 f"({buf.size} bytes)"
             )
         return buf[off : off + length], view
+
+    # ------------------------------------------------------------------ compressed geometry
+    def _meshopt_fallback(self, buffer: dict) -> bool:
+        """Whether a buffer is marked ``{"fallback": true}`` by a meshopt extension [EXT_meshopt_compression]."""
+        exts = self._exts(buffer)
+        return any(isinstance(exts.get(n), dict) and exts[n].get("fallback") is True for n in _gc.MESHOPT_EXTENSIONS)
+
+    def _count_decoded(self, nbytes: int, what: str) -> None:
+        """Charge ``nbytes`` of decoded Draco/meshopt data to ``IngestLimits.max_decoded_bytes``."""
+        cap = self.limits.max_decoded_bytes
+        cap = 16 * self.limits.max_bytes if cap is None else cap
+        self._decoded_bytes += int(nbytes)
+        if self._decoded_bytes > cap:
+            raise _err(
+                "decoded_too_large",
+                f"'{self.label}': {what} brings its decompressed geometry to {self._decoded_bytes} bytes; "
+                f"the limit is {cap} bytes",
+            )
+
+    def _meshopt_view(self, view_idx: int, view: dict, ext: dict) -> np.ndarray:
+        """(count * byteStride,) uint8 decoded contents of a meshopt-compressed bufferView (cached)."""
+        if view_idx in self._meshopt_views:
+            return self._meshopt_views[view_idx]
+        name = next(n for n in _gc.MESHOPT_EXTENSIONS if n in ext)
+        what_v = f"bufferViews[{view_idx}] {name}"
+        try:
+            spec = _gc.meshopt_view(name, ext[name], view)
+        except _gc.CompressionError as exc:
+            raise _invalid(f"bufferViews[{view_idx}]: {exc}") from exc
+        self._count_decoded(spec.decoded_bytes, what_v)  # before decoding: count * byteStride is known
+        buf = self._buffer(spec.buffer, what_v)
+        end = spec.byte_offset + spec.byte_length
+        if end > buf.size:
+            raise _invalid(
+                f"{what_v} (bytes {spec.byte_offset}..{end}) runs past the end of buffer {spec.buffer} "
+                f"({buf.size} bytes)"
+            )
+        try:
+            data = _gc.decode_meshopt(buf[spec.byte_offset : end], spec)
+        except _gc.CompressionError as exc:
+            raise _invalid(f"{what_v}: {exc}") from exc
+        self._meshopt_views[view_idx] = data
+        return data
+
+    def _draco_primitive(self, prim: dict, what: str) -> dict:
+        """Decode a ``KHR_draco_mesh_compression`` primitive into the accessors it names.
+
+        The decoded faces and attributes become the cached values of the primitive's ``indices`` and
+        attribute accessors (their own ``bufferView``/``sparse`` ignored, as the extension requires:
+        Draco wins over an uncompressed fallback), so every later step reads them like any accessor.
+        Returns the primitive to read: itself, or a copy with ``mode`` 4 for a TRIANGLE_STRIP (Draco
+        decodes triangle lists). Primitives without the extension are returned unchanged.
+        """
+        ext = self._exts(prim).get("KHR_draco_mesh_compression")
+        if ext is None:
+            return prim
+        what_d = f"{what} KHR_draco_mesh_compression"
+        if not isinstance(ext, dict) or not isinstance(ext.get("attributes"), dict):
+            raise _invalid(f"{what_d} needs a 'bufferView' and an 'attributes' object")
+        mode = prim.get("mode", 4)
+        if mode not in (4, 5):
+            raise _invalid(f"{what_d}: mode must be TRIANGLES or TRIANGLE_STRIP, not {mode!r}")
+        if "indices" not in prim:
+            raise _invalid(f"{what_d}: the primitive needs an 'indices' accessor for the decoded faces")
+        view_idx = ext.get("bufferView")
+        geom = self._draco.get(view_idx) if _is_int(view_idx) else None
+        if geom is None:
+            raw, _ = self._view_bytes(view_idx, what_d)
+            try:
+                geom = _gc.decode_draco(raw)
+            except _gc.CompressionError as exc:
+                raise _invalid(f"{what_d}: {exc}") from exc
+            self._count_decoded(geom.nbytes, what_d)
+            self._draco[view_idx] = geom
+        attrs = prim["attributes"]
+        targets: dict[int, np.ndarray] = {}
+        try:
+            for sem, uid in ext["attributes"].items():
+                if sem not in attrs:
+                    raise _gc.CompressionError(f"attribute {sem} is not one of the primitive's attributes")
+                if not _is_int(uid) or uid not in geom.attributes:
+                    raise _gc.CompressionError(f"attribute {sem}: the Draco data has no attribute with id {uid!r}")
+                acc = self._item("accessors", attrs[sem], what_d)
+                dtype = _lookup(_COMPONENT_DTYPES, acc.get("componentType"))
+                ncomp = _lookup(_TYPE_SIZES, acc.get("type"))
+                if dtype is None or ncomp is None:
+                    raise _gc.CompressionError(f"attribute {sem}: accessors[{attrs[sem]}] has a bad type")
+                targets[attrs[sem]] = _gc.draco_attribute_as(
+                    geom.attributes[uid], dtype, ncomp, bool(acc.get("normalized")), geom.kinds.get(uid, -1)
+                )
+        except _gc.CompressionError as exc:
+            raise _invalid(f"{what_d}: {exc}") from exc
+        idx_acc = self._item("accessors", prim["indices"], what_d)
+        declared = idx_acc.get("count")
+        if idx_acc.get("componentType") not in _INDEX_COMPONENTS or not _is_int(declared):
+            raise _invalid(f"{what_d}: index accessors[{prim['indices']}] must be SCALAR unsigned integers")
+        if geom.faces.size > declared:  # the triangle budget was planned from the declared count
+            raise _invalid(
+                f"{what_d} decodes to {geom.faces.shape[0]} triangles, more than its indices accessor "
+                f"declares ({declared} indices)"
+            )
+        idt = _COMPONENT_DTYPES[idx_acc["componentType"]].newbyteorder("=")
+        if geom.faces.size and int(geom.faces.max()) > np.iinfo(idt).max:
+            raise _invalid(f"{what_d}: the decoded indices do not fit the indices accessor's {idt.name}")
+        faces = geom.faces.reshape(-1, 1).astype(idt)
+        faces.setflags(write=False)
+        targets[prim["indices"]] = faces
+        self._accessors.update(targets)  # refilled before every read: accessors may be shared
+        return prim if mode == 4 else {**prim, "mode": 4}
 
     def _strided(
         self, raw: np.ndarray, offset, count: int, dtype: np.dtype, ncomp: int, stride: int | None, what: str
@@ -1113,13 +1228,23 @@ class _GltfReader:
             ext = self._exts(m)
             pbr = m.get("pbrMetallicRoughness")
             sg = ext.get("KHR_materials_pbrSpecularGlossiness")
+            mr_ref = None
             if pbr is None and isinstance(sg, dict):
+                # specular-glossiness: the diffuse colour is the diffuse albedo (no metallic term)
                 base = _vec(sg.get("diffuseFactor"), 4, [1, 1, 1, 1], f"{what} diffuseFactor")
                 base_ref = self._texref(sg.get("diffuseTexture"), f"{what}.diffuseTexture")
+                metallic, roughness = 0.0, 1.0 - _num(sg.get("glossinessFactor"), 1.0, f"{what} glossinessFactor")
             else:
+                # [glTF] 3.9.2: a material without pbrMetallicRoughness has metallic 1 and roughness 1 too
                 pbr = pbr if isinstance(pbr, dict) else {}
                 base = _vec(pbr.get("baseColorFactor"), 4, [1, 1, 1, 1], f"{what} baseColorFactor")
                 base_ref = self._texref(pbr.get("baseColorTexture"), f"{what}.baseColorTexture")
+                metallic = _num(pbr.get("metallicFactor"), 1.0, f"{what} metallicFactor")
+                roughness = _num(pbr.get("roughnessFactor"), 1.0, f"{what} roughnessFactor")
+                mr_ref = self._texref(pbr.get("metallicRoughnessTexture"), f"{what}.metallicRoughnessTexture")
+            if not (0.0 <= metallic <= 1.0 and 0.0 <= roughness <= 1.0):
+                self.warnings.append(f"{what}: metallicFactor/roughnessFactor outside [0, 1] clamped")
+                metallic, roughness = min(max(metallic, 0.0), 1.0), min(max(roughness, 0.0), 1.0)
             emissive = _vec(m.get("emissiveFactor"), 3, [0, 0, 0], f"{what} emissiveFactor")
             strength_ext = ext.get("KHR_materials_emissive_strength")
             strength = _num(
@@ -1134,18 +1259,18 @@ class _GltfReader:
             if not isinstance(double_sided, bool):
                 raise _invalid(f"{what}.doubleSided must be true or false")
             alpha = m.get("alphaMode", "OPAQUE")
-            if alpha in ("MASK", "BLEND"):
+            if alpha not in ("OPAQUE", "MASK", "BLEND"):
+                raise _invalid(f"{what}.alphaMode must be OPAQUE, MASK or BLEND, not {alpha!r}")
+            cutoff = _num(m.get("alphaCutoff"), 0.5, f"{what} alphaCutoff")
+            if cutoff < 0:
+                raise _invalid(f"{what}.alphaCutoff must not be negative")
+            if alpha == "BLEND":
                 alpha_modes[alpha] += 1
-            uv_ref = base_ref or emissive_ref
-            if (
-                base_ref is not None
-                and emissive_ref is not None
-                and (
-                    base_ref.texcoord != emissive_ref.texcoord
-                    or not _same_transform(base_ref.transform, emissive_ref.transform)
-                )
-            ):
-                self.warnings.append(f"{what}: emissive texture sampled with the base colour texture's UVs")
+            uv_ref = base_ref or emissive_ref or mr_ref
+            for other, slot in ((emissive_ref, "emissive"), (mr_ref, "metallic-roughness")):
+                if (other is not None and uv_ref is not None and other is not uv_ref
+                        and (other.texcoord != uv_ref.texcoord or not _same_transform(other.transform, uv_ref.transform))):
+                    self.warnings.append(f"{what}: {slot} texture sampled with the base colour texture's UVs")
             name = m.get("name")
             materials.append(
                 {
@@ -1155,11 +1280,18 @@ class _GltfReader:
                     "emissive": [e * strength for e in emissive],
                     "emissive_texture": tex_index(emissive_ref),
                     "double_sided": double_sided,
+                    "metallic": metallic,
+                    "roughness": roughness,
+                    "metallic_roughness_texture": tex_index(mr_ref),
+                    "alpha_mode": alpha,
+                    "alpha_cutoff": cutoff,
                 }
             )
             uv_refs.append(uv_ref)
         for mode, n in sorted(alpha_modes.items()):
-            self.warnings.append(f"alphaMode {mode} ignored on {n} material{'s' * (n != 1)} (treated as opaque)")
+            self.warnings.append(
+                f"alphaMode BLEND on {n} material{'s' * (n != 1)} baked as a cutout at alpha 0.5 "
+                "(probe rays see a blended surface where its alpha is at least 0.5, and through it elsewhere)")
         return materials, textures, uv_refs
 
     # ------------------------------------------------------------------ nodes
@@ -1391,6 +1523,7 @@ class _GltfReader:
         planned = 0
         all_uv1 = True
         any_uv1 = False
+        any_color = False
         draws: list[tuple[int, int, int, dict]] = []  # (node, mesh, primitive index, primitive)
         for ni in order:
             node = nodes[ni]
@@ -1411,20 +1544,16 @@ class _GltfReader:
                 what = f"meshes[{node['mesh']}].primitives[{pi}]"
                 if not isinstance(prim, dict) or not isinstance(prim.get("attributes"), dict):
                     raise _invalid(f"{what} needs an 'attributes' object")
-                if "KHR_draco_mesh_compression" in self._exts(prim):
-                    pos_acc = prim["attributes"].get("POSITION")
-                    if pos_acc is None or "bufferView" not in self._item("accessors", pos_acc, what):
-                        raise _err(
-                            "unsupported_extension",
-                            f"{what} is Draco-compressed without uncompressed fallback: "
-                            f"{_REFUSED_EXTENSIONS['KHR_draco_mesh_compression']}",
-                        )
+                # Draco primitives are planned from their indices accessor's declared count; the
+                # decoded faces are checked against it (_draco_primitive)
                 n = self._planned_triangles(prim, what) * k
                 planned += n
                 if n and "TEXCOORD_1" not in prim["attributes"]:
                     all_uv1 = False
                 if n and "TEXCOORD_1" in prim["attributes"]:
                     any_uv1 = True
+                if n and "COLOR_0" in prim["attributes"]:
+                    any_color = True
                 draws.append((ni, node["mesh"], pi, prim))
         if planned > self.limits.max_triangles:
             raise _err(
@@ -1443,6 +1572,8 @@ class _GltfReader:
         uv1_out = np.zeros((planned, 3, 2), np.float32) if any_uv1 and planned else None
         chart_out = np.full((planned,), -1, np.int32) if uv1_out is not None else None
         mat_out = np.empty((planned,), np.int32)
+        # COLOR_0 per triangle corner (RGBA, linear), ones on primitives without it; None when none has it
+        color_out = np.ones((planned, 3, 4), np.float32) if any_color and planned else None
         cursor = 0
 
         for ni, mi, pi, prim in draws:
@@ -1453,6 +1584,7 @@ class _GltfReader:
             if "POSITION" not in attrs:
                 self._counts["primitive(s) without POSITION skipped"] += 1
                 continue
+            prim = self._draco_primitive(prim, what)  # KHR_draco_mesh_compression -> its accessors
             pos = self.accessor_float(attrs["POSITION"], f"{what} POSITION", (3,))
             n_vertices = pos.shape[0]
             tri = self._triangle_indices(prim, n_vertices, what)
@@ -1486,13 +1618,33 @@ class _GltfReader:
                             "emissive": [0.0, 0.0, 0.0],
                             "emissive_texture": None,
                             "double_sided": False,
+                            # [glTF] 3.9.6 default material: metallic 1, roughness 1 (a rough white metal)
+                            "metallic": 1.0,
+                            "roughness": 1.0,
+                            "metallic_roughness_texture": None,
+                            "alpha_mode": "OPAQUE",
+                            "alpha_cutoff": 0.5,
                         }
                     )
+                    self.warnings.append(
+                        "primitives without a material use glTF's default material (a rough white metal: "
+                        "diffuse albedo 0, its specular reflection baked as albedo 0.5)")
                 mat = default_material
                 uv_ref = None
             uv_set = uv_ref.texcoord if uv_ref is not None else 0
+            color = None
             if "COLOR_0" in attrs:
-                self._counts["primitive(s) with COLOR_0 vertex colours (ignored)"] += 1
+                # [glTF] 3.7.2.1: COLOR_0 (VEC3/VEC4 float, normalized ubyte/ushort) multiplies the base colour
+                color = self.accessor_float(attrs["COLOR_0"], f"{what} COLOR_0", (3, 4))
+                if color.shape[0] != n_vertices:
+                    raise _invalid(f"{what} COLOR_0 has {color.shape[0]} elements, POSITION {n_vertices}")
+                color = color if sel is None else color[sel]
+                if color.shape[1] == 3:
+                    color = np.concatenate([color, np.ones((color.shape[0], 1), np.float32)], axis=1)
+                if not np.isfinite(color).all():
+                    raise _err("non_finite", f"{what} has NaN or infinite COLOR_0 values")
+                if (color < 0).any():
+                    raise _invalid(f"{what} COLOR_0 has negative values")
 
             # morph targets at default weights ([glTF] 3.7.2.2), then skin or node transforms
             n_targets = len(self._list("targets", prim))
@@ -1523,9 +1675,10 @@ class _GltfReader:
 
             skin_m = self._skin_matrices(node, ni, prim, world, n_vertices, sel, what)
             mats = self._instances(node, ni, world[ni]) if skin_m is None else None
-            out = (tri_out, nrm_out, uv0_out, uv1_out, mat_out)
+            out = (tri_out, nrm_out, uv0_out, uv1_out, mat_out, color_out)
             start = cursor
-            cursor = self._emit(out, cursor, pos64, nrm, skin_m, mats, tri, uv, uv1, mat, f"{what} (node {ni})")
+            cursor = self._emit(out, cursor, pos64, nrm, skin_m, mats, tri, uv, uv1, mat, f"{what} (node {ni})",
+                                color=color)
             if uv1 is not None:
                 chart_out[start:cursor] = ni
 
@@ -1569,6 +1722,7 @@ class _GltfReader:
             warnings=list(self.warnings),
             uv1_partial=None if all_uv1 else trim(uv1_out),
             uv1_chart=trim(chart_out),
+            colors=trim(color_out),
         )
 
     _BLOCK = 1 << 19  # corners per processing block: bounds the float64 temporaries (~40 MB each)
@@ -1586,13 +1740,15 @@ class _GltfReader:
         uv1: np.ndarray | None,
         mat: int,
         what: str,
+        color: np.ndarray | None = None,
     ) -> int:
         """Write one primitive's world-space triangles into the output arrays from row ``cursor``.
 
         Parameters
         ----------
         out : tuple of arrays
-            ``(triangles (N, 3, 3), normals (N, 3, 3), uv0 (N, 3, 2), uv1 (N, 3, 2) or None, material (N,))``.
+            ``(triangles (N, 3, 3), normals (N, 3, 3), uv0 (N, 3, 2), uv1 (N, 3, 2) or None, material (N,),
+            colors (N, 3, 4) or None)``.
         pos, nrm : (V, 3) float64
             Object-space positions and normals (``nrm`` None: flat geometric normals are used).
         skin_m : (V, 4, 4) float64 or None
@@ -1603,6 +1759,8 @@ class _GltfReader:
             Corner indices into the vertices.
         uv, uv1 : (V, 2) or None
             The texture UV set for ``uv0`` (transform applied) and TEXCOORD_1.
+        color : (V, 4) float32 or None
+            COLOR_0 as linear RGBA (ones where the primitive has none).
         mat : int
             Material index for every triangle.
 
@@ -1611,7 +1769,7 @@ class _GltfReader:
         int
             The next free output row.
         """
-        tri_out, nrm_out, uv0_out, uv1_out, mat_out = out
+        tri_out, nrm_out, uv0_out, uv1_out, mat_out, color_out = out
         n_tri = tri.shape[0]
         if skin_m is not None:
             m3 = skin_m[:, :3, :3]
@@ -1655,13 +1813,13 @@ class _GltfReader:
                 tri_out[cursor:stop] = p32.reshape(-1, 3, 3)
                 nrm_out[cursor:stop] = normals.reshape(-1, 3, 3)
                 mat_out[cursor:stop] = mat
-                for src, dst, name in ((uv, uv0_out, "uv0"), (uv1, uv1_out, "TEXCOORD_1")):
+                for src, dst, name in ((uv, uv0_out, "uv0"), (uv1, uv1_out, "TEXCOORD_1"), (color, color_out, "COLOR_0")):
                     if src is None or dst is None:
                         continue
-                    c = src[corners].astype(np.float32)  # (k, t, 3, 2)
+                    c = src[corners].astype(np.float32)  # (k, t, 3, 2|4)
                     if not np.isfinite(c).all():
                         raise _err("non_finite", f"{what} has NaN or infinite {name} coordinates")
-                    dst[cursor:stop] = c.reshape(-1, 3, 2)
+                    dst[cursor:stop] = c.reshape(-1, 3, c.shape[-1])
                 cursor = stop
         return cursor
 

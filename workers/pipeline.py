@@ -85,7 +85,13 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
         if dep_rec is None:
             raise RuntimeError(f"stage {stage} needs {dep}, which is not in the store")
         inputs[dep] = _lazy(store, dep_rec)
-    ctx = StageContext(config=config, scene_loader=lambda: load_scene(store, scene_id), inputs=inputs, report=report,
+    def scene_loader() -> NormalizedScene:
+        scene = load_scene(store, scene_id)
+        scene.max_albedo = config.scene.max_albedo        # material options of the bake (workers.kernels.materials)
+        scene.specular_gi = config.scene.specular_gi
+        return scene
+
+    ctx = StageContext(config=config, scene_loader=scene_loader, inputs=inputs, report=report,
                        shard=st.shard, shard_count=st.shard_count)
     t0 = time.perf_counter()
     out = (SHARD_RUNNERS[st.parent] if st.shard is not None else RUNNERS[st.name])(ctx)

@@ -143,7 +143,7 @@ def relight(prt_arrays, lights: list[dict], caster=None, *, lightmap: bool = Tru
     model = prt_arrays if isinstance(prt_arrays, PrtModel) else PrtModel.from_arrays(prt_arrays)
     if lights and caster is None:
         raise ValueError("relight: a ray caster is needed for the shadow rays of the direct vector "
-                         "(workers.prt_relight.get_caster or workers.raycast.RayCaster(scene.triangles))")
+                         "(workers.prt_relight.get_caster or workers.raycast.caster_for_scene(scene))")
     x = direct_vector(model, list(lights), caster)
     nx, ny, nz = model.counts
     K = model.coefficients
@@ -167,16 +167,17 @@ CASTER_CACHE_SIZE = 4
 """Scenes whose ray caster (Embree BVH) stays in memory in one process."""
 
 
-def get_caster(key: str, triangles: Callable[[], np.ndarray]):
-    """A :class:`workers.raycast.RayCaster` for scene ``key``, built once (``triangles()`` gives (T, 3, 3))
-    and kept in a small LRU. Casters are safe to query from several threads."""
-    from workers.raycast import RayCaster
+def get_caster(key: str, scene: Callable[[], object]):
+    """The ray caster of scene ``key`` (:func:`workers.raycast.caster_for_scene`, cutouts included), built
+    once (``scene()`` gives the :class:`workers.scene.NormalizedScene`) and kept in a small LRU. Casters are
+    safe to query from several threads."""
+    from workers.raycast import caster_for_scene
 
     with _CASTER_LOCK:
         if key in _CASTERS:
             _CASTERS.move_to_end(key)
             return _CASTERS[key]
-    caster = RayCaster(triangles())      # built outside the lock; a race builds twice, harmlessly
+    caster = caster_for_scene(scene())    # built outside the lock; a race builds twice, harmlessly
     with _CASTER_LOCK:
         _CASTERS[key] = caster
         _CASTERS.move_to_end(key)

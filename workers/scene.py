@@ -18,13 +18,18 @@ Arrays (T = triangle count):
   mesh gave the triangle its TEXCOORD_1 (triangles with the same chart share one UV1 space, i.e. one
   lightmap; different nodes' UV1 spaces may overlap), -1 for triangles without TEXCOORD_1. Instances of
   one node (EXT_mesh_gpu_instancing) share its chart. Use :meth:`NormalizedScene.texcoord1`.
+- ``colors``    : (T, 3, 4) float32 or None, COLOR_0 per triangle corner as linear RGBA (it multiplies
+  the base colour, [glTF] 3.7.2.1); ones on triangles whose primitive has none; None when no mesh has it.
 - ``material``  : (T,) int32, index into ``materials``.
 - ``textures``  : list of (H, W, 4) uint8 RGBA images (sRGB-encoded as stored in the file).
 
 Materials and lights are plain dicts (JSON-able):
 
 - material: ``{"name", "base_color": [r,g,b,a] linear, "base_color_texture": int|None,
-  "emissive": [r,g,b] linear (factor x strength), "emissive_texture": int|None, "double_sided": bool}``
+  "emissive": [r,g,b] linear (factor x strength), "emissive_texture": int|None, "double_sided": bool,
+  "metallic": float, "roughness": float (perceptual, glTF's), "metallic_roughness_texture": int|None
+  (linear; B = metallic, G = roughness), "alpha_mode": "OPAQUE"|"MASK"|"BLEND", "alpha_cutoff": float}``.
+  Scenes stored before these keys existed read as metallic 0, opaque (see :mod:`workers.kernels.materials`).
 - light: ``{"type": "point"|"spot"|"directional", "color": [r,g,b], "intensity": float,
   "range": float|None, "position": [x,y,z]|None, "direction": [x,y,z]|None (unit, the direction
   light travels), "inner_cone_angle", "outer_cone_angle", "name"}``
@@ -55,6 +60,13 @@ class NormalizedScene:
     warnings: list[str] = field(default_factory=list)
     uv1_partial: np.ndarray | None = None
     uv1_chart: np.ndarray | None = None
+    colors: np.ndarray | None = None
+    #: Upper bound on the diffuse GI albedo at every hit (``scene.max_albedo`` of the bake config); not part
+    #: of the scene's bytes or id: the bake sets it on its loaded copy.
+    max_albedo: float | None = field(default=None, compare=False)
+    #: How much of the specular reflection the GI albedo carries (``scene.specular_gi``,
+    #: :mod:`workers.kernels.materials`); like ``max_albedo``, set by the bake, not stored.
+    specular_gi: str = field(default="metals", compare=False)
 
     # ------------------------------------------------------------------ properties
     @property
@@ -102,6 +114,8 @@ class NormalizedScene:
             arrays["uv1_partial"] = np.ascontiguousarray(self.uv1_partial, np.float32)
         if self.uv1_chart is not None:
             arrays["uv1_chart"] = np.ascontiguousarray(self.uv1_chart, np.int32)
+        if self.colors is not None:
+            arrays["colors"] = np.ascontiguousarray(self.colors, np.float32)
         for i, t in enumerate(self.textures):
             arrays[f"texture_{i:04d}"] = np.ascontiguousarray(t, np.uint8)
         meta = {"materials": self.materials, "lights": self.lights, "warnings": self.warnings,
@@ -131,4 +145,5 @@ class NormalizedScene:
                 warnings=meta.get("warnings", []),
                 uv1_partial=z["uv1_partial"] if "uv1_partial" in z.files else None,
                 uv1_chart=z["uv1_chart"] if "uv1_chart" in z.files else None,
+                colors=z["colors"] if "colors" in z.files else None,
             )

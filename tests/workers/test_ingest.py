@@ -601,9 +601,15 @@ def test_material_details(tmp_path):
         "emissive": [0, 0, 0],
         "emissive_texture": None,
         "double_sided": False,
+        "metallic": 1.0,                      # glTF's defaults: metallicFactor 1, roughnessFactor 1
+        "roughness": 1.0,
+        "metallic_roughness_texture": None,
+        "alpha_mode": "MASK",                 # a cutout for every ray (workers.raycast.cutout)
+        "alpha_cutoff": 0.5,
     }
-    assert "alphaMode MASK ignored on 1 material (treated as opaque)" in s.warnings
-    assert "1 primitive with COLOR_0 vertex colours (ignored)" in s.warnings
+    assert s.materials[0]["metallic"] == 0.0  # specular-glossiness: the diffuse factor is the albedo
+    assert not any("MASK" in w for w in s.warnings)
+    np.testing.assert_array_equal(s.colors[1], 1.0)   # COLOR_0 kept (RGBA, per corner)
 
 
 # ---------------------------------------------------------------------------------------------- bad inputs
@@ -820,8 +826,6 @@ def test_invalid_image(tmp_path):
 @pytest.mark.parametrize(
     "ext",
     [
-        "KHR_draco_mesh_compression",
-        "EXT_meshopt_compression",
         "KHR_texture_basisu",
         "FAKE_quantum_rendering",
         "KHR_materials_transmission",
@@ -832,19 +836,25 @@ def test_unsupported_extension(tmp_path, ext):
     expect_error("unsupported_extension", write_glb(tmp_path / "a.glb", g), contains=ext)
 
 
-def test_draco_primitive_without_fallback_is_refused_even_when_optional(tmp_path):
+@pytest.mark.parametrize(
+    "ext", ["KHR_draco_mesh_compression", "EXT_meshopt_compression", "KHR_meshopt_compression"]
+)
+def test_compression_extensions_are_honoured_when_required(tmp_path, ext):
+    # decoded, not refused (workers.gltf_compression; tests/workers/test_ingest_compression.py); a file
+    # that only names them reads normally
+    s = ingest_file(write_glb(tmp_path / "a.glb", minimal(extensionsUsed=[ext], extensionsRequired=[ext])))
+    assert s.n_triangles == 2 and not any("extensions ignored" in w for w in s.warnings)
+
+
+def test_draco_primitive_is_decoded_even_with_fallback(tmp_path):
+    # Draco is preferred over the uncompressed fallback: a bufferView that is not Draco data is an error
+    # (invalid_gltf), whether the accessors have a fallback bufferView or not
     g = minimal(extensionsUsed=["KHR_draco_mesh_compression"])
     prim = g.doc["meshes"][0]["primitives"][0]
     prim["extensions"] = {"KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {"POSITION": 0}}}
+    expect_error("invalid_gltf", write_glb(tmp_path / "a.glb", g), contains="Draco")
     del g.doc["accessors"][prim["attributes"]["POSITION"]]["bufferView"]
-    expect_error("unsupported_extension", write_glb(tmp_path / "a.glb", g), contains="Draco")
-    # with uncompressed fallback data the primitive is read normally
-    g = minimal(extensionsUsed=["KHR_draco_mesh_compression"])
-    g.doc["meshes"][0]["primitives"][0]["extensions"] = {
-        "KHR_draco_mesh_compression": {"bufferView": 0, "attributes": {}}
-    }
-    s = ingest_file(write_glb(tmp_path / "b.glb", g))
-    assert s.n_triangles == 2 and "extensions ignored: KHR_draco_mesh_compression" in s.warnings
+    expect_error("invalid_gltf", write_glb(tmp_path / "b.glb", g), contains="Draco")
 
 
 def test_unsupported(tmp_path):
@@ -1256,9 +1266,16 @@ def test_zdm2_sauerbraten():
             "emissive": [0.0, 0.0, 0.0],
             "emissive_texture": None,
             "double_sided": False,
+            # glTF 3.9.6's default material: a rough white metal (GI albedo 0.5, workers.kernels.materials)
+            "metallic": 1.0,
+            "roughness": 1.0,
+            "metallic_roughness_texture": None,
+            "alpha_mode": "OPAQUE",
+            "alpha_cutoff": 0.5,
         }
     ]
-    assert (s.material == 0).all() and s.lights == [] and s.warnings == []
+    assert (s.material == 0).all() and s.lights == [] and len(s.warnings) == 1
+    assert "default material" in s.warnings[0]
 
 
 @needs_scenes

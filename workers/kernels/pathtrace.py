@@ -223,7 +223,7 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     -------
     PathTraceResult
     """
-    from workers.raycast import RayCaster
+    from workers.raycast import caster_for_scene
 
     pts = np.asarray(points, np.float64)
     nrm = np.asarray(normals, np.float64)
@@ -241,7 +241,7 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
         raise ValueError("indirect_irradiance: points and normals must be finite")
     sky = np.asarray(sky, np.float64).reshape(3)
     eps = scene_eps(scene) if eps is None else float(eps)
-    caster = RayCaster(scene.triangles) if caster is None else caster
+    caster = caster_for_scene(scene) if caster is None else caster
     cc = _CountingCaster(caster)
     lights = list(lights)
     n = pts.shape[0]
@@ -573,9 +573,9 @@ def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), cast
     Returns ``{"e_direct", "e_indirect", "stderr", "radiance"}`` (H, W, 3) float32 images (0 outside
     ``gbuffer.shaded``) and ``"stats"``. ``radiance`` = :func:`exitant_radiance`.
     """
-    from workers.raycast import RayCaster
+    from workers.raycast import caster_for_scene
 
-    caster = RayCaster(scene.triangles) if caster is None else caster
+    caster = caster_for_scene(scene) if caster is None else caster
     eps = scene_eps(scene) if eps is None else float(eps)
     H, W = gbuffer.shape
     sel = gbuffer.shaded.ravel()

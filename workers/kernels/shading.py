@@ -76,11 +76,25 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     weighted bilinearly (texel centres at ``(index + 0.5) / size``), so at a texel centre the
     result is exactly that texel's decoded colour.
     """
+    return sample_texture_rgba(texture, uv, srgb=True)[:, :3]
+
+
+_LINEAR_LUT = np.arange(256) / 255.0
+
+
+def sample_texture_rgba(texture: np.ndarray, uv: np.ndarray, srgb: bool = True) -> np.ndarray:
+    """Bilinear, REPEAT-wrapped RGBA lookup: (N, 4) float64 in [0, 1].
+
+    RGB is decoded sRGB -> linear per texel when ``srgb`` (base colour, emissive: [glTF] 3.9.2), read as
+    stored otherwise (metallic-roughness, a linear texture). Alpha is always linear ([glTF] 3.9.6).
+    A texture without an alpha channel reads alpha 1; a grey (H, W) or (H, W, 1) one repeats its channel.
+    """
     tex = np.asarray(texture)
     if tex.ndim == 2:
         tex = tex[:, :, None]
     h, w = tex.shape[:2]
     rgb = tex[:, :, :3] if tex.shape[2] >= 3 else np.repeat(tex[:, :, :1], 3, axis=2)
+    alpha = tex[:, :, 3] if tex.shape[2] >= 4 else (tex[:, :, 1] if tex.shape[2] == 2 else None)
     uv = np.asarray(uv, dtype=np.float64)
     x = uv[:, 0] * w - 0.5  # continuous column index, texel centres at integers
     y = uv[:, 1] * h - 0.5  # continuous row index
@@ -90,10 +104,13 @@ def sample_texture(texture: np.ndarray, uv: np.ndarray) -> np.ndarray:
     y0 = np.mod(y0f, h).astype(np.intp)
     x1 = (x0 + 1) % w
     y1 = (y0 + 1) % h
-    lut = SRGB_TO_LINEAR_LUT
+    lut = SRGB_TO_LINEAR_LUT if srgb else _LINEAR_LUT
 
     def texel(r, c):
-        return lut[rgb[r, c]]  # (N, 3) linear
+        out = np.empty((r.shape[0], 4))
+        out[:, :3] = lut[rgb[r, c]]
+        out[:, 3] = 1.0 if alpha is None else _LINEAR_LUT[alpha[r, c]]
+        return out
 
     top = texel(y0, x0) * (1.0 - fx) + texel(y0, x1) * fx
     bottom = texel(y1, x0) * (1.0 - fx) + texel(y1, x1) * fx
@@ -165,8 +182,9 @@ def surface_at_hits(scene, tri, u, v) -> dict:
       interpolation is degenerate). Not flipped toward the ray: callers flip for backface hits.
     - ``geo_normal`` (N, 3) float32: unit ``(v1 - v0) × (v2 - v0)`` (CCW front face); zero for a
       degenerate triangle.
-    - ``albedo`` (N, 3) float32: linear base colour = ``base_color[:3]`` × texture (bilinear,
-      REPEAT, sRGB -> linear per texel) at the interpolated ``uv0``.
+    - ``albedo`` (N, 3) float32: the diffuse GI albedo of :mod:`workers.kernels.materials` (base colour
+      factor × texture × COLOR_0, × (1 − metallic), plus the specular diffuse equivalent; textures
+      bilinear, REPEAT, sRGB -> linear per texel, at the interpolated ``uv0``).
     - ``emission`` (N, 3) float32: linear emitted radiance = ``emissive`` (already × strength) ×
       emissive texture (same sampling).
     - ``double_sided`` (N,) bool: the material's ``double_sided``.
@@ -201,25 +219,13 @@ def surface_at_hits(scene, tri, u, v) -> dict:
     out["geo_normal"][hit] = geo
     out["normal"][hit] = nrm
 
-    mats = scene.materials
-    mat = np.asarray(scene.material)[t].astype(np.int64)
-    base = np.array([m["base_color"][:3] for m in mats], np.float64).reshape(-1, 3)
-    emis = np.array([m.get("emissive", [0, 0, 0]) for m in mats], np.float64).reshape(-1, 3)
-    dsided = np.array([bool(m.get("double_sided", False)) for m in mats], bool)
+    from workers.kernels.materials import surface_materials   # (materials imports this module's sampler)
 
-    def tex_ids(key):
-        return np.array([-1 if m.get(key) is None else int(m[key]) for m in mats], np.int64)
-
-    albedo = base[mat]
-    emission = emis[mat]
-    for key, values in (("base_color_texture", albedo), ("emissive_texture", emission)):
-        tid = tex_ids(key)[mat]
-        for k in np.unique(tid[tid >= 0]):  # one texture at a time, all its hits at once
-            sel = np.flatnonzero(tid == k)
-            values[sel] *= sample_texture(scene.textures[int(k)], uv[sel])
-    out["albedo"][hit] = albedo
-    out["emission"][hit] = emission
-    out["double_sided"][hit] = dsided[mat]
+    m = surface_materials(scene, t, u[hit], v[hit], uv=uv, specular_gi=getattr(scene, "specular_gi", "metals"),
+                          max_albedo=getattr(scene, "max_albedo", None))
+    out["albedo"][hit] = m["albedo"]
+    out["emission"][hit] = m["emission"]
+    out["double_sided"][hit] = m["double_sided"]
     return out
 
 

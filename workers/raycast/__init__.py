@@ -12,6 +12,9 @@ counter-clockwise front faces) and answers, for N rays:
 
 Results depend only on the rays, never on the thread count or chunking.
 
+Stages build theirs with ``caster_for_scene(scene)``: the same interface, with alpha-tested cutouts
+(glTF alphaMode MASK) transparent where their alpha is below the cutoff (:mod:`workers.raycast.cutout`).
+
 Consumers: stages (trace, relocate, classify, visibility, light, evaluate).
 """
 from __future__ import annotations
@@ -20,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Hits", "RayCaster"]
+__all__ = ["Hits", "RayCaster", "CutoutRayCaster", "caster_for_scene"]
 
 
 @dataclass(frozen=True)
@@ -69,3 +72,5 @@ from .embree import EmbreeRayCaster  # noqa: E402  (the backend needs Hits defin
 
 RayCaster = EmbreeRayCaster
 """The default backend: :class:`workers.raycast.embree.EmbreeRayCaster`."""
+
+from .cutout import CutoutRayCaster, caster_for_scene  # noqa: E402  (alpha-tested cutouts over the backend)

@@ -12,7 +12,8 @@ field           shape, dtype     content
                                  ``n · (eye - position) >= 0`` (facing the camera)
 ``geo_normal``  (H, W, 3) f32    unit geometric normal ``(v1 - v0) × (v2 - v0)``, flipped toward the
                                  camera (the side the pixel sees; offset shadow rays along it)
-``albedo``      (H, W, 3) f32    linear base colour × base-colour texture at the interpolated ``uv0``
+``albedo``      (H, W, 3) f32    the diffuse GI albedo of :mod:`workers.kernels.materials` (base colour
+                                 × texture × COLOR_0, metallic, the specular GI term) at the pixel
 ``emission``    (H, W, 3) f32    linear emissive factor (× strength) × emissive texture
 ``tri``         (H, W) int32     triangle index into ``scene.triangles``, -1 where uncovered
 ``mask``        (H, W) bool      coverage: a triangle is visible at the pixel centre
@@ -58,17 +59,20 @@ uniform mat4 u_view_proj;
 in vec3 in_pos;
 in vec3 in_normal;
 in vec2 in_uv;
+in vec4 in_color;
 in vec3 in_ngeo;
 in int in_tri;
 out vec3 v_pos;
 out vec3 v_normal;
 out vec2 v_uv;
+out float v_alpha;
 flat out vec3 v_ngeo;
 flat out int v_tri;
 void main() {
     v_pos = in_pos;
     v_normal = in_normal;
     v_uv = in_uv;
+    v_alpha = in_color.a;
     v_ngeo = in_ngeo;
     v_tri = in_tri;
     gl_Position = u_view_proj * vec4(in_pos, 1.0);
@@ -84,11 +88,14 @@ uniform bool u_has_base_tex;
 uniform bool u_has_emissive_tex;
 uniform bool u_double_sided;
 uniform bool u_cull_single_sided;
+uniform float u_base_alpha;
+uniform float u_alpha_cutoff;      // < 0: opaque; else alphaMode MASK ([glTF] 3.9.6)
 uniform sampler2D u_base_tex;      // GL_SRGB8_ALPHA8: texels decoded to linear before filtering
 uniform sampler2D u_emissive_tex;
 in vec3 v_pos;
 in vec3 v_normal;
 in vec2 v_uv;
+in float v_alpha;
 flat in vec3 v_ngeo;
 flat in int v_tri;
 layout(location = 0) out vec4 o_position;   // xyz, w = 1 (coverage)
@@ -101,6 +108,11 @@ void main() {
     vec3 view = v_pos - u_eye;                   // eye -> surface
     bool back = dot(v_ngeo, view) > 0.0;
     if (back && u_cull_single_sided && !u_double_sided) discard;
+    if (u_alpha_cutoff >= 0.0) {               // a cutout's hole: rays and the camera see through it
+        float alpha = u_base_alpha * v_alpha;
+        if (u_has_base_tex) alpha *= texture(u_base_tex, v_uv).a;
+        if (alpha < u_alpha_cutoff) discard;
+    }
     float ln = length(v_normal);
     vec3 n = ln > 1e-12 ? v_normal / ln : v_ngeo;
     if (dot(n, view) > 0.0) n = -n;              // face the camera
@@ -159,11 +171,13 @@ def _scene_vertices(scene) -> tuple[np.ndarray, np.ndarray]:
     ng = np.cross(t64[:, 1] - t64[:, 0], t64[:, 2] - t64[:, 0])
     ln = np.linalg.norm(ng, axis=1, keepdims=True)
     ng = np.divide(ng, ln, out=np.zeros_like(ng), where=ln > 0).astype(np.float32)
-    rec = np.dtype([("pos", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2), ("ngeo", "<f4", 3), ("tri", "<i4")])
+    rec = np.dtype([("pos", "<f4", 3), ("normal", "<f4", 3), ("uv", "<f4", 2), ("color", "<f4", 4),
+                    ("ngeo", "<f4", 3), ("tri", "<i4")])
     v = np.zeros((T, 3), rec)
     v["pos"] = tri
     v["normal"] = np.asarray(scene.normals, np.float32)
     v["uv"] = np.asarray(scene.uv0, np.float32)
+    v["color"] = 1.0 if getattr(scene, "colors", None) is None else np.asarray(scene.colors, np.float32)
     v["ngeo"] = ng[:, None, :]
     v["tri"] = np.arange(T, dtype=np.int32)[:, None]
     return v[order].reshape(-1), order
@@ -201,8 +215,8 @@ class GBufferRenderer:
         self.program = ctx.program(vertex_shader=VERTEX_SHADER, fragment_shader=FRAGMENT_SHADER)
         verts, order = _scene_vertices(scene)
         self.vbo = ctx.buffer(verts.tobytes()) if len(verts) else None
-        self.vao = (ctx.vertex_array(self.program, [(self.vbo, "3f 3f 2f 3f 1i", "in_pos", "in_normal", "in_uv",
-                                                     "in_ngeo", "in_tri")]) if self.vbo is not None else None)
+        self.vao = (ctx.vertex_array(self.program, [(self.vbo, "3f 3f 2f 4f 3f 1i", "in_pos", "in_normal",
+                                                     "in_uv", "in_color", "in_ngeo", "in_tri")]) if self.vbo is not None else None)
         # draw ranges: one per material (uniforms + textures per draw)
         mats = np.asarray(scene.material)[order]
         self.ranges = []
@@ -299,6 +313,10 @@ class GBufferRenderer:
             mat = mats[m]
             bt, et = mat.get("base_color_texture"), mat.get("emissive_texture")
             p["u_base_color"].value = tuple(float(x) for x in mat["base_color"][:3])
+            p["u_base_alpha"].value = float(mat["base_color"][3]) if len(mat["base_color"]) > 3 else 1.0
+            mode = mat.get("alpha_mode", "OPAQUE")
+            p["u_alpha_cutoff"].value = (float(mat.get("alpha_cutoff", 0.5)) if mode == "MASK"
+                                         else 0.5 if mode == "BLEND" else -1.0)
             if "u_emissive" in p:
                 p["u_emissive"].value = tuple(float(x) for x in mat.get("emissive", [0, 0, 0])[:3])
             p["u_has_base_tex"].value = bt is not None
@@ -323,15 +341,50 @@ class GBufferRenderer:
 
         pos, nrm, geo, alb, emi = (read(t, 4, np.float32) for t in texs[:5])
         tri = read(texs[5], 1, np.int32)[..., 0].astype(np.int32) - 1
-        t2 = time.perf_counter()
         mask = tri >= 0
+        albedo, emission = surface_colors(self.scene, tri, pos[..., :3], alb[..., :3], emi[..., :3])
+        t2 = time.perf_counter()
         return GBuffer(
             position=np.ascontiguousarray(pos[..., :3]), normal=np.ascontiguousarray(nrm[..., :3]),
-            geo_normal=np.ascontiguousarray(geo[..., :3]), albedo=np.ascontiguousarray(alb[..., :3]),
-            emission=np.ascontiguousarray(emi[..., :3]), tri=np.ascontiguousarray(tri), mask=mask,
+            geo_normal=np.ascontiguousarray(geo[..., :3]), albedo=albedo,
+            emission=emission, tri=np.ascontiguousarray(tri), mask=mask,
             backface=(nrm[..., 3] > 0.5) & mask, double_sided=(geo[..., 3] > 0.5) & mask, camera=camera,
             timings={"draw_s": t1 - t0, "read_s": t2 - t1},
         )
+
+
+def surface_colors(scene, tri, position, albedo_gl, emission_gl):
+    """(H, W, 3) albedo and emission of the covered pixels from the material model every ray stage uses
+    (:func:`workers.kernels.materials.surface_materials`: COLOR_0, metallic-roughness, the specular GI
+    term), at the pixel's surface point: barycentrics from the rasterized position on its triangle.
+    Scenes whose materials are plain base colour × texture keep the rasterizer's values."""
+    from workers.kernels.materials import surface_materials
+
+    plain = (getattr(scene, "colors", None) is None and getattr(scene, "max_albedo", None) is None
+             and all(float(m.get("metallic", 0.0)) == 0.0 and m.get("metallic_roughness_texture") is None
+                     for m in scene.materials))
+    alb = np.ascontiguousarray(albedo_gl, np.float32)
+    emi = np.ascontiguousarray(emission_gl, np.float32)
+    if plain:
+        return alb, emi
+    idx = np.flatnonzero(tri.reshape(-1) >= 0)
+    t = tri.reshape(-1)[idx].astype(np.int64)
+    tv = np.asarray(scene.triangles, np.float64)[t]                      # (N, 3, 3)
+    p = np.asarray(position, np.float64).reshape(-1, 3)[idx]
+    e1, e2, w = tv[:, 1] - tv[:, 0], tv[:, 2] - tv[:, 0], p - tv[:, 0]
+    d00, d01, d11 = (e1 * e1).sum(1), (e1 * e2).sum(1), (e2 * e2).sum(1)
+    d20, d21 = (w * e1).sum(1), (w * e2).sum(1)
+    den = d00 * d11 - d01 * d01
+    den = np.where(np.abs(den) > 0, den, 1.0)
+    u = np.clip((d11 * d20 - d01 * d21) / den, 0.0, 1.0)
+    v = np.clip((d00 * d21 - d01 * d20) / den, 0.0, 1.0 - u)
+    m = surface_materials(scene, t, u, v, specular_gi=getattr(scene, "specular_gi", "metals"),
+                          max_albedo=getattr(scene, "max_albedo", None))
+    alb = alb.reshape(-1, 3).copy()
+    emi = emi.reshape(-1, 3).copy()
+    alb[idx] = m["albedo"]
+    emi[idx] = m["emission"]
+    return alb.reshape(albedo_gl.shape), emi.reshape(emission_gl.shape)
 
 
 def render_gbuffer(scene, camera: Camera, ctx=None, **kwargs) -> GBuffer:

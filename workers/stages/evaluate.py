@@ -40,7 +40,7 @@ from workers.kernels import samplers as SM
 from workers.kernels.ddgi import cage_probes
 from workers.kernels.grid import OFF
 from workers.kernels.pathtrace import reference_at_gbuffer, scene_eps
-from workers.raycast import RayCaster
+from workers.raycast import caster_for_scene
 from workers.render.cameras import Camera, auto_cameras, default_camera, fit_clip_planes
 from workers.render.context import RenderUnavailable, create_context, renderer_info
 from workers.render.gbuffer import GBufferRenderer
@@ -208,7 +208,7 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
     light_stats = ctx.inputs["light"].stats if "light" in ctx.inputs else {}
     bounces = settings.bounces or int(light_stats.get("bounces") or 1)
     B = float(ctx.config.light.self_shadow_bias)
-    caster = RayCaster(scene.triangles)
+    caster = caster_for_scene(scene)
     eps = scene_eps(scene)
     box = np.array([np.asarray(grid["origin"], np.float64),
                     np.asarray(grid["origin"]) + np.asarray(grid["spacing"]) * (np.asarray(grid["counts"]) - 1)])

@@ -15,8 +15,10 @@ Each bounce re-shades the cached hits; nothing is re-traced except the shadow ra
 Offline, so each bounce is the full Monte Carlo estimate of DDGI-I eq 1 with no hysteresis
 (α = 0): per octahedral texel direction n, ``E(n) = π · Σ_r max(0, n·ω_r) L_r / Σ_r max(0, n·ω_r)``
 (the cosine-weighted mean radiance times π, exact for constant radiance: a furnace gives π·L).
-Bounces: a fixed count (``light.bounces``) or until the summed irradiance changes by less than
-``light.tolerance`` in one bounce (capped at ``light.max_bounces``). OFF probes stay at 0.
+Bounces: a fixed count (``light.bounces``) or until the estimated light still to come (the geometric
+tail of each probe's per-bounce increments, :mod:`workers.kernels.convergence`) is below
+``light.tolerance`` of its value at every probe that matters (capped at ``light.max_bounces``; a bake that
+stops short carries the warning ``not_converged``). OFF probes stay at 0.
 
 Outputs: ``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) float32 RGBA (rgb irradiance, a = 1),
 octahedral n×n per probe with its border (grid.pack_atlas); ``probe_sh`` (nz, ny, nx, 9|4, 3) float32
@@ -32,12 +34,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from workers.kernels.convergence import probe_sums, relative_tail
 from workers.kernels.ddgi import cage_probes, cage_rays, sample_irradiance
 from workers.kernels.grid import OFF, pack_atlas, unpack_atlas
+from workers.kernels.materials import albedo_warnings
 from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
 from workers.kernels.sh import sh_project
 from workers.kernels.shading import direct_irradiance, surface_at_hits
-from workers.raycast import RayCaster
+from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 
@@ -147,7 +151,11 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
 def integrate(surf: HitSurfaces, e_direct: np.ndarray, dirs: np.ndarray, sky, grid: dict, positions: np.ndarray,
               states: np.ndarray, depth: np.ndarray, n: int, *, bounces: int | None, max_bounces: int,
               tolerance: float, bias: float, visible: np.ndarray, report=lambda f: None):
-    """Iterate bounces until converged. Returns ``(irradiance (P,n+2,n+2,3), radiance (P,R,3), history)``.
+    """Iterate bounces until converged. Returns ``(irradiance (P,n+2,n+2,3), radiance (P,R,3), history,
+    residuals)``: ``history`` the whole grid's relative change per bounce, ``residuals`` the estimated light
+    still to come per bounce, as a fraction of the probe's own value, at the worst probe that matters
+    (:func:`workers.kernels.convergence.relative_tail`). With ``bounces`` None it stops once the residual is
+    below ``tolerance`` (capped at ``max_bounces``).
 
     e_direct : (H, 3) direct irradiance at the front-face hits; grid : counts, origin, spacing;
     positions : (P, 3) relocated; states : (P,); depth : (P, m+2, m+2, 2) depth moments with border;
@@ -160,6 +168,8 @@ def integrate(surf: HitSurfaces, e_direct: np.ndarray, dirs: np.ndarray, sky, gr
     radiance[surf.miss.ravel()] = sky
     irr = np.zeros((P, n + 2, n + 2, 3), np.float32)
     history: list[float] = []
+    residuals: list[float] = []
+    deltas: list[np.ndarray] = []
     cap = bounces if bounces is not None else max_bounces
     for b in range(1, cap + 1):
         if b == 1:
@@ -168,14 +178,18 @@ def integrate(surf: HitSurfaces, e_direct: np.ndarray, dirs: np.ndarray, sky, gr
             indirect = _sample_threaded(surf, grid, positions, states, irr, depth, bias, visible)
         radiance[surf.index] = base + surf.albedo / math.pi * indirect
         new = irradiance_maps(dirs, radiance.reshape(P, R, 3), n, states)
+        step = np.abs(new - irr)
         total = float(np.abs(new).sum())
-        change = float(np.abs(new - irr).sum()) / total if total > 0 else 0.0
+        change = float(step.sum()) / total if total > 0 else 0.0
         history.append(change)
+        deltas = (deltas + [probe_sums(step)])[-3:]
+        residual, _ = relative_tail(deltas, probe_sums(new))     # the light still to come, per probe
+        residuals.append(residual)
         irr = new
         report(b / cap)
-        if bounces is None and b >= 2 and change < tolerance:
+        if bounces is None and residual < tolerance:
             break
-    return irr, radiance.reshape(P, R, 3), history
+    return irr, radiance.reshape(P, R, 3), history, residuals
 
 
 def run_light(ctx: StageContext) -> StageOutput:
@@ -198,7 +212,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     surf = hit_surfaces(scene, dirs, hits, tri)
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
     eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
-    caster = RayCaster(scene.triangles)
+    caster = caster_for_scene(scene)
     e_direct = direct_irradiance(surf.position, surf.normal, lit["lights"], caster, eps)
     t_direct = time.perf_counter() - t0
     t0 = time.perf_counter()
@@ -207,7 +221,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     ctx.report(0.1)
 
     t1 = time.perf_counter()
-    irr, radiance, history = integrate(
+    irr, radiance, history, residuals = integrate(
         surf, e_direct, dirs, lit["sky"], grid, positions, states, depth, sec.irradiance_texels,
         bounces=sec.bounces, max_bounces=sec.max_bounces, tolerance=sec.tolerance, bias=sec.self_shadow_bias,
         visible=visible, report=lambda f: ctx.report(0.1 + 0.85 * f))
@@ -219,13 +233,27 @@ def run_light(ctx: StageContext) -> StageOutput:
     rgba = np.concatenate([irr, np.ones(irr.shape[:-1] + (1,), np.float32)], axis=-1)
     active = states != OFF
     stats = {
-        "bounces": len(history), "change_per_bounce": history,
-        "converged": sec.bounces is None and len(history) >= 2 and history[-1] < sec.tolerance,
+        "bounces": len(history), "change_per_bounce": history, "residual_per_bounce": residuals,
+        "residual": residuals[-1] if residuals else 0.0,
+        "converged": bool(residuals) and residuals[-1] < sec.tolerance,
         "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
     }
+    warnings = albedo_warnings(scene, getattr(scene, "max_albedo", None), getattr(scene, "specular_gi", "metals"))
+    if not stats["converged"]:
+        res = stats["residual"]
+        shown = "not yet estimable" if not math.isfinite(res) else f"{res:.1%} of the probe's light"
+        why = (f"light.bounces = {sec.bounces} stops it" if sec.bounces is not None
+               else f"light.max_bounces = {sec.max_bounces} was reached")
+        warnings.append({"code": "not_converged", "message": (
+            f"the bounced light did not converge after {len(history)} bounces ({why}): the light still to come "
+            f"is {shown} at the worst probe (tolerance {sec.tolerance:.1%}); indirect light reads low there. "
+            "A very bright closed room (albedo near 1) converges slowly: raise light.max_bounces, or clamp with "
+            "scene.max_albedo")})
+    if warnings:
+        stats["warnings"] = warnings
     n2 = sec.irradiance_texels + 2
     return StageOutput(
         artifacts=[

@@ -78,11 +78,12 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from workers.kernels import prt as kprt
+from workers.kernels.convergence import relative_tail
 from workers.kernels.ddgi import cage_probes, sample_irradiance
 from workers.kernels.grid import OFF, unpack_atlas
 from workers.kernels.sh import sh_count, sh_project
 from workers.kernels.shading import direct_irradiance, surface_at_hits
-from workers.raycast import RayCaster
+from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
 from workers.stages.light import HitSurfaces, hit_surfaces, irradiance_maps, probe_visibility
 
@@ -188,8 +189,8 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
     Returns ``(sh (B, P, K, 3) float32, texels (B, T, 3) float32 or None, bounces (B,) int,
     maps (B, P, n+2, n+2, 3) float32)``: the probes' radiance SH (OFF probes 0), the DDGI irradiance at
     the rows of ``W_texels``, the bounce count and the converged irradiance maps of each configuration.
-    Each configuration stops by the light stage's rule (fixed ``bounces``, or its own change below
-    ``tolerance`` after at least 2 bounces, capped at ``max_bounces``).
+    Each configuration stops by the light stage's rule (fixed ``bounces``, or its own per-probe residual
+    below ``tolerance``, :func:`workers.kernels.convergence.relative_tail`, capped at ``max_bounces``).
     """
     P, R = surf.P, surf.R
     B = e_direct.shape[0]
@@ -208,6 +209,7 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
     count = np.zeros(B, np.int64)
     cap = bounces if bounces is not None else max_bounces
     off = states == OFF
+    deltas: list[np.ndarray] = []
     for b in range(1, cap + 1):
         if b == 1:
             radiance[surf.index] = base
@@ -216,14 +218,15 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
         new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)   # (P, t, t, 3·live)
         newf = new.reshape(P * t * t, -1)
         nb = live.size
-        total = np.abs(newf).reshape(-1, nb, 3).sum(axis=(0, 2), dtype=np.float64)
-        diff = np.abs(newf - irr).reshape(-1, nb, 3).sum(axis=(0, 2), dtype=np.float64)
-        change = np.divide(diff, total, out=np.zeros(nb), where=total > 0)
+        # per probe and configuration: the light still to come (workers.kernels.convergence, as the light stage)
+        value = np.abs(newf).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
+        deltas = (deltas + [np.abs(newf - irr).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)])[-3:]
+        residual, _ = relative_tail(deltas, value)
         irr = newf
         if b == cap:
             done = np.ones(nb, bool)
-        elif bounces is None and b >= 2:
-            done = change < tolerance
+        elif bounces is None:
+            done = np.asarray(residual) < tolerance
         else:
             done = np.zeros(nb, bool)
         if done.any():
@@ -239,6 +242,7 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
             keep = ~done
             kc = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
             live = live[keep]
+            deltas = [d[:, keep] for d in deltas]
             if live.size == 0:
                 break
             base, rho = base[:, kc], rho[:, kc]
@@ -433,7 +437,7 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
     bias = lsec.self_shadow_bias
     if kprt.triangle_areas(scene.triangles).sum() <= 0:
         raise StageError("no_surface", "the scene's triangles have no area to place measurement points on")
-    caster = RayCaster(scene.triangles)
+    caster = caster_for_scene(scene)
     rng = np.random.default_rng([ctx.config.seed, PRT_SEED_SALT])
 
     # 1. lighting scenario (PRT §4.1)
@@ -526,7 +530,7 @@ def light_stage_reference(ds: PrtDataset, lights: list[dict], light_section, lig
     pr = ds.probes
     surf = replace(pr["surf"], emission=np.zeros_like(pr["surf"].emission))
     e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"])
-    irr, radiance, _ = integrate(surf, e, pr["dirs"], (0.0, 0.0, 0.0), pr["grid"], pr["positions"], pr["states"],
+    irr, radiance, _, _ = integrate(surf, e, pr["dirs"], (0.0, 0.0, 0.0), pr["grid"], pr["positions"], pr["states"],
                                  pr["depth"], pr["n"], bounces=light_section.bounces,
                                  max_bounces=light_section.max_bounces, tolerance=light_section.tolerance,
                                  bias=pr["bias"], visible=pr["visible"])

@@ -25,7 +25,7 @@ import numpy as np
 
 from workers.kernels.grid import base_positions
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
-from workers.raycast import RayCaster
+from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 STAGE_SEED_TAG = 0x5E10CA7E
@@ -115,7 +115,7 @@ def run_relocate(ctx: StageContext) -> StageOutput:
     positive = spacing[spacing > 0]
     min_spacing = float(positive.min()) if positive.size else 1.0
     limit = sec.max_offset * spacing
-    caster = RayCaster(scene.triangles)
+    caster = caster_for_scene(scene)
     ds = double_sided_triangles(scene)
     rng = np.random.default_rng([ctx.config.seed, STAGE_SEED_TAG])
     pattern = fibonacci_sphere(sec.rays_per_probe)

@@ -27,7 +27,7 @@ import numpy as np
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
 from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
-from workers.raycast import RayCaster
+from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
 from workers.stages.relocate import double_sided_triangles, trace_probes
 
@@ -71,7 +71,7 @@ def run_trace(ctx: StageContext) -> StageOutput:
     nx, ny, nz = counts
     scene = ctx.scene
     positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float64)
-    caster = RayCaster(scene.triangles)
+    caster = caster_for_scene(scene)
     rng = np.random.default_rng([ctx.config.seed, STAGE_SEED_TAG])
     dirs = (fibonacci_sphere(sec.rays_per_probe).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
     t, tri, u, v, back, ray_seconds = trace_probes(caster, positions, dirs, double_sided_triangles(scene))

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from workers.kernels.visibility import field_shape, join_slabs, slab_ranges, theta_slab
-from workers.raycast import RayCaster
+from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
 from workers.stages.relocate import double_sided_triangles
 
@@ -41,7 +41,7 @@ def run_visibility_slab(ctx: StageContext) -> StageOutput:
     states = ctx.inputs["trace"]["probe_states"].reshape(-1)
     if z1 > z0:
         scene = ctx.scene
-        caster = RayCaster(scene.triangles)
+        caster = caster_for_scene(scene)
         theta, dont_care, stats = theta_slab(caster, counts, origin, spacing, positions, states, S, (z0, z1),
                                              rays=sec.rays, jitter=sec.jitter, seed=ctx.config.seed,
                                              double_sided_tris=double_sided_triangles(scene))

@@ -133,7 +133,7 @@ def relight_bake(bake_id: str, body: RelightRequest,
     t0 = time.perf_counter()
     model = _prt_model(store, infos)
     scene_id = bake["scene_id"]
-    caster = get_caster(scene_id, lambda: NormalizedScene.from_bytes(store.read_bytes(scene_id)).triangles)
+    caster = get_caster(scene_id, lambda: NormalizedScene.from_bytes(store.read_bytes(scene_id)))
     t1 = time.perf_counter()
     lights = [light.model_dump(mode="json") for light in body.lights]
     out = relight(model, lights, caster, lightmap=body.lightmap)
