@@ -11,11 +11,19 @@
 #endif
 #include "tonemap.glsl"
 #include "gi_view.glsl"
+#include "material.glsl"
 #include "@mode"
 
 uniform vec3 uBaseColor;           // linear RGB (glTF baseColorFactor)
 uniform sampler2D uBaseColorMap;   // sRGB texture, decoded to linear by the sampler
 uniform bool uHasBaseColorMap;
+uniform float uBaseAlpha;          // baseColorFactor alpha
+uniform bool uHasVertexColor;      // COLOR_0 multiplies the base colour ([glTF] 3.7.2.1)
+uniform float uMetallic;           // metallicFactor
+uniform float uRoughness;          // roughnessFactor (perceptual)
+uniform sampler2D uMetallicRoughnessMap;   // linear: G = roughness, B = metallic
+uniform bool uHasMetallicRoughnessMap;
+uniform float uAlphaCutoff;        // < 0 opaque; else alphaMode MASK (BLEND is baked as a cutout at 0.5)
 uniform vec3 uEmissive;            // linear RGB radiance (emissiveFactor · strength)
 uniform float uIndirectScale;      // 1 normally, 0 to hide GI
 uniform vec3 cameraPosition;       // set by three.js for every ShaderMaterial (the ddgi mode's view bias)
@@ -24,14 +32,24 @@ uniform int uOutput;               // 0 shaded, 1 indirect irradiance only, 2 di
 in vec3 vWorldPos;
 in vec3 vWorldNormal;
 in vec2 vUv;
+in vec4 vColor;
 
 out vec4 fragColor;
 
 void main() {
   vec3 n = normalize(vWorldNormal);
   if (!gl_FrontFacing) n = -n;  // back faces (double-sided or seen from inside) shade with the flipped normal
-  vec3 albedo = uBaseColor;
-  if (uHasBaseColorMap) albedo *= texture(uBaseColorMap, vUv).rgb;
+  vec4 base = vec4(uBaseColor, uBaseAlpha);
+  if (uHasBaseColorMap) base *= texture(uBaseColorMap, vUv);
+  if (uHasVertexColor) base *= vColor;
+  if (uAlphaCutoff >= 0.0 && base.a < uAlphaCutoff) discard;   // a cutout's hole, as the bake's rays see it
+  float metallic = uMetallic, roughness = uRoughness;
+  if (uHasMetallicRoughnessMap) {
+    vec4 mr = texture(uMetallicRoughnessMap, vUv);
+    roughness *= mr.g;
+    metallic *= mr.b;
+  }
+  vec3 albedo = giAlbedo(base.rgb, metallic, roughness);
   giViewDir = normalize(cameraPosition - vWorldPos);
   vec3 eDirect = directIrradiance(vWorldPos, n);
   vec3 eIndirect = uIndirectScale * giIndirectIrradiance(vWorldPos, n);

@@ -42,6 +42,8 @@ export class GIRenderer {
     this.timer = new FrameTimer(this.gl);
     this.lightsVec = () => Array.from({ length: MAX_LIGHTS }, () => new Vector4());
     this.shared = {
+      uSpecularGI: { value: 1 },   // the bake's scene.specular_gi: 0 none, 1 metals, 2 all (material.glsl)
+      uMaxAlbedo: { value: 0 },    // the bake's scene.max_albedo, 0 = no clamp
       uExposure: { value: 1 },
       uIndirectScale: { value: 1 },
       uOutput: { value: 0 },
@@ -133,6 +135,12 @@ export class GIRenderer {
 
   setExposure(x) { this.shared.uExposure.value = x; this.updateClearColor(); }
   setOutput(name) { this.shared.uOutput.value = OUTPUTS[name] ?? 0; }
+
+  /** The bake's material options (config.scene.specular_gi, max_albedo), as the bake read the scene. */
+  setMaterialOptions(scene = {}) {
+    this.shared.uSpecularGI.value = { none: 0, metals: 1, all: 2 }[scene.specular_gi ?? 'metals'] ?? 1;
+    this.shared.uMaxAlbedo.value = scene.max_albedo ?? 0;
+  }
 
   setSky(sky) {
     this.sky = sky || [0, 0, 0];
@@ -226,6 +234,15 @@ export class GIRenderer {
         uBaseColorMap: { value: original.map || null },
         uHasBaseColorMap: { value: !!original.map },
         uEmissive: { value: emissive },
+        // glTF's material model as the bake reads it (workers/kernels/materials.py, proto/glsl/material.glsl)
+        uBaseAlpha: { value: original.opacity ?? 1 },
+        uHasVertexColor: { value: !!original.vertexColors },
+        uMetallic: { value: original.metalness ?? 0 },
+        uRoughness: { value: original.roughness ?? 1 },
+        uMetallicRoughnessMap: { value: original.metalnessMap || original.roughnessMap || null },
+        uHasMetallicRoughnessMap: { value: !!(original.metalnessMap || original.roughnessMap) },
+        // MASK: GLTFLoader's alphaTest is the cutoff; BLEND (transparent) is baked as a cutout at 0.5
+        uAlphaCutoff: { value: original.alphaTest > 0 ? original.alphaTest : (original.transparent ? 0.5 : -1) },
       },
       side: original.side === DoubleSide ? DoubleSide : FrontSide,
     });

@@ -206,6 +206,7 @@ export class Viewer {
     this.bakeLights = gltfLights(root);
     this.renderer.setLights(this.bakeLights);
     this.renderer.setSky([0, 0, 0]);
+    this.renderer.setMaterialOptions((bake && bake.config && bake.config.scene) || {});
     this.prt = null;
     this.prtLightsOn = false;
     this.showGizmo(false);
