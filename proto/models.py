@@ -87,6 +87,17 @@ class SceneSection(_Strict):
                                       description="lights added to the scene's own KHR_lights_punctual lights")
     use_scene_lights: bool = Field(True, description="keep the lights the glTF defines")
     sky: Vec3 = Field((0.0, 0.0, 0.0), description="uniform sky radiance seen by rays that miss, linear RGB")
+    max_albedo: float | None = Field(
+        None, gt=0.0, le=1.0,
+        description="clamp every surface's diffuse GI albedo to this (per channel); default: the albedo the file "
+                    "says (an albedo of 0.95 or more is kept but warned about: a closed room of albedo 1 never "
+                    "converges)")
+    specular_gi: Literal["metals", "all", "none"] = Field(
+        "metals",
+        description="the diffuse equivalent of specular reflection in the GI albedo (Unity's meta pass: "
+                    "specular x roughness^2 / 2): 'metals' for the metallic lobe only (dielectrics keep glTF's "
+                    "diffuse term), 'all' for Unity's formula with F0 = 0.04 on dielectrics, 'none' for glTF's "
+                    "diffuse term alone")
 
     @field_validator("sky")
     @classmethod
@@ -119,9 +130,13 @@ class PlaceSection(_Strict):
     ``ceil(extent / spacing) + 1`` per axis and the grid is centred on the box.
     """
 
-    counts: tuple[Count, Count, Count] | None = Field((8, 8, 8), description="probes along x, y, z")
+    counts: tuple[Count, Count, Count] | None = Field(
+        None, description="probes along x, y, z; default (neither counts nor spacing): chosen from the scene "
+                          "(its enclosed spaces, room sizes and wall thicknesses, under `budget`; manifest grid.auto)")
     spacing: float | None = Field(None, gt=0.0, le=1e4, description="metres between probes")
-    box: Box | None = Field(None, description="grid box; default: the scene bounds")
+    box: Box | None = Field(None, description="grid box; default: the scene bounds (the automatic grid: the "
+                                              "bounds of its enclosed spaces)")
+    budget: int = Field(24_000, ge=8, le=MAX_PROBES, description="most probes of the automatic grid")
     padding: float = Field(0.0, ge=0.0, le=0.5,
                            description="fraction of each extent added on both sides of the box")
 
@@ -135,8 +150,8 @@ class PlaceSection(_Strict):
 
     @model_validator(mode="after")
     def _one_of(self) -> "PlaceSection":
-        if (self.counts is None) == (self.spacing is None):
-            raise ValueError("give exactly one of counts or spacing")
+        if self.counts is not None and self.spacing is not None:
+            raise ValueError("give at most one of counts or spacing (neither: chosen from the scene)")
         if self.counts is not None and math.prod(self.counts) > MAX_PROBES:
             raise ValueError(f"at most {MAX_PROBES} probes")
         return self
@@ -159,9 +174,11 @@ class LightSection(_Strict):
     """Multi-bounce probe irradiance (DDGI-I §3.4-3.5; stage light)."""
 
     bounces: int | None = Field(None, ge=1, le=256, description="a fixed number of bounces; default: until converged")
-    max_bounces: int = Field(64, ge=1, le=256, description="cap when iterating to convergence")
+    max_bounces: int = Field(128, ge=1, le=1024, description="cap when iterating to convergence")
     tolerance: float = Field(0.005, gt=0.0, le=0.5,
-                             description="stop when the irradiance changes by less than this fraction in a bounce")
+                             description="stop when the light still to come (the geometric tail of each probe's "
+                                         "per-bounce change) is below this fraction of the probe's light, at "
+                                         "every probe")
     irradiance_texels: int = Field(8, ge=4, le=32, description="octahedral irradiance map size per probe (+1 border)")
     sh_order: Literal[1, 2] = Field(2, description="spherical-harmonics order of the per-probe SH output")
     self_shadow_bias: float = Field(0.3, ge=0.0, le=2.0, description="B of DDGI-P eq 2")
@@ -170,7 +187,9 @@ class LightSection(_Strict):
 class VisibilitySection(_Strict):
     """The visibility field θ of MD §3.4 step 1 (stage visibility)."""
 
-    samples_per_cell: int = Field(8, ge=1, le=32, description="refined-grid samples per cell axis (S)")
+    samples_per_cell: int | None = Field(
+        None, ge=1, le=32, description="refined-grid samples per cell axis (S); default: the automatic grid's "
+                                       "choice (both sides of the thinnest walls), else 8")
     rays: int = Field(1, ge=1, le=64, description="occlusion rays per sample and probe: 1 = binary, more = soft")
     jitter: float = Field(0.05, ge=0.0, le=0.5,
                           description="radius of the jittered ray targets around a probe, fraction of the spacing")
@@ -327,6 +346,20 @@ class SceneSummary(BaseModel):
     warnings: list[str] = Field(default_factory=list)
 
 
+class BakeWarning(BaseModel):
+    """Something that makes a bake probably wrong without failing it (an unlit scene, light that did not
+    converge, ...), shown to the user by the API, the CLI and the web app.
+
+    ``code`` is a stable machine-readable word (``not_converged``, ``unlit_scene``, ``scene`` for the scene's
+    own ingest warnings, ...), ``message`` a sentence for people, ``stage`` the stage that emitted it
+    (None for the scene's ingest warnings, found when the file was uploaded).
+    """
+
+    code: str
+    message: str
+    stage: str | None = None
+
+
 class Manifest(BaseModel):
     """``manifest.json`` of a bundle (proto/bundle.md)."""
 
@@ -338,6 +371,7 @@ class Manifest(BaseModel):
     grid: dict[str, Any] = Field(default_factory=dict)
     stages: list[StageInfo] = Field(default_factory=list)
     artifacts: list[ArtifactInfo] = Field(default_factory=list)
+    warnings: list[BakeWarning] = Field(default_factory=list)
 
     def artifact(self, name: str) -> ArtifactInfo:
         for a in self.artifacts:

@@ -12,7 +12,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from proto import bundle
-from proto.models import ArtifactInfo, BakeConfig, Manifest, SceneSummary, StageInfo
+from proto.models import ArtifactInfo, BakeConfig, BakeWarning, Manifest, SceneSummary, StageInfo
 from proto.catalog import Catalog
 from proto.store import Store, atomic_write_bytes
 
@@ -34,8 +34,8 @@ class StageDef:
 
 
 STAGES: tuple[StageDef, ...] = (
-    StageDef("ingest", 1, ("scene",), (), timeout=600),
-    StageDef("place", 1, ("place",), ("ingest",), timeout=600),
+    StageDef("ingest", 2, ("scene",), (), timeout=600),   # 2: stats["warnings"] (unlit_scene, light_outside_scene)
+    StageDef("place", 2, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     StageDef("light", 1, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
@@ -111,9 +111,53 @@ def plan(scene_id: str, config: BakeConfig) -> list[tuple[StageDef, str]]:
     return out
 
 
+def _stage_warnings(stage: str, stats: dict | None) -> list[BakeWarning]:
+    """A stage's ``stats["warnings"]`` (``[{"code", "message"}, ...]``) as BakeWarnings tagged with the stage.
+
+    Lenient on purpose: a malformed entry (a plain string, a missing code) still becomes a warning rather
+    than failing the bake or vanishing.
+    """
+    raw = (stats or {}).get("warnings") if isinstance(stats, dict) else None
+    if not raw:
+        return []
+    if isinstance(raw, (str, dict)):
+        raw = [raw]
+    out = []
+    for w in raw:
+        if isinstance(w, dict):
+            code = str(w.get("code") or "warning")
+            message = str(w.get("message") if w.get("message") is not None else code)
+        else:
+            code, message = "warning", str(w)
+        out.append(BakeWarning(code=code, message=message, stage=stage))
+    return out
+
+
+def collect_warnings(stages: list[tuple[str, dict | None]], scene_warnings: list[str] | None = None
+                     ) -> list[BakeWarning]:
+    """Every warning of a bake: the scene's ingest warnings (code ``scene``, stage None) first, then each
+    stage's ``stats["warnings"]`` in stage order, tagged with the stage's name.
+
+    ``stages`` is ``[(stage name, stats), ...]`` in run order. The shards of a sharded stage (``visibility.0``,
+    ...) are tagged with their stage's name (``visibility``), and identical warnings are kept once (the same
+    warning from every shard, or from a shard and its join).
+    """
+    out: list[BakeWarning] = [BakeWarning(code="scene", message=str(m), stage=None) for m in scene_warnings or []]
+    for name, stats in stages:
+        out += _stage_warnings(name.split(".", 1)[0], stats)
+    seen, unique = set(), []
+    for w in out:
+        key = (w.code, w.message, w.stage)
+        if key not in seen:
+            seen.add(key)
+            unique.append(w)
+    return unique
+
+
 def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_id: str | None = None,
                    cached: dict[str, bool] | None = None) -> Manifest:
-    """The bundle manifest of a bake whose stages are all in the store."""
+    """The bundle manifest of a bake whose stages are all in the store, with every stage's and the scene's
+    warnings collected into ``warnings`` (:func:`collect_warnings`)."""
     stages, artifacts, grid = [], [], {}
     for st, key in plan(scene_summary["id"], config):
         rec = store.get_stage(key)
@@ -125,8 +169,12 @@ def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_i
         artifacts += [ArtifactInfo(**a) for a in rec["artifacts"] if not a.get("meta", {}).get("internal")]
         if st.name == "place":
             grid = {k: rec["stats"][k] for k in ("counts", "origin", "spacing")}
+            if rec["stats"].get("auto") is not None:
+                grid["auto"] = rec["stats"]["auto"]     # what the automatic grid chose, and why
+    warnings = collect_warnings([(s.name, s.stats) for s in stages], scene_summary.get("warnings"))
     return Manifest(kiln_version=KILN_VERSION, bake_id=bake_id, scene=SceneSummary(**scene_summary),
-                    config=config.model_dump(mode="json"), grid=grid, stages=stages, artifacts=artifacts)
+                    config=config.model_dump(mode="json"), grid=grid, stages=stages, artifacts=artifacts,
+                    warnings=warnings)
 
 
 def finalize_bake(catalog: Catalog, store: Store, bake: dict) -> dict:

@@ -10,6 +10,10 @@ Exit codes (stable, for build tools):
 | 3 | bad input: the scene or the config was refused (the message names the reason or field) |
 | 4 | the bake failed or was cancelled |
 | 5 | the server could not be reached or answered unexpectedly |
+| 6 | ``kiln bake --strict`` only: the bake succeeded (bundle written) but carries warnings |
+
+``kiln bake`` prints each warning of the bake (the manifest's ``warnings``) to stderr as
+``kiln: warning [code] message``, with or without ``--json``.
 """
 from __future__ import annotations
 
@@ -20,7 +24,7 @@ import sys
 import time
 from pathlib import Path
 
-EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INPUT, EXIT_BAKE, EXIT_SERVER = 0, 1, 2, 3, 4, 5
+EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INPUT, EXIT_BAKE, EXIT_SERVER, EXIT_WARNINGS = 0, 1, 2, 3, 4, 5, 6
 
 
 class CliError(Exception):
@@ -118,8 +122,9 @@ def bake_local(args) -> int:
     finally:
         prog.close()
     export_bundle(store, manifest, args.out)
-    _print_result(args, manifest.model_dump(mode="json"))
-    return EXIT_OK
+    data = manifest.model_dump(mode="json")
+    _print_result(args, data)
+    return _report_warnings(args, data["warnings"])
 
 
 def _print_result(args, manifest: dict) -> None:
@@ -129,6 +134,17 @@ def _print_result(args, manifest: dict) -> None:
     stages = ", ".join(f"{s['name']} {s['seconds']:.2f}s{' (cached)' if s.get('cached') else ''}"
                        for s in manifest["stages"])
     print(f"baked scene {manifest['scene']['id'][:12]} -> {args.out} ({len(manifest['artifacts'])} artifacts; {stages})")
+
+
+def _report_warnings(args, warnings: list[dict]) -> int:
+    """Print each warning to stderr; the exit code: EXIT_WARNINGS with ``--strict`` and any warning."""
+    for w in warnings:
+        print(f"kiln: warning [{w.get('code')}] {w.get('message')}", file=sys.stderr)
+    if warnings and getattr(args, "strict", False):
+        print(f"kiln: --strict: the bake has {len(warnings)} warning{'s' if len(warnings) != 1 else ''} "
+              f"(bundle written to {args.out})", file=sys.stderr)
+        return EXIT_WARNINGS
+    return EXIT_OK
 
 
 def bake_remote(args) -> int:
@@ -174,7 +190,9 @@ def bake_remote(args) -> int:
     except httpx.HTTPError as e:
         raise CliError(EXIT_SERVER, f"cannot talk to {base}: {e}")
     _print_result(args, manifest)
-    return EXIT_OK
+    # the bundle's manifest carries them; a server from before warnings has them on the bake at most
+    warnings = manifest.get("warnings") if "warnings" in manifest else final.get("warnings") or []
+    return _report_warnings(args, warnings)
 
 
 def _check(r, code: int) -> dict:
@@ -317,7 +335,7 @@ def cmd_worker(args) -> int:
 
 
 def cmd_scenes_make(args) -> int:
-    from workers.procedural import SCENES, write_scene
+    from workers.procedural import ALL_SCENES as SCENES, write_scene
 
     if args.name not in SCENES:
         raise CliError(EXIT_USAGE, f"unknown scene {args.name!r}; choose from {', '.join(sorted(SCENES))}")
@@ -327,7 +345,7 @@ def cmd_scenes_make(args) -> int:
 
 
 def cmd_scenes_list(args) -> int:
-    from workers.procedural import SCENES
+    from workers.procedural import ALL_SCENES as SCENES
 
     for name, desc in sorted(SCENES.items()):
         print(f"{name:12s} {desc}")
@@ -379,6 +397,8 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--api-key", default=os.environ.get("KILN_API_KEY"), help="API key for --server")
     s.add_argument("--cache", default=str(_default_cache()), help="stage cache directory (in-process bakes)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--strict", action="store_true",
+                   help=f"exit {EXIT_WARNINGS} when the bake has any warning (the bundle is still written)")
     s.set_defaults(fn=lambda a: bake_remote(a) if a.server else bake_local(a))
 
     s = sub.add_parser("scenes", help="procedural test scenes")

@@ -70,8 +70,8 @@ def test_upload_formats_dedupe_and_listing(running, scene_files):
      422, "external_uri"),
     (b'{"asset": {"version": "2.0"}, "buffers": [{"uri": "../secret.bin", "byteLength": 4}]}',
      422, "path_traversal"),
-    (b'{"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_draco_mesh_compression"],'
-     b' "extensionsUsed": ["KHR_draco_mesh_compression"]}', 422, "unsupported_extension"),
+    (b'{"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_texture_basisu"],'
+     b' "extensionsUsed": ["KHR_texture_basisu"]}', 422, "unsupported_extension"),
     (b"", 400, "empty_upload"),
 ])
 def test_bad_uploads_get_4xx_with_code(running, payload, status, code):
@@ -249,3 +249,72 @@ def test_health_metrics_and_schema(running, scene_files):
     assert "place" in schema["properties"]
     assert c.get("/docs").status_code == 200
     assert "Kiln" in c.get("/").text
+
+
+# A tiny bake of two-rooms with its only light dropped and a black sky: nothing lights it.
+UNLIT = {"scene": {"sky": [0, 0, 0], "use_scene_lights": False}, "place": {"counts": [3, 3, 3]},
+         "trace": {"rays_per_probe": 32}, "visibility": {"samples_per_cell": 2, "slabs": 2},
+         "masks": {"sweeps": 10}}
+
+
+def test_bake_warnings_in_the_api_and_after_a_restart(running, scene_files):
+    c = running.client
+    sid = running.upload(scene_files["two-rooms"]).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": UNLIT}).json()["id"]
+    b = running.wait_bake(bid)
+    assert b["status"] == "succeeded", b
+    unlit = [w for w in b["warnings"] if w["code"] == "unlit_scene"]
+    assert len(unlit) == 1 and unlit[0]["stage"] == "ingest", b["warnings"]
+    assert "nothing lights the scene" in unlit[0]["message"]
+    assert b["warning_count"] == len(b["warnings"])
+    assert all(set(w) == {"code", "message", "stage"} for w in b["warnings"])
+    # the list carries the count, the bundle's manifest the same warnings
+    item = next(i for i in c.get("/v1/bakes").json()["items"] if i["id"] == bid)
+    assert item["warning_count"] == len(b["warnings"])
+    zpath = running.data / "unlit.zip"
+    zpath.write_bytes(c.get(f"/v1/bakes/{bid}/bundle").content)
+    manifest, _ = bundle.open_bundle(zpath)
+    assert [w.model_dump() for w in manifest.warnings] == b["warnings"]
+    # a lit bake of the same scene has none
+    lit = running.wait_bake(c.post("/v1/bakes", json={"scene_id": sid, "config": {
+        **UNLIT, "scene": {"sky": [0.2, 0.2, 0.2]}}}).json()["id"])
+    assert lit["status"] == "succeeded" and not any(w["code"] == "unlit_scene" for w in lit["warnings"])
+    # the light stage's own warning: capped at one bounce, it cannot converge
+    capped = running.wait_bake(c.post("/v1/bakes", json={"scene_id": sid, "config": {
+        **UNLIT, "scene": {"sky": [0.2, 0.2, 0.2]}, "light": {"max_bounces": 1}}}).json()["id"])
+    assert capped["status"] == "succeeded"
+    assert [w["stage"] for w in capped["warnings"] if w["code"] == "not_converged"] == ["light"], capped["warnings"]
+    # the warnings live in the catalog: a restarted server still returns them
+    running.stop_app()
+    c = running.start_app()
+    again = c.get(f"/v1/bakes/{bid}").json()
+    assert again["warnings"] == b["warnings"]
+    # the same bake again finishes at once from the cache, with the same warnings
+    r = c.post("/v1/bakes", json={"scene_id": sid, "config": UNLIT})
+    assert r.json()["status"] == "succeeded"
+    assert c.get(f"/v1/bakes/{r.json()['id']}").json()["warnings"] == b["warnings"]
+
+
+def test_running_bake_shows_the_warnings_of_finished_stages(service, scene_files):
+    import time
+
+    service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "1"})
+    c = service.start_app()
+    sid = service.upload(scene_files["two-rooms"]).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": UNLIT}).json()["id"]
+    deadline = time.monotonic() + 60
+    while True:
+        b = c.get(f"/v1/bakes/{bid}").json()
+        if b["stages"][0]["status"] == "succeeded":
+            break
+        assert b["warnings"] == [] and time.monotonic() < deadline, b
+        time.sleep(0.1)
+    assert b["status"] == "running"
+    assert [w["code"] for w in b["warnings"]] == ["unlit_scene"] and b["warning_count"] == 1
+    # the SSE snapshots carry them too
+    with c.stream("GET", f"/v1/bakes/{bid}/events") as r:
+        for line in r.iter_lines():
+            if line.startswith("data:"):
+                assert [w["code"] for w in json.loads(line[5:])["warnings"]] == ["unlit_scene"]
+                break
+    assert c.post(f"/v1/bakes/{bid}/cancel").json()["warnings"] == b["warnings"]

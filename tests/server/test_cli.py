@@ -160,3 +160,57 @@ def test_serve_refuses_open_public_bind(tmp_path):
 def test_bake_server_unreachable(tmp_path, scene_files):
     r = kiln("bake", scene_files["cornell"], "--server", f"http://127.0.0.1:{free_port()}", "--out", tmp_path / "o")
     assert r.returncode == 5 and "cannot talk to" in r.stderr
+
+
+UNLIT_TOML = ('[scene]\nsky = [0, 0, 0]\nuse_scene_lights = false\n[place]\ncounts = [3, 3, 3]\n'
+              '[trace]\nrays_per_probe = 32\n[visibility]\nsamples_per_cell = 2\nslabs = 2\n[masks]\nsweeps = 10\n')
+
+
+def _warning_lines(stderr: str) -> list[str]:
+    return [l for l in stderr.splitlines() if l.startswith("kiln: warning [")]
+
+
+def test_bake_warnings_on_stderr_and_strict_exit_code(tmp_path, scene_files):
+    cfg = tmp_path / "unlit.toml"
+    cfg.write_text(UNLIT_TOML)
+    common = ("--config", cfg, "--cache", tmp_path / "cache", "--quiet")
+    r = kiln("bake", scene_files["two-rooms"], *common, "--out", tmp_path / "o1", "--json")
+    assert r.returncode == 0, r.stderr
+    manifest = json.loads(r.stdout)  # stdout is still only the manifest, now with its warnings
+    assert [w["code"] for w in manifest["warnings"]] == ["unlit_scene"]
+    lines = _warning_lines(r.stderr)
+    assert len(lines) == 1 and lines[0].startswith("kiln: warning [unlit_scene] nothing lights the scene"), r.stderr
+    # --strict: exit 6, the bundle still written (and the warnings still printed)
+    r = kiln("bake", scene_files["two-rooms"], *common, "--out", tmp_path / "o2", "--strict")
+    assert r.returncode == 6, r.stderr
+    assert _warning_lines(r.stderr) == lines and "--strict" in r.stderr
+    m, _ = bundle.open_bundle(tmp_path / "o2")
+    assert [w.code for w in m.warnings] == ["unlit_scene"]
+    # a bake without warnings passes --strict
+    cfg.write_text(UNLIT_TOML.replace("sky = [0, 0, 0]", "sky = [0.3, 0.3, 0.3]"))
+    r = kiln("bake", scene_files["two-rooms"], *common, "--out", tmp_path / "o3", "--strict")
+    assert r.returncode == 0 and not _warning_lines(r.stderr), r.stderr
+
+
+def test_bake_warnings_through_the_server(tmp_path, scene_files):
+    cfg = tmp_path / "unlit.toml"
+    cfg.write_text(UNLIT_TOML)
+    proc, url = spawn_serve(tmp_path / "data", workers=1, log=tmp_path / "serve.log")
+    try:
+        r = kiln("bake", scene_files["two-rooms"], "--server", url, "--config", cfg, "--out", tmp_path / "o1",
+                 "--json", "--quiet")
+        assert r.returncode == 0, r.stderr
+        assert [w["code"] for w in json.loads(r.stdout)["warnings"]] == ["unlit_scene"]
+        lines = _warning_lines(r.stderr)
+        assert len(lines) == 1 and lines[0].startswith("kiln: warning [unlit_scene] "), r.stderr
+        r = kiln("bake", scene_files["two-rooms"], "--server", url, "--config", cfg, "--out", tmp_path / "o2",
+                 "--strict", "--quiet")
+        assert r.returncode == 6 and _warning_lines(r.stderr) == lines, r.stderr
+        assert (tmp_path / "o2" / "manifest.json").exists()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        try:
+            proc.wait(30)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10)

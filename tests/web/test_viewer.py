@@ -433,3 +433,52 @@ def test_dashboard_compares_evaluate_previews(page, tmp_path, kiln_server, shots
     assert page.locator("#compare-previews img[data-artifact$=_error]").count() >= 2  # the error heatmaps
     page.locator("#compare").screenshot(path=str(shots / "compare-previews.png"))
     assert not page.kiln_errors, page.kiln_errors
+
+
+# two-rooms with its only light dropped and a black sky: the ingest stage warns `unlit_scene`.
+UNLIT = {"scene": {"sky": [0, 0, 0], "use_scene_lights": False}, "place": {"counts": [3, 3, 3]},
+         "trace": {"rays_per_probe": 32}, "visibility": {"samples_per_cell": 2, "slabs": 2},
+         "masks": {"sweeps": 10}}
+
+
+def test_bake_warnings_on_the_card_the_dashboard_and_the_viewer(page, tmp_path, kiln_server, shots):
+    glb = _scene(tmp_path)
+    sid = kiln_server.api("/v1/scenes", "POST", content=glb.read_bytes(), headers={"X-Filename": glb.name})["id"]
+    bid = kiln_server.api("/v1/bakes", "POST", json={"scene_id": sid, "config": UNLIT})["id"]
+    b = kiln_server.wait_bake(bid)
+    assert b["status"] == "succeeded" and "unlit_scene" in [w["code"] for w in b["warnings"]], b
+    n = len(b["warnings"])
+
+    # the bake card on the upload & bake page: a count badge and the messages
+    page.goto("/")
+    card = f'.bake-card[data-bake="{bid}"]'
+    page.wait_for_selector(f"{card} ul.bake-warnings li", timeout=30000)
+    assert page.inner_text(f"{card} .warn-badge") == f"⚠ {n} warning{'s' if n != 1 else ''}"
+    items = page.locator(f"{card} ul.bake-warnings li")
+    assert items.count() == n
+    text = page.inner_text(f"{card} ul.bake-warnings")
+    assert "unlit_scene" in text and "nothing lights the scene" in text, text
+    assert page.get_attribute(card, "data-warnings") == str(n)
+
+    # the dashboard's row
+    page.goto("/#/dashboard")
+    row = f'#bake-table tr[data-bake="{bid}"]'
+    page.wait_for_selector(f"{row} ul.bake-warnings", timeout=30000)
+    assert "nothing lights the scene" in page.inner_text(row) and page.inner_text(f"{row} .warn-badge").startswith("⚠")
+
+    # the viewer: a banner listing them above the canvas
+    page.goto(f"/#/viewer/{bid}")
+    page.wait_for_selector("#viewer-warnings:not([hidden]) ul.bake-warnings li", timeout=30000)
+    banner = page.inner_text("#viewer-warnings")
+    assert f"{n} warning" in banner and "unlit_scene" in banner and "nothing lights the scene" in banner, banner
+    page.screenshot(path=str(shots / "warnings-viewer.png"))
+    # a lit bake of the same scene: no unlit_scene, and the banner shows exactly that bake's warnings
+    lit = kiln_server.wait_bake(kiln_server.api("/v1/bakes", "POST", json={
+        "scene_id": sid, "config": {**UNLIT, "scene": {"sky": [0.3, 0.3, 0.3]}}})["id"])
+    assert lit["status"] == "succeeded" and "unlit_scene" not in [w["code"] for w in lit["warnings"]]
+    page.goto(f"/#/viewer/{lit['id']}")
+    page.wait_for_selector(f"#viewer-header h2:has-text('{lit['id'][:10]}')", timeout=30000)
+    assert page.get_attribute("#viewer-warnings", "data-warnings") == str(len(lit["warnings"]))
+    assert (page.get_attribute("#viewer-warnings", "hidden") is not None) == (not lit["warnings"])
+    assert "nothing lights the scene" not in page.inner_text("#page-viewer")
+    assert not page.kiln_errors, page.kiln_errors

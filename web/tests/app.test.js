@@ -4,7 +4,7 @@ import { fileURLToPath } from 'node:url';
 import { SSEParser } from '../src/api/sse.js';
 import { buildFieldTree, configDiff, fieldErrors, walkFields } from '../src/state/schema.js';
 import { GI_MODES, modeAvailability } from '../src/state/modes.js';
-import { bakeSeconds, compareBakes, comparePreviews, configDelta, evalPreviews, flattenMetrics, memoryBytes, stageGroups } from '../src/state/stats.js';
+import { bakeSeconds, bakeWarnings, compareBakes, comparePreviews, configDelta, evalPreviews, flattenMetrics, memoryBytes, stageGroups } from '../src/state/stats.js';
 
 const schema = JSON.parse(readFileSync(fileURLToPath(new URL('../../proto/schema/bake-config.schema.json', import.meta.url)), 'utf8'));
 
@@ -110,5 +110,22 @@ describe('evaluate previews (bundle.md 5.4)', () => {
     expect(comparePreviews(a, bake([]))).toEqual([]);
     const rows = comparePreviews(a, b);
     expect(rows.map((r) => [r.mode, !!r.a, !!r.b])).toEqual([['reference', true, true], ['leaking', true, false], ['ddgi', false, true]]);
+  });
+});
+
+describe('bake warnings', () => {
+  it('takes the top-level list, else gathers the stages\' stats.warnings (shards folded, duplicates once)', () => {
+    const top = [{ code: 'unlit_scene', message: 'nothing lights the scene', stage: 'ingest' }];
+    expect(bakeWarnings({ warnings: top, stages: [{ name: 'light', stats: { warnings: [{ code: 'x', message: 'y' }] } }] })).toBe(top);
+    expect(bakeWarnings(null)).toEqual([]);
+    expect(bakeWarnings({ status: 'queued' })).toEqual([]);
+    const slab = { code: 'not_converged', message: 'slab' };
+    expect(bakeWarnings({
+      stages: [{ name: 'ingest', stats: { warnings: [top[0]] } }, { name: 'visibility.0', stats: { warnings: [slab] } },
+        { name: 'visibility.1', stats: { warnings: [slab] } }, { name: 'place', stats: {} }],
+    })).toEqual([
+      { code: 'unlit_scene', message: 'nothing lights the scene', stage: 'ingest' },
+      { code: 'not_converged', message: 'slab', stage: 'visibility' },
+    ]);
   });
 });

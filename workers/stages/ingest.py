@@ -6,6 +6,8 @@ stage resolves the lights every later stage uses: the glTF's KHR_lights_punctual
 (unless ``scene.use_scene_lights`` is false) followed by the config's lights, and the sky.
 
 Output ``lights`` (json): ``{"lights": [light dicts as in workers.scene], "sky": [r, g, b]}``.
+Warnings (``stats["warnings"]``): ``unlit_scene`` when no light, no emissive surface and a black sky leave
+the bake black; ``light_outside_scene`` for a point/spot light far outside the scene bounds.
 """
 from __future__ import annotations
 
@@ -23,6 +25,44 @@ def _config_light(light) -> dict:
     d["color"] = list(d["color"])
     d["name"] = f"config:{light.type}"
     return d
+
+
+LIGHT_BOUNDS_MARGIN = 0.1
+"""A point or spot light farther outside the scene bounds than this fraction of their diagonal gets a
+``light_outside_scene`` warning."""
+
+
+def _fmt(v) -> str:
+    return "(" + ", ".join(f"{float(c):.3g}" for c in v) + ")"
+
+
+def _lighting_warnings(scene, section, lights: list[dict], n_emissive: int) -> list[dict]:
+    """``unlit_scene`` when nothing lights the scene; ``light_outside_scene`` per point/spot light whose
+    position lies outside the scene bounds expanded by :data:`LIGHT_BOUNDS_MARGIN` of the diagonal."""
+    out = []
+    if not lights and n_emissive == 0 and max(section.sky) == 0:
+        n = len(scene.lights)
+        dropped = (f" (the scene's {n} light{' is' if n == 1 else 's are'} dropped by scene.use_scene_lights = false)"
+                   if n and not section.use_scene_lights else "")
+        out.append({"code": "unlit_scene",
+                    "message": "nothing lights the scene: no lights" + dropped + ", no emissive surface and "
+                               "a black sky (scene.sky = [0, 0, 0]), so the bake is black; add [[scene.lights]] "
+                               "or a sky"})
+    lo, hi = scene.bounds
+    margin = LIGHT_BOUNDS_MARGIN * float(np.linalg.norm(hi - lo))
+    for i, light in enumerate(lights):
+        if light.get("type") not in ("point", "spot") or light.get("position") is None:
+            continue
+        pos = np.asarray(light["position"], float)
+        if np.all(pos >= lo - margin) and np.all(pos <= hi + margin):
+            continue
+        name = f" {light['name']!r}" if light.get("name") else ""
+        out.append({"code": "light_outside_scene",
+                    "message": f"{light['type']} light {i}{name} at {_fmt(pos)} lies outside the scene bounds "
+                               f"{_fmt(lo)} .. {_fmt(hi)} (plus {LIGHT_BOUNDS_MARGIN:.0%} of their diagonal): "
+                               "it probably lights little or nothing of the scene; check its position and units "
+                               "(metres, glTF frame, +Y up)"})
+    return out
 
 
 def run_ingest(ctx: StageContext) -> StageOutput:
@@ -48,6 +88,9 @@ def run_ingest(ctx: StageContext) -> StageOutput:
         "sky": list(section.sky),
         "unlit": not lights and n_emissive == 0 and max(section.sky) == 0,
     }
+    warnings = _lighting_warnings(scene, section, lights, n_emissive)
+    if warnings:  # the contract of every stage: stats["warnings"] = [{"code", "message"}, ...]
+        stats.setdefault("warnings", []).extend(warnings)
     return StageOutput(
         artifacts=[Artifact("lights", {"lights": lights, "sky": list(section.sky)}, format="json",
                             description="resolved lights (scene + config) and sky radiance")],

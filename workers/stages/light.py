@@ -233,8 +233,10 @@ def run_light(ctx: StageContext) -> StageOutput:
     rgba = np.concatenate([irr, np.ones(irr.shape[:-1] + (1,), np.float32)], axis=-1)
     active = states != OFF
     stats = {
-        "bounces": len(history), "change_per_bounce": history, "residual_per_bounce": residuals,
-        "residual": residuals[-1] if residuals else 0.0,
+        # residuals: the light still to come (fraction), None while not yet estimable (< 3 bounces): JSON has no inf
+        "bounces": len(history), "change_per_bounce": history,
+        "residual_per_bounce": [r if math.isfinite(r) else None for r in residuals],
+        "residual": (residuals[-1] if math.isfinite(residuals[-1]) else None) if residuals else 0.0,
         "converged": bool(residuals) and residuals[-1] < sec.tolerance,
         "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces,
@@ -244,7 +246,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     warnings = albedo_warnings(scene, getattr(scene, "max_albedo", None), getattr(scene, "specular_gi", "metals"))
     if not stats["converged"]:
         res = stats["residual"]
-        shown = "not yet estimable" if not math.isfinite(res) else f"{res:.1%} of the probe's light"
+        shown = "not yet estimable" if res is None else f"{res:.1%} of the probe's light"
         why = (f"light.bounces = {sec.bounces} stops it" if sec.bounces is not None
                else f"light.max_bounces = {sec.max_bounces} was reached")
         warnings.append({"code": "not_converged", "message": (

@@ -147,3 +147,25 @@ export function comparePreviews(a, b) {
   for (const p of [...pa, ...pb.filter((x) => !ma.has(key(x)))]) rows.push({ camera: p.camera, mode: p.mode, a: ma.get(key(p)) || null, b: mb.get(key(p)) || null });
   return rows;
 }
+
+/**
+ * The bake's warnings as `[{code, message, stage}]`: `bake.warnings` (GET /v1/bakes[/{id}], the manifest), else
+ * gathered from the stages' `stats.warnings` (a server from before top-level warnings), shards folded into their
+ * stage and identical ones kept once.
+ */
+export function bakeWarnings(bake) {
+  if (!bake) return [];
+  if (Array.isArray(bake.warnings)) return bake.warnings;
+  const out = [];
+  const seen = new Set();
+  for (const s of bake.stages || []) {
+    const list = s.stats && s.stats.warnings;
+    if (!Array.isArray(list)) continue;
+    for (const w of list) {
+      const item = { code: String(w?.code ?? 'warning'), message: String(w?.message ?? w ?? ''), stage: s.name.split('.')[0] };
+      const key = `${item.code}\u0000${item.message}\u0000${item.stage}`;
+      if (!seen.has(key)) { seen.add(key); out.push(item); }
+    }
+  }
+  return out;
+}

@@ -5,7 +5,8 @@
  */
 import { createConfigForm } from './configForm.js';
 import { clear, h, shortId } from './dom.js';
-import { formatSeconds } from '../state/stats.js';
+import { bakeWarnings, formatSeconds } from '../state/stats.js';
+import { warningBadge, warningList } from './warnings.js';
 
 const ACTIVE = new Set(['queued', 'running']);
 
@@ -119,10 +120,13 @@ export function createBakePage(app) {
         actions.push(h('a.button', { href: api.url(api.bundlePath(b.id)) }, 'Bundle (zip)'));
       }
       const err = b.error ? h('p.error', `${b.error.stage || 'bake'}: ${b.error.code}: ${b.error.message}`) : null;
-      progressList.append(h('div.bake-card', { dataset: { bake: b.id, status: b.status } },
+      const warnings = bakeWarnings(b);
+      progressList.append(h('div.bake-card', { dataset: { bake: b.id, status: b.status, warnings: String(warnings.length) } },
         h('div.bake-head', h('code', shortId(b.id)), ' ', h('span.badge', { dataset: { status: b.status } }, b.status), ' ',
+          warningBadge(warnings), ' ',
           h('span.muted', `scene ${shortId(b.scene_id)}`), h('span.spacer'), actions),
         err,
+        warningList(warnings),
         h('div.stages', (b.stages || []).map(stageRow))));
     }
   }

@@ -6,9 +6,10 @@
 import uPlot from 'uplot';
 import 'uplot/dist/uPlot.min.css';
 import {
-  bakeSeconds, chartValues, compareBakes, comparePreviews, configDelta, formatBytes, formatSeconds, memoryBytes, metricColumns, stageGroups,
+  bakeSeconds, bakeWarnings, chartValues, compareBakes, comparePreviews, configDelta, formatBytes, formatSeconds, memoryBytes, metricColumns, stageGroups,
 } from '../state/stats.js';
 import { clear, formatTime, h, shortId } from './dom.js';
+import { warningBadge, warningList } from './warnings.js';
 
 const fmt = (v) => (v == null ? '–' : Math.abs(v) >= 1000 || (Math.abs(v) < 0.01 && v !== 0) ? v.toExponential(3) : Number(v.toFixed(4)).toString());
 
@@ -98,12 +99,14 @@ export function createDashboardPage(app) {
         renderCompare();
       });
       const flat = chartValues(b);
-      body.append(h('tr', { dataset: { bake: b.id, status: b.status } },
+      const warnings = bakeWarnings(b);
+      body.append(h('tr', { dataset: { bake: b.id, status: b.status, warnings: String(warnings.length) } },
         h('td', box),
         h('td', b.status === 'succeeded' ? h('a', { href: `#/viewer/${b.id}` }, h('code', shortId(b.id))) : h('code', shortId(b.id))),
         h('td', h('code', shortId(b.scene_id))),
         h('td', formatTime(b.created)),
-        h('td', h('span.badge', { dataset: { status: b.status } }, b.status), b.error ? h('div.error.small', `${b.error.stage}: ${b.error.code}`) : null),
+        h('td.status-cell', h('span.badge', { dataset: { status: b.status } }, b.status), ' ', warningBadge(warnings),
+          b.error ? h('div.error.small', `${b.error.stage}: ${b.error.code}`) : null, warningList(warnings)),
         groups.map((g) => h('td.num', { title: sg[g]?.cached ? 'cached (time of the original run)' : '' }, sg[g] ? `${formatSeconds(sg[g].seconds)}${sg[g].cached ? ' ⟳' : ''}` : '–')),
         h('td.num', formatSeconds(bakeSeconds(b))),
         h('td.num', formatBytes(memoryBytes(b))),
@@ -156,7 +159,8 @@ export function createDashboardPage(app) {
     const [a, b] = picked.map((id) => bakes.find((x) => x.id === id)).sort((x, y) => (x.created || 0) - (y.created || 0));
     if (!a || !b) return;
     const card = (x) => h('div.compare-card', { dataset: { bake: x.id } },
-      h('h3', h('code', shortId(x.id)), ' ', h('span.badge', { dataset: { status: x.status } }, x.status)),
+      h('h3', h('code', shortId(x.id)), ' ', h('span.badge', { dataset: { status: x.status } }, x.status), ' ', warningBadge(bakeWarnings(x))),
+      warningList(bakeWarnings(x)),
       h('p.muted', `${formatTime(x.created)} · scene ${shortId(x.scene_id)}`),
       h('p', `bake ${formatSeconds(bakeSeconds(x))} · memory ${formatBytes(memoryBytes(x))} · ${(x.artifacts || []).length} artifacts`),
       x.status === 'succeeded' ? h('a.button.small', { href: `#/viewer/${x.id}` }, 'view') : null);

@@ -5,6 +5,8 @@
 import { Viewer } from '../view/viewer.js';
 import { drawDepthAtlas, drawIrradianceAtlas, drawMaskSlice, drawThetaSlice } from './debugImages.js';
 import { clear, h, shortId } from './dom.js';
+import { bakeWarnings } from '../state/stats.js';
+import { warningList } from './warnings.js';
 
 export function createViewerPage(app) {
   const { api, store } = app;
@@ -36,8 +38,10 @@ export function createViewerPage(app) {
   const debugControls = h('div#debug-controls');
   const debugNote = h('p#debug-note.muted');
   const gpuInfo = h('p#gpu-info.muted');
+  const warningsBanner = h('div#viewer-warnings.warnings-banner', { role: 'alert', hidden: true });
 
   const el = h('section.page#page-viewer',
+    warningsBanner,
     h('div.viewer-layout',
       h('div.viewer-main', canvas, h('div.overlay', h('span', 'frame ', frameTime)), debugHolder),
       h('aside.viewer-panel',
@@ -61,6 +65,18 @@ export function createViewerPage(app) {
   let viewer = null;
   let status = {};
   let openId = null;
+
+  /** The banner above the canvas listing the opened bake's warnings (hidden when it has none). */
+  function renderWarnings(bake) {
+    const warnings = bakeWarnings(bake);
+    clear(warningsBanner);
+    warningsBanner.hidden = !warnings.length;
+    warningsBanner.dataset.warnings = String(warnings.length);
+    if (!warnings.length) return;
+    warningsBanner.append(
+      h('strong', `⚠ This bake has ${warnings.length} warning${warnings.length === 1 ? '' : 's'}: it is probably not what you wanted.`),
+      warningList(warnings));
+  }
 
   function renderModes() {
     clear(modeList);
@@ -281,6 +297,7 @@ export function createViewerPage(app) {
       renderBakeSelect(id);
       let bake = null;
       clear(header);
+      renderWarnings(null);
       if (id) {
         try {
           bake = await api.getBake(id);
@@ -290,6 +307,7 @@ export function createViewerPage(app) {
         }
       }
       if (bake) {
+        renderWarnings(bake);
         header.append(h('h2', 'Bake ', h('code', shortId(bake.id))), h('p.muted', `scene ${shortId(bake.scene_id)} · ${bake.status}`));
         if (bake.status !== 'succeeded') header.append(h('p.note', `This bake is ${bake.status}: only the artifacts of finished stages can be shown.`));
       } else if (!id) {
