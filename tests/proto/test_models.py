@@ -13,7 +13,8 @@ from proto.stages import plan
 
 def test_defaults_are_documented_and_valid():
     c = BakeConfig()
-    assert c.place.counts == (8, 8, 8) and c.place.spacing is None
+    assert c.place.counts is None and c.place.spacing is None     # the grid is chosen from the scene
+    assert c.visibility.samples_per_cell is None and c.place.budget > 0
     assert c.scene.sky == (0.0, 0.0, 0.0) and c.scene.use_scene_lights
     schema = BakeConfig.model_json_schema()
     place = schema["$defs"]["PlaceSection"]["properties"]
@@ -23,7 +24,7 @@ def test_defaults_are_documented_and_valid():
 def test_spacing_alone_replaces_counts():
     c = BakeConfig.model_validate({"place": {"spacing": 0.5}})
     assert c.place.counts is None and c.place.spacing == 0.5
-    with pytest.raises(ValidationError, match="exactly one of counts or spacing"):
+    with pytest.raises(ValidationError, match="at most one of counts or spacing"):
         BakeConfig.model_validate({"place": {"spacing": 0.5, "counts": [2, 2, 2]}})
 
 

@@ -293,11 +293,11 @@ def test_mask_lookup_offsets_within_the_own_cell():
 
 
 def test_two_rooms_mask_gi_at_a_corner_reads_the_camera_side(tmp_path, scene_files):
-    """The default grid (probes on the outer walls, 1.16 m apart in x; S = 4): a point on room B's side wall
+    """The former default grid, 8x8x8 over the bounds (probes on the outer walls, 1.16 m apart in x; S = 4): a point on room B's side wall
     (z = 0) next to the shared wall (x = 4.05) has the shared wall and room A's samples inside its footprint
     along x, which its normal (+z) does not move away from; the view term of the lookup (a camera in room
     B) does, and the corner reads as the wall further along."""
-    cfg = {"visibility": {"samples_per_cell": 4}, "masks": {"clusters": 4}}
+    cfg = {"place": {"counts": [8, 8, 8]}, "visibility": {"samples_per_cell": 4}, "masks": {"clusters": 4}}
     scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
     _, m = _md(scene, s, cfg)
     arrays = _arrays(s, m)

@@ -21,6 +21,10 @@ import numpy as np
 
 __all__ = ["probe_sums", "relative_tail", "RELEVANT_FLOOR"]
 
+NOISE = 1e-6
+"""Per-probe increments below this fraction of the probe's value are float32 rounding (the maps are float32:
+their relative resolution is 6e-8 per texel, and sums over texels add that up), not light still to come."""
+
 RELEVANT_FLOOR = 1e-6
 """Probes dimmer than this fraction of the brightest probe do not hold the bake back (they are black to
 any display; their own residual is still computed)."""
@@ -67,6 +71,8 @@ def relative_tail(deltas: list[np.ndarray], value: np.ndarray, floor: float = RE
         r = np.maximum(r0, r1)
         tail = np.where(r < 1.0, d2 * r / (1.0 - r), np.where(d2 > 0, np.inf, 0.0))
         rho = np.where(value > 0, tail / value, np.where(tail > 0, np.inf, 0.0))
+    # increments at the float32 rounding of the stored maps are noise (their ratio says nothing): done
+    rho = np.where(d2 <= NOISE * value, 0.0, rho)
     brightest = value.max(axis=0) if value.size else np.zeros(value.shape[1:])
     matters = value >= floor * brightest
     matters &= value > 0

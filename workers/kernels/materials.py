@@ -44,7 +44,7 @@ import numpy as np
 from workers.kernels.shading import sample_texture_rgba
 
 __all__ = ["MaterialTable", "material_table", "gi_albedo", "surface_materials", "cutout_materials",
-           "opaque_at_hits", "albedo_report", "albedo_warnings", "SPECULAR_GI_MODES", "ALBEDO_WARN"]
+           "opaque_at_hits", "double_sided_triangles", "albedo_report", "albedo_warnings", "SPECULAR_GI_MODES", "ALBEDO_WARN"]
 
 SPECULAR_GI_MODES = ("metals", "all", "none")
 
@@ -234,6 +234,12 @@ def albedo_warnings(scene, max_albedo: float | None, specular_gi: str = "metals"
         f"{len(high)} material(s) reflect {ALBEDO_WARN:.0%} or more of the light (no real surface does; kept as the "
         f"file says): {names}. Bounced light in a closed room of such surfaces converges slowly or not at all; "
         "set scene.max_albedo (e.g. 0.9) to clamp")}]
+
+
+def double_sided_triangles(scene) -> np.ndarray:
+    """(T,) bool: the triangle's material is double-sided (its back faces count as front faces)."""
+    flags = np.array([bool(m.get("double_sided", False)) for m in scene.materials] or [False], bool)
+    return flags[np.asarray(scene.material)]
 
 
 def cutout_materials(scene) -> np.ndarray:

@@ -90,3 +90,12 @@ class LazyArtifacts:
 
     def names(self) -> list[str]:
         return sorted(self._loaders)
+
+
+def samples_per_cell(config: BakeConfig, place_stats: dict) -> int:
+    """The visibility field's samples per cell axis S (MD §3.4): the config's, else the automatic grid's
+    choice (``grid.auto.samples_per_cell``: both sides of the thinnest walls), else 8."""
+    if config.visibility.samples_per_cell is not None:
+        return int(config.visibility.samples_per_cell)
+    auto = place_stats.get("auto") or {}
+    return int(auto.get("samples_per_cell", 8))

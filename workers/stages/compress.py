@@ -25,7 +25,7 @@ import numpy as np
 import pyzstd
 
 from workers.kernels.compress import compress_masks, sample_error
-from workers.stages.base import Artifact, StageContext, StageError, StageOutput
+from workers.stages.base import Artifact, StageContext, StageError, StageOutput, samples_per_cell
 
 ZSTD_LEVEL = 3
 ERROR_POINTS = 10000
@@ -39,7 +39,7 @@ def run_compress(ctx: StageContext) -> StageOutput:
     masks = ctx.inputs["masks"]
     place = ctx.inputs["place"].stats
     counts, origin, spacing = place["counts"], place["origin"], place["spacing"]
-    S = ctx.config.visibility.samples_per_cell
+    S = samples_per_cell(ctx.config, place)
     tol = float(ctx.config.masks.compress_tolerance)
     names = [n for n in VOLUMES if f"masks_{n}" in masks]
     if "0123" not in names:

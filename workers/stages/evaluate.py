@@ -45,7 +45,7 @@ from workers.render.cameras import Camera, auto_cameras, default_camera, fit_cli
 from workers.render.context import RenderUnavailable, create_context, renderer_info
 from workers.render.gbuffer import GBufferRenderer
 from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode, shadow_masks
-from workers.stages.base import Artifact, StageContext, StageError, StageOutput
+from workers.stages.base import Artifact, StageContext, StageError, StageOutput, samples_per_cell
 
 HEATMAP_VMAX = 0.25  # LDR error at the red end of the heatmaps
 GBUFFER_FETCHES = 4  # position, normal, albedo, emission (+1 per 4 lights: shadow mask)
@@ -225,7 +225,7 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
         raise StageError("render_unavailable", str(e)) from e
     mask_meta = None
     if "mask" in modes or "mask_normalized" in modes:
-        S = int(ctx.config.visibility.samples_per_cell)
+        S = samples_per_cell(ctx.config, ctx.inputs["place"].stats)
         T = int(ctx.inputs["compress"].stats["block_size"])
         mask_meta = {"samples_per_cell": S, "block_size": T, "border_lo": int(ctx.inputs["compress"].stats.get("border_lo", T - S - 1))}
     arts: list[Artifact] = []

@@ -1,5 +1,10 @@
 """Stage ``place``: the probe grid (DESIGN stage 1, before tracing).
 
+With neither ``counts`` nor ``spacing`` (the default) the grid is chosen from the scene by planning rays
+(:mod:`workers.kernels.autogrid`: the box of its enclosed spaces, a spacing from its room sizes under
+``place.budget`` probes, visibility samples per cell from its thinnest walls); the stats' ``auto`` (the
+manifest's ``grid.auto``) records what was chosen and why. Otherwise:
+
 A regular grid over the scene bounds (or the config's box), padded by ``padding`` x extent
 on each side. ``counts`` puts the outermost probes on the faces of the box; ``spacing``
 uses ``ceil(extent / spacing) + 1`` probes per axis, centred on the box. An axis with zero
@@ -15,6 +20,9 @@ import math
 import numpy as np
 
 from proto.models import MAX_PROBES, PlaceSection
+from workers.kernels.autogrid import analyze_free_space, choose_grid
+from workers.kernels.materials import double_sided_triangles
+from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
 
 
@@ -48,16 +56,35 @@ def grid_positions(counts: np.ndarray, origin: np.ndarray, spacing: np.ndarray) 
     return (origin + idx * spacing).astype(np.float32)
 
 
+def auto_layout(ctx: StageContext, bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """The default grid: planned from rays (:mod:`workers.kernels.autogrid`) in the config's box or the
+    scene bounds."""
+    section = ctx.config.place
+    box = (np.array([section.box.min, section.box.max], np.float64) if section.box is not None
+           else np.asarray(bounds, np.float64))
+    scene = ctx.scene
+    caster = caster_for_scene(scene)
+    fs = analyze_free_space(caster, box, double_sided_triangles(scene), seed=ctx.config.seed)
+    ctx.report(0.8)
+    return choose_grid(box, fs, budget=section.budget)
+
+
 def run_place(ctx: StageContext) -> StageOutput:
     section = ctx.config.place
     bounds = ctx.inputs["ingest"].stats["bounds"]
-    counts, origin, spacing = grid_layout(np.asarray(bounds, np.float64), section)
+    auto = None
+    if section.counts is None and section.spacing is None:
+        counts, origin, spacing, auto = auto_layout(ctx, np.asarray(bounds, np.float64))
+    else:
+        counts, origin, spacing = grid_layout(np.asarray(bounds, np.float64), section)
     n = int(np.prod(counts))
     if n > MAX_PROBES:
         raise StageError("too_many_probes", f"spacing {section.spacing} gives {n} probes; the limit is {MAX_PROBES}")
     positions = grid_positions(counts, origin, spacing)
     ctx.report(1.0)
     stats = {"counts": counts.tolist(), "origin": origin.tolist(), "spacing": spacing.tolist(), "probes": n}
+    if auto is not None:
+        stats["auto"] = auto
     return StageOutput(
         artifacts=[Artifact("probe_positions", positions, description="probe grid positions, world space, metres",
                             meta={"counts": counts.tolist()})],

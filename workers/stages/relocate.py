@@ -24,6 +24,7 @@ import time
 import numpy as np
 
 from workers.kernels.grid import base_positions
+from workers.kernels.materials import double_sided_triangles  # noqa: F401  (re-exported to trace, visibility)
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
@@ -31,10 +32,6 @@ from workers.stages.base import Artifact, StageContext, StageOutput
 STAGE_SEED_TAG = 0x5E10CA7E
 
 
-def double_sided_triangles(scene) -> np.ndarray:
-    """(T,) bool: the triangle's material is double-sided."""
-    flags = np.array([bool(m.get("double_sided", False)) for m in scene.materials] or [False], bool)
-    return flags[scene.material]
 
 
 def trace_probes(caster, positions: np.ndarray, dirs: np.ndarray, double_sided: np.ndarray):

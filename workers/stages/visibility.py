@@ -18,7 +18,7 @@ import numpy as np
 
 from workers.kernels.visibility import field_shape, join_slabs, slab_ranges, theta_slab
 from workers.raycast import caster_for_scene
-from workers.stages.base import Artifact, StageContext, StageOutput
+from workers.stages.base import Artifact, StageContext, StageOutput, samples_per_cell
 from workers.stages.relocate import double_sided_triangles
 
 ZSTD_LEVEL = 3
@@ -34,7 +34,7 @@ def run_visibility_slab(ctx: StageContext) -> StageOutput:
     sec = ctx.config.visibility
     place = ctx.inputs["place"].stats
     counts, origin, spacing = place["counts"], place["origin"], place["spacing"]
-    S = sec.samples_per_cell
+    S = samples_per_cell(ctx.config, place)
     Z, Y, X = field_shape(counts, S)
     z0, z1 = shard_range(Z, S, ctx.shard, ctx.shard_count)
     positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3)
@@ -66,17 +66,18 @@ def run_visibility(ctx: StageContext) -> StageOutput:
     shards = sorted((n for n in ctx.inputs if n.startswith("visibility.")), key=lambda n: int(n.split(".")[1]))
     parts = [(ctx.inputs[n]["theta_part"], ctx.inputs[n]["dont_care_part"].astype(bool)) for n in shards]
     theta, dont_care = join_slabs(parts)
-    Z, Y, X = field_shape(place["counts"], sec.samples_per_cell)
+    S = samples_per_cell(ctx.config, place)
+    Z, Y, X = field_shape(place["counts"], S)
     assert theta.shape == (Z, Y, X, 8), (theta.shape, (Z, Y, X))
     ctx.report(1.0)
     rays = sum(ctx.inputs[n].stats.get("rays", 0) for n in shards)
     ray_seconds = sum(ctx.inputs[n].stats.get("ray_seconds", 0.0) for n in shards)
     stats = {
-        "shape": [Z, Y, X], "samples_per_cell": sec.samples_per_cell, "slabs": len(shards), "rays": rays,
+        "shape": [Z, Y, X], "samples_per_cell": S, "slabs": len(shards), "rays": rays,
         "ray_seconds": ray_seconds, "dont_care_fraction": float(dont_care.mean()) if dont_care.size else 0.0,
         "visible_fraction": float((theta[~dont_care] > 127).mean()) if (~dont_care).any() else 0.0,
     }
-    meta = {"samples_per_cell": sec.samples_per_cell, "corners": "c -> offset (c&1, c>>1&1, c>>2&1)"}
+    meta = {"samples_per_cell": S, "corners": "c -> offset (c&1, c>>1&1, c>>2&1)"}
     return StageOutput(
         artifacts=[
             Artifact("theta_0123", np.ascontiguousarray(theta[..., :4]), zstd_level=ZSTD_LEVEL, meta=meta,

@@ -1,0 +1,87 @@
+"""The default probe grid chosen from the scene (workers/kernels/autogrid.py through the place stage)."""
+from __future__ import annotations
+
+import numpy as np
+
+from tests.gltf_build import GltfBuilder, box_inward, quad
+from tests.workers.test_probes import bake_until
+from workers.ingest import ingest_file
+from workers.kernels.autogrid import analyze_free_space, choose_grid
+from workers.kernels.materials import double_sided_triangles
+from workers.raycast import caster_for_scene
+
+
+def _room(tmp_path, size, name):
+    b = GltfBuilder()
+    pos, nrm, idx = box_inward([0, 0, 0], size)
+    m = b.material(pbrMetallicRoughness={"baseColorFactor": [0.5, 0.5, 0.5, 1], "metallicFactor": 0.0})
+    b.mesh(pos, idx, normals=nrm, material=m)
+    b.point_light([s / 2 for s in size], 50.0)
+    tmp_path.mkdir(parents=True, exist_ok=True)
+    p = tmp_path / f"{name}.glb"
+    p.write_bytes(b.glb())
+    return p
+
+
+def _plan(path):
+    s = ingest_file(path)
+    fs = analyze_free_space(caster_for_scene(s), s.bounds, double_sided_triangles(s))
+    return s, choose_grid(s.bounds, fs)
+
+
+def test_a_larger_room_gets_more_probes(tmp_path):
+    _, (c_small, _, s_small, a_small) = _plan(_room(tmp_path, [4, 3, 4], "small"))
+    _, (c_big, _, s_big, a_big) = _plan(_room(tmp_path, [12, 3, 12], "big"))
+    assert a_small["kind"] == a_big["kind"] == "enclosed"
+    assert np.prod(c_big) > 1.4 * np.prod(c_small)
+    # the spacing follows the room scale (a taller, wider room: coarser), never the budget here
+    assert 0.1 < s_small[0] < 0.5 and not a_small["budget_bound"] and not a_big["budget_bound"]
+    # the grid covers the room
+    for c, s in ((c_small, s_small), (c_big, s_big)):
+        assert np.all((c - 1) * s >= np.array([4, 3, 4] if c is c_small else [12, 3, 12]) * 0.8)
+
+
+def test_budget_binds_and_says_so(tmp_path):
+    s = ingest_file(_room(tmp_path, [12, 3, 12], "big"))
+    fs = analyze_free_space(caster_for_scene(s), s.bounds, double_sided_triangles(s))
+    counts, _, spacing, auto = choose_grid(s.bounds, fs, budget=500)
+    assert np.prod(counts) <= 500 and auto["budget_bound"] and "budget" in auto["reason"]
+
+
+def test_building_on_a_ground_slab_gets_a_box_around_the_building(tmp_path):
+    # a closed 4 x 3 x 4 m building on a 40 x 40 m slab: the grid box is the building's, not the slab's
+    b = GltfBuilder()
+    pos, nrm, idx = box_inward([0, 0, 0], [4, 3, 4])
+    m = b.material(pbrMetallicRoughness={"baseColorFactor": [0.5, 0.5, 0.5, 1], "metallicFactor": 0.0})
+    b.mesh(pos, idx, normals=nrm, material=m)
+    p, n, uv, ix = quad([-18, -0.01, 22], [40, 0, 0], [0, 0, -40], [0, 1, 0])
+    b.mesh(p, ix, normals=n, material=m)
+    (tmp_path / "slab.glb").write_bytes(b.glb())
+    scene, (counts, origin, spacing, auto) = _plan(tmp_path / "slab.glb")
+    lo, hi = np.array(auto["box"])
+    assert auto["kind"] == "enclosed"
+    # the building and a few metres around it (where the slab still sees it), not the 40 m slab
+    assert np.all(hi - lo <= [12, 4, 12]) and np.all(lo <= 0.5) and np.all(hi >= [3.5, 2.5, 3.5]), auto["box"]
+    assert spacing[0] < 0.5
+
+
+def test_thin_wall_gets_visibility_samples_on_both_sides(tmp_path, scene_files):
+    # two-rooms: a 5 cm shared wall. The automatic S puts samples at most w/2 apart, so every wall cell has
+    # samples on both faces of the wall (and some inside it: don't-care)
+    scene, (counts, origin, spacing, auto) = _plan(scene_files["two-rooms"])
+    w = auto["wall_thickness_p5"]
+    assert w is not None and 0.03 < w < 0.08
+    S = auto["samples_per_cell"]
+    assert spacing[0] / S <= w / 2 + 1e-9, (spacing, S, w)
+    # and through the stage: the manifest's grid.auto, the visibility stage's S
+    _, out = bake_until(tmp_path, scene_files["two-rooms"], {"trace": {"rays_per_probe": 64}}, "place")
+    st = out["place"].stats
+    assert st["auto"]["samples_per_cell"] == S and st["counts"] == counts.tolist()
+    assert st["probes"] == int(np.prod(counts))
+
+
+def test_explicit_counts_and_spacing_still_win(tmp_path, scene_files):
+    _, out = bake_until(tmp_path / "c", scene_files["two-rooms"], {"place": {"counts": [4, 3, 2]}}, "place")
+    assert out["place"].stats["counts"] == [4, 3, 2] and "auto" not in out["place"].stats
+    _, out = bake_until(tmp_path / "s", scene_files["two-rooms"], {"place": {"spacing": 1.0}}, "place")
+    assert out["place"].stats["spacing"][0] == 1.0 and "auto" not in out["place"].stats
