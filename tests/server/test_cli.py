@@ -3,6 +3,7 @@ Also ``kiln serve`` end to end: embedded Redis, workers, HTTP, and Ctrl-C leavin
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -73,7 +74,10 @@ def test_bake_local_real_scene(tmp_path):
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert m["scene"]["lights"] == 1 and m["scene"]["triangles"] >= 30
-    assert m["grid"]["counts"] == [8, 8, 8]
+    # the default grid is chosen from the scene (workers/kernels/autogrid.py) and says why
+    auto = m["grid"]["auto"]
+    assert 8 ** 3 < math.prod(m["grid"]["counts"]) <= auto["budget"] and "room scale" in auto["reason"]
+    assert 4 <= auto["samples_per_cell"] <= 16
 
 
 @pytest.mark.parametrize("make_input, code, words", [
@@ -121,7 +125,8 @@ def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):
         m = json.loads(r.stdout)
         assert m["bake_id"] and [s["name"] for s in m["stages"]][:2] == ["ingest", "place"]
         _, arrays = bundle.open_bundle(tmp_path / "out")
-        assert arrays["probe_positions"].shape == (8, 8, 8, 3)
+        counts = m["grid"]["counts"]                     # the automatic grid, as the manifest says
+        assert arrays["probe_positions"].shape == (counts[2], counts[1], counts[0], 3) and "auto" in m["grid"]
         # bad input through the server: a one-line reason, exit 3
         bad = tmp_path / "bad.glb"
         bad.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (10**9).to_bytes(4, "little") + b"\x00" * 40)

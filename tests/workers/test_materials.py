@@ -234,3 +234,30 @@ def test_albedo_warnings_read_textures_and_vertex_colours(tmp_path):
     assert albedo_warnings(scene, None) == []              # COLOR_0 0.5 x white: 0.5, fine
     scene.colors[:] = 1.0
     assert albedo_warnings(scene, None)[0]["code"] == "albedo_high"
+
+
+def test_no_light_through_a_thin_wall_at_coarse_spacing(tmp_path):
+    """Two sealed rooms sharing a 5 cm wall, probes 1 m apart straddling it: the bounce re-shading must carry no
+    light into the dark room (closed form: no path from the light reaches it)."""
+    b = GltfBuilder()
+    m = b.material(pbrMetallicRoughness={"baseColorFactor": [0.6, 0.6, 0.6, 1], "metallicFactor": 0.0})
+    for lo, hi in (([0, 0, 0], [3.0, 2.5, 3.0]), ([3.05, 0, 0], [6.05, 2.5, 3.0])):
+        pos, nrm, idx = box_inward(lo, hi)
+        b.mesh(pos, idx, normals=nrm, material=m)
+    outer_lo, outer_hi = np.array([-0.05, -0.05, -0.05]), np.array([6.1, 2.55, 3.05])
+    pos, nrm, idx = box_inward(outer_lo, outer_hi)
+    b.mesh(pos, idx[:, ::-1], normals=-nrm, material=m)                   # the shell, facing outward
+    b.point_light([1.5, 2.0, 1.5], 100.0)
+    path = _write(tmp_path, b)
+    cfg = {"place": {"spacing": 1.0, "box": {"min": [0.2, 0.3, 0.3], "max": [5.9, 2.2, 2.7]}},
+           "trace": {"rays_per_probe": 256}}
+    _, s = bake_until(tmp_path, path, cfg, "light")
+    counts = s["place"].stats["counts"]
+    e = probe_irradiance(s, counts)
+    pos = np.asarray(s["relocate"]["probe_positions_relocated"]).reshape(-1, 3)
+    states = np.asarray(s["trace"]["probe_states"]).ravel()
+    in_a = (pos[:, 0] < 2.95) & (states != 0)
+    in_b = (pos[:, 0] > 3.1) & (states != 0)
+    assert in_a.sum() >= 4 and in_b.sum() >= 4
+    assert e[in_a].mean() > 1.0
+    assert e[in_b].max() < 1e-6 * e[in_a].mean(), (e[in_b].max(), e[in_a].mean())

@@ -25,7 +25,7 @@ describe('config form model from the JSON Schema', () => {
   it('has every section with defaults and bounds', () => {
     expect(tree.children.map((c) => c.key)).toEqual(expect.arrayContaining(['seed', 'scene', 'place', 'trace', 'light', 'visibility', 'masks', 'prt']));
     expect(byPath['place.counts'].kind).toBe('nullable');
-    expect(byPath['place.counts'].default).toEqual([8, 8, 8]);
+    expect(byPath['place.counts'].default).toBeNull();   // the automatic grid
     expect(byPath['place.counts'].inner.kind).toBe('tuple');
     expect(byPath['trace.rays_per_probe']).toMatchObject({ kind: 'integer', min: 16, max: 4096, default: 256 });
     expect(byPath['light.sh_order']).toMatchObject({ kind: 'enum', options: [1, 2] });
