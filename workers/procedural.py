@@ -63,19 +63,45 @@ Scenes (T = triangle count; all lights white)
     (2.5, 2.0, 2.5). Nothing in the cavity can see either light or the sky.
 
 The numbers (triangle counts, coordinates) are asserted by ``tests/workers/test_procedural.py``.
+
+Material scenes (:data:`MATERIAL_SCENES`, kept out of :data:`SCENES`, whose scenes are all rough
+dielectrics with constant colours): the same conventions, but materials the outside check
+(``tests/data/fidelity``, ``tests/bench/bench_fidelity.py``) needs to catch an ingest that reads a
+material wrongly. Each carries its own probe-grid box (its bounds) in ``kiln_bake_box``.
+
+``two-rooms-vc``
+    The ``two-rooms`` geometry (same grid solid, same light), but every material's
+    ``baseColorFactor`` is white [1, 1, 1, 1] (metallic 0, roughness 1) and the albedo is carried
+    by ``COLOR_0`` (glTF multiplies the two: a reader ignoring COLOR_0 sees albedo 1). Room A's
+    faces, the door's jambs and lintel and the outside ("vc-float") hold float RGB (VEC3)
+    colours, room B's faces ("vc-ubyte") normalized unsigned-byte RGBA (VEC4, alpha 255). One
+    colour per wall group (:data:`TWO_ROOMS_VC_COLORS`).
+
+``metal-room``
+    A closed room, interior [0, 4] x [0, 2.5] x [0, 3], 5 cm walls (outer extent
+    [-0.05, 4.05] x [-0.05, 2.55] x [-0.05, 3.05]); a 12 cd point light "lamp" at (2.4, 2.0, 1.8).
+    Materials (:data:`METAL_ROOM_MATERIALS`): floor "checker": ``baseColorTexture`` (an embedded
+    16 x 16 sRGB PNG checker, 4 x 4-texel squares of two colours, NEAREST, REPEAT; TEXCOORD_0 =
+    (z, x) / 2 m, one repeat every 2 m) times the factor (0.9, 0.85, 0.8); wall x = 4 (inside)
+    "metal": metallic 1, roughness 0.5, base (0.95, 0.64, 0.54); a box [0.7, 1.5] x [0, 0.8] x
+    [0.8, 1.6] fused to the floor, "striped-metal": base (0.8, 0.8, 0.8), factors 1 and a linear
+    8 x 8 ``metallicRoughnessTexture`` (B = metallic 255 / 0 in 4-texel stripes along u, G =
+    roughness 128, R 0; TEXCOORD_0 = the face's two in-plane coordinates / 0.4 m: two repeats per
+    side, so metallic averages 0.5 on every face); every other face a rough dielectric.
 """
 from __future__ import annotations
 
 import json
 import os
 import struct
+import zlib
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from proto.store import atomic_write_bytes
 
-__all__ = ["SCENES", "BAKE_BOXES", "make_scene", "write_scene"]
+__all__ = ["SCENES", "BAKE_BOXES", "MATERIAL_SCENES", "ALL_SCENES", "make_scene", "write_scene"]
 
 SCENES: dict[str, str] = {
     "cornell": "1 m Cornell box open towards +z: red left / green right walls, "
@@ -97,6 +123,15 @@ BAKE_BOXES: dict[str, tuple[tuple[float, float, float], tuple[float, float, floa
     "sealed-box": ((-5.0, -0.1, -5.0), (5.0, 1.0, 5.0)),
 }
 
+# Scenes that exercise material reading (vertex colours, textures, metals); see the module doc.
+MATERIAL_SCENES: dict[str, str] = {
+    "two-rooms-vc": "two-rooms with white materials and the albedo in COLOR_0 vertex colours "
+                    "(float RGB in room A, normalized ubyte RGBA in room B)",
+    "metal-room": "closed 4 x 2.5 x 3 m room, 12 cd point light: checker-textured floor, a metallic wall, "
+                  "a box with a striped metallicRoughnessTexture, dielectric walls",
+}
+ALL_SCENES: dict[str, str] = {**SCENES, **MATERIAL_SCENES}
+
 # Classic Cornell box albedos (linear RGB).
 _CORNELL_WHITE = (0.725, 0.71, 0.68)
 _CORNELL_RED = (0.63, 0.065, 0.05)
@@ -109,6 +144,9 @@ _ARRAY_BUFFER = 34962
 _ELEMENT_ARRAY_BUFFER = 34963
 _FLOAT = 5126
 _UNSIGNED_INT = 5125
+_UNSIGNED_BYTE = 5121
+_NEAREST = 9728
+_REPEAT = 10497
 _TRIANGLES = 4
 _EPS = 1e-9  # metres; tolerance when matching grid coordinates
 
@@ -203,6 +241,10 @@ class _Material:
     base_color: tuple[float, float, float]
     emissive: tuple[float, float, float] = (0.0, 0.0, 0.0)
     emissive_strength: float = 1.0
+    metallic: float = 0.0
+    roughness: float = 1.0
+    base_color_png: bytes | None = None          # baseColorTexture (sRGB PNG), read with TEXCOORD_0
+    metallic_roughness_png: bytes | None = None  # metallicRoughnessTexture (linear PNG: G rough, B metal)
 
 
 @dataclass
@@ -219,8 +261,10 @@ class _Light:
 class _SceneSpec:
     name: str
     materials: list[_Material]
-    meshes: list[tuple[str, dict[str, tuple]]]  # (mesh name, {material: (pos, nrm, idx)})
+    # (mesh name, {material: (pos, nrm, idx[, {"COLOR_0" | "TEXCOORD_0": array}])})
+    meshes: list[tuple[str, dict[str, tuple]]]
     lights: list[_Light] = field(default_factory=list)
+    bake_box: Box3 | None = None  # None: BAKE_BOXES[name]
 
 
 def _encode_glb(spec: _SceneSpec) -> bytes:
@@ -238,6 +282,8 @@ def _encode_glb(spec: _SceneSpec) -> bytes:
         blob.extend(data)
         acc = {"bufferView": len(buffer_views) - 1, "byteOffset": 0, "componentType": component,
                "count": int(array.shape[0]), "type": type_}
+        if component == _UNSIGNED_BYTE:
+            acc["normalized"] = True  # vertex colours as UNORM8
         if minmax:
             acc["min"] = [float(x) for x in array.min(axis=0)]
             acc["max"] = [float(x) for x in array.max(axis=0)]
@@ -247,12 +293,16 @@ def _encode_glb(spec: _SceneSpec) -> bytes:
     meshes, nodes = [], []
     for mesh_name, prims in spec.meshes:
         primitives = []
-        for mat_name, (pos, nrm, idx) in prims.items():
+        for mat_name, (pos, nrm, idx, *extra) in prims.items():
+            attributes = {
+                "POSITION": add(pos, _ARRAY_BUFFER, "VEC3", _FLOAT, True),
+                "NORMAL": add(nrm, _ARRAY_BUFFER, "VEC3", _FLOAT, False),
+            }
+            for attr, arr in sorted((extra[0] if extra else {}).items()):
+                comp = _UNSIGNED_BYTE if arr.dtype == np.uint8 else _FLOAT
+                attributes[attr] = add(arr, _ARRAY_BUFFER, f"VEC{arr.shape[1]}", comp, False)
             primitives.append({
-                "attributes": {
-                    "POSITION": add(pos, _ARRAY_BUFFER, "VEC3", _FLOAT, True),
-                    "NORMAL": add(nrm, _ARRAY_BUFFER, "VEC3", _FLOAT, False),
-                },
+                "attributes": attributes,
                 "indices": add(idx, _ELEMENT_ARRAY_BUFFER, "SCALAR", _UNSIGNED_INT, False),
                 "material": mat_index[mat_name],
                 "mode": _TRIANGLES,
@@ -262,15 +312,34 @@ def _encode_glb(spec: _SceneSpec) -> bytes:
     while len(blob) % 4:
         blob.append(0)
 
+    images: list[dict] = []
+    image_of: dict[bytes, int] = {}
+
+    def texture(png: bytes) -> dict:
+        """A textureInfo for PNG bytes: one image (in the BIN chunk, a bufferView without target) per distinct PNG,
+        texture i = image i, all with sampler 0."""
+        if png not in image_of:
+            while len(blob) % 4:
+                blob.append(0)
+            buffer_views.append({"buffer": 0, "byteOffset": len(blob), "byteLength": len(png)})
+            blob.extend(png)
+            images.append({"bufferView": len(buffer_views) - 1, "mimeType": "image/png"})
+            image_of[png] = len(images) - 1
+        return {"index": image_of[png], "texCoord": 0}
+
     materials = []
     uses_strength = False
     for m in spec.materials:
         mat = {
             "name": m.name,
             "pbrMetallicRoughness": {"baseColorFactor": [*map(float, m.base_color), 1.0],
-                                     "metallicFactor": 0.0, "roughnessFactor": 1.0},
+                                     "metallicFactor": float(m.metallic), "roughnessFactor": float(m.roughness)},
             "emissiveFactor": [float(x) for x in m.emissive],
         }
+        if m.base_color_png is not None:
+            mat["pbrMetallicRoughness"]["baseColorTexture"] = texture(m.base_color_png)
+        if m.metallic_roughness_png is not None:
+            mat["pbrMetallicRoughness"]["metallicRoughnessTexture"] = texture(m.metallic_roughness_png)
         if m.emissive_strength != 1.0:
             mat["extensions"] = {"KHR_materials_emissive_strength":
                                  {"emissiveStrength": float(m.emissive_strength)}}
@@ -288,7 +357,9 @@ def _encode_glb(spec: _SceneSpec) -> bytes:
             node["rotation"] = _quat_from_neg_z(light.direction)
         nodes.append(node)
 
-    box = BAKE_BOXES[spec.name]
+    while len(blob) % 4:
+        blob.append(0)
+    box = spec.bake_box if spec.bake_box is not None else BAKE_BOXES[spec.name]
     doc: dict = {
         "asset": {"version": "2.0", "generator": "kiln workers.procedural"},
         "scene": 0,
@@ -301,6 +372,10 @@ def _encode_glb(spec: _SceneSpec) -> bytes:
         "bufferViews": buffer_views,
         "buffers": [{"byteLength": len(blob)}],
     }
+    if images:
+        doc["images"] = images
+        doc["textures"] = [{"source": i, "sampler": 0} for i in range(len(images))]
+        doc["samplers"] = [{"magFilter": _NEAREST, "minFilter": _NEAREST, "wrapS": _REPEAT, "wrapT": _REPEAT}]
     # An empty lights array is invalid glTF (EMPTY_ENTITY): light-less scenes omit the extension.
     used = (["KHR_lights_punctual"] if lights else []) + (
         ["KHR_materials_emissive_strength"] if uses_strength else [])
@@ -366,18 +441,20 @@ def _furnace() -> _SceneSpec:
     )
 
 
-def _two_rooms() -> _SceneSpec:
-    t = 0.05
-    ops = [
+def _two_rooms_ops(t: float = 0.05) -> list[tuple[bool, Box3]]:
+    return [
         (True, ((-t, -t, -t), (8.0 + 2 * t, 3.0 + t, 4.0 + t))),
         (False, ((0.0, 0.0, 0.0), (4.0, 3.0, 4.0))),  # room A
         (False, ((4.0 + t, 0.0, 0.0), (8.0 + t, 3.0, 4.0))),  # room B
         (False, ((4.0, 0.0, 1.55), (4.0 + t, 2.0, 2.45))),  # door through the shared wall
     ]
+
+
+def _two_rooms() -> _SceneSpec:
     return _SceneSpec(
         name="two-rooms",
         materials=[_Material("wall", (0.75, 0.75, 0.75))],
-        meshes=[_solid_mesh("rooms", ops, lambda c, axis, sign: "wall")],
+        meshes=[_solid_mesh("rooms", _two_rooms_ops(), lambda c, axis, sign: "wall")],
         lights=[_Light("room-a", "point", 20.0, position=(1.5, 2.5, 2.0))],
     )
 
@@ -404,17 +481,168 @@ def _sealed_box() -> _SceneSpec:
     )
 
 
+# ---------------------------------------------------------------------------- material scenes
+def _png(pixels: np.ndarray) -> bytes:
+    """(H, W, 3 | 4) uint8 -> PNG bytes (8-bit RGB / RGBA, no filter, zlib level 9; deterministic)."""
+    px = np.ascontiguousarray(pixels, np.uint8)
+    h, w, c = px.shape
+    raw = b"".join(b"\x00" + px[r].tobytes() for r in range(h))
+
+    def chunk(kind: bytes, data: bytes) -> bytes:
+        return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
+
+    return b"".join([b"\x89PNG\r\n\x1a\n",
+                     chunk(b"IHDR", struct.pack(">IIBBBBB", w, h, 8, {3: 2, 4: 6}[c], 0, 0, 0)),
+                     chunk(b"IDAT", zlib.compress(raw, 9)), chunk(b"IEND", b"")])
+
+
+def _quad_axis(quad: np.ndarray) -> int:
+    """The axis a grid-cell face is perpendicular to (its constant coordinate)."""
+    return int(np.argmin(np.ptp(quad, axis=0)))
+
+
+def _attr_mesh(name: str, ops, group_of, material_of_group, attrs_of) -> tuple[str, dict[str, tuple]]:
+    """:func:`_solid_mesh` with per-vertex attributes: faces are grouped by ``group_of`` (as ``material_of``
+    of :func:`_grid_solid`), groups are merged into primitives by ``material_of_group(group)``, and
+    ``attrs_of(group, quad (4, 3), axis) -> {attribute: (4, k) array}`` gives each quad's extra attributes."""
+    faces = _grid_solid(ops, group_of)
+    by_mat: dict[str, list[tuple[str, np.ndarray]]] = {}
+    for group in sorted(faces):
+        by_mat.setdefault(material_of_group(group), []).extend((group, q) for q in faces[group])
+    prims = {}
+    for mat in sorted(by_mat):
+        quads = [q for _, q in by_mat[mat]]
+        pos, nrm, idx = _quads_to_primitive(quads)
+        per_quad = [attrs_of(g, q, _quad_axis(q)) for g, q in by_mat[mat]]
+        extra = {k: np.concatenate([a[k] for a in per_quad]) for k in per_quad[0]} if per_quad[0] else {}
+        prims[mat] = (pos, nrm, idx, extra) if extra else (pos, nrm, idx)
+    return name, prims
+
+
+# two-rooms-vc: wall group -> linear RGB albedo (COLOR_0). Room A, the door and the outside as float RGB;
+# room B as normalized ubyte RGBA, with values that are whole bytes (multiples of 0.2 = 51/255).
+TWO_ROOMS_VC_COLORS: dict[str, tuple[float, float, float]] = {
+    "a-floor": (0.7, 0.7, 0.7), "a-ceiling": (0.8, 0.8, 0.8), "a-end": (0.6, 0.3, 0.3),
+    "a-shared": (0.3, 0.35, 0.6), "a-sides": (0.55, 0.6, 0.35), "door": (0.75, 0.5, 0.25),
+    "outside": (0.5, 0.5, 0.5),
+    "b-floor": (0.6, 0.6, 0.6), "b-ceiling": (0.8, 0.8, 0.8), "b-end": (0.2, 0.4, 0.6),
+    "b-shared": (0.6, 0.4, 0.2), "b-sides": (0.4, 0.6, 0.4),
+}
+
+
+def _two_rooms_vc() -> _SceneSpec:
+    t = 0.05
+    outer = ((-t, -t, -t), (8.0 + 2 * t, 3.0 + t, 4.0 + t))
+
+    def group_of(c, axis, sign):
+        if abs(c[axis] - outer[0][axis]) < _EPS or abs(c[axis] - outer[1][axis]) < _EPS:
+            return "outside"
+        if axis != 0 and 4.0 - _EPS < c[0] < 4.0 + t + _EPS:
+            return "door"  # jambs, lintel and threshold of the doorway
+        x = c[0] + (1e-3 * sign if axis == 0 else 0.0)  # a point just in front of the face
+        room = "a" if x < 4.0 else "b"
+        if axis == 1:
+            return f"{room}-floor" if sign > 0 else f"{room}-ceiling"
+        if axis == 2:
+            return f"{room}-sides"
+        return f"{room}-end" if abs(c[0]) < _EPS or abs(c[0] - (8.0 + t)) < _EPS else f"{room}-shared"
+
+    def attrs_of(group, quad, axis):
+        col = np.asarray(TWO_ROOMS_VC_COLORS[group], np.float64)
+        if group.startswith("b-"):
+            rgba = np.append(np.round(col * 255.0), 255.0).astype(np.uint8)
+            return {"COLOR_0": np.tile(rgba, (4, 1))}
+        return {"COLOR_0": np.tile(col.astype(np.float32), (4, 1))}
+
+    return _SceneSpec(
+        name="two-rooms-vc",
+        materials=[_Material("vc-float", (1.0, 1.0, 1.0)), _Material("vc-ubyte", (1.0, 1.0, 1.0))],
+        meshes=[_attr_mesh("rooms", _two_rooms_ops(t), group_of,
+                           lambda g: "vc-ubyte" if g.startswith("b-") else "vc-float", attrs_of)],
+        lights=[_Light("room-a", "point", 20.0, position=(1.5, 2.5, 2.0))],
+        bake_box=outer,
+    )
+
+
+def _checker_png() -> bytes:
+    """16 x 16 sRGB checker, 4 x 4-texel squares: (230, 200, 170) and (70, 90, 110)."""
+    i = np.arange(16) // 4
+    light = ((i[:, None] + i[None, :]) % 2 == 0)[..., None]
+    return _png(np.where(light, np.array([230, 200, 170], np.uint8), np.array([70, 90, 110], np.uint8)))
+
+
+def _stripes_png() -> bytes:
+    """8 x 8 linear metallic-roughness map: B (metallic) 255 in columns 0-3, 0 in 4-7; G (roughness) 128; R 0."""
+    px = np.zeros((8, 8, 3), np.uint8)
+    px[..., 1] = 128
+    px[:, :4, 2] = 255
+    return _png(px)
+
+
+# metal-room: material name -> (base colour, metallic, roughness, texture); see the module doc.
+METAL_ROOM_MATERIALS: dict[str, dict] = {
+    "checker": {"base_color": (0.9, 0.85, 0.8), "texture": "baseColorTexture"},
+    "metal": {"base_color": (0.95, 0.64, 0.54), "metallic": 1.0, "roughness": 0.5},
+    "striped-metal": {"base_color": (0.8, 0.8, 0.8), "metallic": 1.0, "roughness": 1.0,
+                      "texture": "metallicRoughnessTexture"},
+    "ceiling": {"base_color": (0.8, 0.8, 0.8)},
+    "wall-blue": {"base_color": (0.3, 0.45, 0.7)},
+    "wall-beige": {"base_color": (0.7, 0.65, 0.5)},
+    "outside": {"base_color": (0.5, 0.5, 0.5)},
+}
+
+
+def _metal_room() -> _SceneSpec:
+    t = 0.05
+    outer: Box3 = ((-t, -t, -t), (4.0 + t, 2.5 + t, 3.0 + t))
+    obj: Box3 = ((0.7, 0.0, 0.8), (1.5, 0.8, 1.6))
+    ops = [(True, outer), (False, ((0.0, 0.0, 0.0), (4.0, 2.5, 3.0))), (True, obj)]
+
+    def group_of(c, axis, sign):
+        if abs(c[axis] - outer[0][axis]) < _EPS or abs(c[axis] - outer[1][axis]) < _EPS:
+            return "outside"
+        if _inside(c, obj, 1e-6) and c[1] > _EPS:
+            return "striped-metal"
+        if axis == 1:
+            return "checker" if sign > 0 else "ceiling"
+        if axis == 0:
+            return "metal" if sign < 0 else "wall-blue"
+        return "wall-beige"
+
+    def attrs_of(group, quad, axis):
+        if group == "checker":  # (u, v) = (z, x) / 2 m
+            return {"TEXCOORD_0": (quad[:, [2, 0]] / 2.0).astype(np.float32)}
+        if group == "striped-metal":  # the face's (u, v) axes of _grid_solid, / 0.4 m
+            return {"TEXCOORD_0": (quad[:, [(axis + 1) % 3, (axis + 2) % 3]] / 0.4).astype(np.float32)}
+        return {}
+
+    pngs = {"baseColorTexture": {"base_color_png": _checker_png()},
+            "metallicRoughnessTexture": {"metallic_roughness_png": _stripes_png()}}
+    mats = []
+    for name, m in METAL_ROOM_MATERIALS.items():
+        kw = {k: v for k, v in m.items() if k in ("metallic", "roughness")}
+        mats.append(_Material(name, m["base_color"], **kw, **pngs.get(m.get("texture"), {})))
+    return _SceneSpec(
+        name="metal-room",
+        materials=mats,
+        meshes=[_attr_mesh("room", ops, group_of, lambda g: g, attrs_of)],
+        lights=[_Light("lamp", "point", 12.0, position=(2.4, 2.0, 1.8))],
+        bake_box=outer,
+    )
+
+
 _BUILDERS = {"cornell": _cornell, "furnace": _furnace, "two-rooms": _two_rooms,
-             "sealed-box": _sealed_box}
+             "sealed-box": _sealed_box, "two-rooms-vc": _two_rooms_vc, "metal-room": _metal_room}
 
 
 def make_scene(name: str) -> bytes:
-    """The GLB bytes of procedural scene ``name`` (a key of :data:`SCENES`); deterministic."""
+    """The GLB bytes of procedural scene ``name`` (a key of :data:`SCENES` or :data:`MATERIAL_SCENES`);
+    deterministic."""
     try:
         builder = _BUILDERS[name]
     except (KeyError, TypeError):
         raise ValueError(f"unknown procedural scene {name!r}; valid names: "
-                         f"{', '.join(sorted(SCENES))}") from None
+                         f"{', '.join(sorted(ALL_SCENES))}") from None
     return _encode_glb(builder())
 
 

@@ -1,0 +1,340 @@
+"""Fidelity benchmark (outside check of materials and default bakes): run by hand, not part of the test command.
+
+    .venv/bin/python tests/bench/bench_fidelity.py [--scenes two-rooms-vc,metal-room] [--json OUT.json]
+        [--store DIR]
+
+Compares Kiln's baked light with Blender Cycles (tests/data/fidelity/*.cycles.json, made by
+tests/data/fidelity/make_references.py with ../shared/oracle; Blender is not needed here). Per scene:
+
+1. bakes the procedural scene (``workers.procedural.make_scene``) in this process with the real pipeline and the
+   **default config** (``BakeConfig()``: the scenes carry their own lights and emitters; sky 0), timing each stage;
+2. at every check point of ``<scene>.points.json`` and each of the 6 axis normals, reconstructs the indirect
+   irradiance of each GI mode from the baked volumes with the Python references of the runtime shaders:
+   ``leaking``, ``visibility_weighted``, ``mask``, ``mask_normalized`` (:func:`workers.kernels.samplers.irradiance`,
+   mask offset = the runtime default) and ``ddgi`` (:func:`workers.kernels.ddgi.sample_irradiance` on the light
+   stage's octahedral irradiance, the trace stage's depth moments, relocated probes, self-shadow bias of the config).
+   The points are receivers in free space, so the view direction is taken equal to the normal (a viewer in front
+   of a surface facing n);
+3. at the ``probes`` region (un-relocated positions, in free space, of the grid ``place.counts = [8, 8, 8]`` over
+   the scene bounds, recorded in the points file) also the light stage's **stored** values of that very probe: its
+   octahedral irradiance map (``probe_oct``, bilinear, the map DDGI samples) and its L2 SH (``probe_sh``, linear
+   evaluation) — only for probes the relocation moved by less than :data:`MAX_PROBE_SHIFT` and that are not OFF.
+   Taken from the default bake when its grid has probes there; else (the automatic default grid) from a second
+   bake with only ``place.counts = [8, 8, 8]`` set;
+4. also path-traces the same receivers with Kiln's own reference path tracer
+   (:func:`workers.kernels.pathtrace.indirect_irradiance`, ``--pt-spp`` paths, 64 bounces, Russian roulette from
+   vertex 3): ``kiln_pt``. It reads the scene through Kiln's ingest but has no probes, so ``kiln_pt`` != 1 points
+   at the scene reading (materials, lights, units) and ``kiln_pt`` ~ 1 with a mode != 1 at the probe pipeline.
+   In scenes with metals also ``kiln_pt_diffuse`` (column ``pt_diffuse``): the same with ``scene.specular_gi =
+   "none"``, i.e. Kiln's albedo reduced to glTF's diffuse term base x (1 - metallic), the lambert reference's model
+   (the default ``"metals"`` adds a diffuse equivalent of the metals' specular lobe, which that reference lacks);
+5. prints per scene and reference material a table region x mode of ``mean(kiln) / mean(cycles)`` (means over the
+   region's receivers of the RGB mean; cycles = ``E_probe``: the indirect light, plus emitters' direct light in
+   scenes with emitters), and the bake time. Where the Cycles mean is ~0 (a sealed cavity) the cell shows Kiln's
+   absolute mean instead (``=<value>``). The JSON (``--json``) also holds per-channel ratios and per-receiver
+   relative RMS errors.
+
+``metal-room`` has two references: ``lambert`` (every surface diffuse with albedo base x (1 - metallic): the
+model of a diffuse-only probe bake) and ``importer`` (Blender's Principled BSDF with glossy bounces; Blender 3.4
+adds its specular lobe on top of an undimmed diffuse, so closed bright rooms read ~20-27% above a diffuse model:
+an upper bracket, not a target).
+"""
+from __future__ import annotations
+
+import argparse
+import hashlib
+import json
+import math
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+from proto.models import BakeConfig  # noqa: E402
+from proto.stages import plan  # noqa: E402
+from proto.store import Store  # noqa: E402
+from workers import pipeline  # noqa: E402
+from workers.ingest import ingest_file  # noqa: E402
+from workers.kernels import samplers as SM  # noqa: E402
+from workers.kernels.ddgi import sample_irradiance  # noqa: E402
+from workers.kernels.grid import OFF, unpack_atlas  # noqa: E402
+from workers.kernels.octahedral import bilinear_sample  # noqa: E402
+from workers.kernels.pathtrace import indirect_irradiance  # noqa: E402
+from workers.kernels.sh import sh_irradiance  # noqa: E402
+from workers.procedural import make_scene  # noqa: E402
+
+DATA = ROOT / "tests" / "data" / "fidelity"
+MODES = ("leaking", "visibility_weighted", "ddgi", "mask", "mask_normalized")
+PROBE_MODES = ("probe_oct", "probe_sh")
+PT_BOUNCES, PT_RR_DEPTH = 64, 3
+MAX_PROBE_SHIFT = 0.02  # metres: a probe relocated further than this is not compared at its grid position
+ZERO = 1e-3             # a region whose Cycles mean is below ZERO x the scene's largest region mean counts as dark
+DEFAULT_SCENES = "two-rooms-vc,metal-room"
+
+
+def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None):
+    """Bake procedural scene ``name`` with ``config`` (default: the default config, ``BakeConfig()``):
+    (scene, {stage: LazyArtifacts}, config, seconds per stage)."""
+    glb = work / f"{name}.glb"
+    glb.write_bytes(make_scene(name))
+    store = Store(store_dir or (work / "store"))
+    t0 = time.perf_counter()
+    scene = ingest_file(glb)
+    t_ingest_file = time.perf_counter() - t0
+    sid = store.put_bytes(scene.to_bytes())
+    cfg = BakeConfig.model_validate(config or {})
+    recs, times = {}, {"ingest_file": t_ingest_file}
+    for st, _ in plan(sid, cfg):
+        t0 = time.perf_counter()
+        rec, cached = pipeline.execute_stage(store, sid, cfg, st.name)
+        times[st.name] = time.perf_counter() - t0
+        if cached:
+            times[st.name + " (cached)"] = times.pop(st.name)
+        recs[st.name] = pipeline._lazy(store, rec)
+    return scene, recs, cfg, times
+
+
+def merged_arrays(recs: dict) -> dict:
+    out = {}
+    for st in ("relocate", "trace", "light", "visibility", "masks", "compress"):
+        if st in recs:
+            for n in recs[st].names():
+                out[n] = recs[st][n]
+    return out
+
+
+def reconstruct(recs: dict, cfg: BakeConfig, pts: np.ndarray, nrm: np.ndarray) -> dict[str, np.ndarray]:
+    """(N, 3) indirect irradiance of each mode at receivers (pts, nrm); views = nrm."""
+    place = recs["place"].stats
+    grid = {k: place[k] for k in ("counts", "origin", "spacing")}
+    arrays = merged_arrays(recs)
+    out = {}
+    for mode in MODES:
+        if mode == "ddgi":
+            counts = grid["counts"]
+            n2 = cfg.light.irradiance_texels + 2
+            m2 = cfg.trace.depth_texels + 2
+            irr = unpack_atlas(arrays["irradiance"], counts, n2)[..., :3]
+            depth = unpack_atlas(arrays["depth_moments"], counts, m2)
+            pos = np.asarray(arrays["probe_positions_relocated"]).reshape(-1, 3)
+            states = np.asarray(arrays["probe_states"]).reshape(-1)
+            out[mode] = np.asarray(sample_irradiance(pts, nrm, nrm, counts, grid["origin"], grid["spacing"], pos, states,
+                                                     irr, depth, cfg.light.self_shadow_bias), np.float64)
+        else:
+            try:
+                out[mode] = SM.irradiance(mode, arrays, grid, pts, nrm, views=nrm if mode.startswith("mask") else None)
+            except KeyError as e:  # an artifact this bake does not have
+                print(f"  {mode}: skipped (no {e})")
+    return out
+
+
+def probe_values(recs: dict, cfg: BakeConfig, points: np.ndarray, dirs: np.ndarray) -> tuple[dict, list[dict]]:
+    """The light stage's stored irradiance of the probe at each of ``points`` (grid positions): {mode: (K, 6, 3)}
+    (NaN where not comparable) and per point {index, shift, state}."""
+    place = recs["place"].stats
+    counts = np.asarray(place["counts"])
+    origin, spacing = np.asarray(place["origin"]), np.asarray(place["spacing"])
+    arrays = merged_arrays(recs)
+    nx, ny, nz = counts
+    irr = unpack_atlas(arrays["irradiance"], counts, cfg.light.irradiance_texels + 2)[..., :3]
+    sh = np.asarray(arrays["probe_sh"]).reshape(nx * ny * nz, -1, 3)
+    pos = np.asarray(arrays["probe_positions_relocated"]).reshape(-1, 3)
+    states = np.asarray(arrays["probe_states"]).reshape(-1)
+    out = {m: np.full((len(points), len(dirs), 3), np.nan) for m in PROBE_MODES}
+    info = []
+    for k, p in enumerate(points):
+        ijk = np.rint((p - origin) / np.where(spacing > 0, spacing, 1.0)).astype(int)
+        on_grid = bool(np.all((0 <= ijk) & (ijk < counts))
+                       and np.linalg.norm(origin + spacing * ijk - p) < 1e-4)
+        if not on_grid:
+            info.append({"point": p.tolist(), "on_grid": False})
+            continue
+        i = int(ijk[0] + nx * (ijk[1] + ny * ijk[2]))
+        shift = float(np.linalg.norm(pos[i] - (origin + spacing * ijk)))
+        rec = {"point": p.tolist(), "on_grid": True, "probe": i, "shift": shift, "state": int(states[i])}
+        rec["compared"] = bool(states[i] != OFF and shift < MAX_PROBE_SHIFT)
+        info.append(rec)
+        if rec["compared"]:
+            out["probe_oct"][k] = bilinear_sample(irr[i].astype(np.float64), dirs)
+            out["probe_sh"][k] = sh_irradiance(sh[i], dirs)
+    return out, info
+
+
+def compare(kiln: np.ndarray, ref: np.ndarray, idx: list[int]) -> dict:
+    """kiln, ref (P, 6, 3); idx: the region's points. Ratio of region means (RGB mean and per channel) and the
+    per-receiver relative RMS error (receivers with ref > 0)."""
+    k, r = kiln[idx], ref[idx]
+    ok = np.isfinite(k).all(axis=-1)
+    if not ok.any():
+        return {}
+    k, r = k[ok], r[ok]
+    km, rm = float(k.mean()), float(r.mean())
+    rl, kl = r.mean(-1), k.mean(-1)
+    pos = rl > 1e-9
+    return {"kiln_mean": km, "cycles_mean": rm, "ratio": km / rm if rm > 0 else None,
+            "ratio_rgb": [float(a / b) if b > 0 else None for a, b in zip(k.mean(0), r.mean(0))],
+            "kiln_mean_rgb": k.mean(0).tolist(), "cycles_mean_rgb": r.mean(0).tolist(),
+            "receiver_rel_rms": float(np.sqrt(np.mean(((kl[pos] - rl[pos]) / rl[pos]) ** 2))) if pos.any() else None,
+            "receivers": int(k.shape[0])}
+
+
+def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384) -> dict:
+    pdoc = json.loads((DATA / f"{name}.points.json").read_text())
+    refs = {}
+    for path in sorted(DATA.glob(f"{name}.*.cycles.json")):
+        ref = json.loads(path.read_text())
+        refs[ref["material"]] = ref
+    if not refs:
+        raise SystemExit(f"no Cycles reference for {name} in {DATA}: run tests/data/fidelity/make_references.py")
+    sha = hashlib.sha256(make_scene(name)).hexdigest()
+    notes = []
+    for m, ref in refs.items():
+        if ref["glb_sha256"] != sha or ref["points"] != pdoc["points"]:
+            notes.append(f"reference {m} was made for another version of the scene or points: regenerate it")
+    t0 = time.perf_counter()
+    scene, recs, cfg, times = bake(name, work, store_dir)
+    bake_seconds = time.perf_counter() - t0
+    points = np.asarray(pdoc["points"], np.float64)
+    dirs = np.asarray(next(iter(refs.values()))["dirs"], np.float64)
+    P, D = len(points), len(dirs)
+    pts = np.repeat(points, D, axis=0)
+    nrm = np.tile(dirs, (P, 1))
+    modes = {m: v.reshape(P, D, 3) for m, v in reconstruct(recs, cfg, pts, nrm).items()}
+    pt_seconds = None
+    if pt_spp > 0:
+        lit = recs["ingest"]["lights"]
+        t0 = time.perf_counter()
+        pt = indirect_irradiance(scene, pts, nrm, lit["lights"], sky=lit["sky"], spp=pt_spp, bounces=PT_BOUNCES,
+                                 rr_depth=PT_RR_DEPTH, seed=cfg.seed)
+        pt_seconds = time.perf_counter() - t0
+        extra = {}
+        if any(float(m.get("metallic", 0.0)) > 0 for m in scene.materials):
+            # metals: Kiln's GI albedo adds a diffuse equivalent of their specular lobe (scene.specular_gi, default
+            # "metals"); with "none" it is glTF's diffuse term, base x (1 - metallic): the lambert oracle's model
+            scene.specular_gi = "none"
+            pt2 = indirect_irradiance(scene, pts, nrm, lit["lights"], sky=lit["sky"], spp=pt_spp, bounces=PT_BOUNCES,
+                                      rr_depth=PT_RR_DEPTH, seed=cfg.seed)
+            scene.specular_gi = cfg.scene.specular_gi
+            extra["kiln_pt_diffuse"] = np.asarray(pt2.irradiance, np.float64).reshape(P, D, 3)
+        modes = {"kiln_pt": np.asarray(pt.irradiance, np.float64).reshape(P, D, 3), **extra, **modes}
+    probe_idx = pdoc["regions"].get("probes", [])
+    probes, probe_info, probe_bake = ({}, [], None)
+    if probe_idx:
+        pv, probe_info = probe_values(recs, cfg, points[probe_idx], dirs)
+        probe_bake = {"config": "default", "seconds": None}
+        if not any(p.get("compared") for p in probe_info) and pdoc.get("probe_grid"):
+            # the default grid does not hold these points: bake the points file's grid to read its stored probes
+            g = {"place": {"counts": pdoc["probe_grid"]["counts"]}}
+            t1 = time.perf_counter()
+            _, recs2, cfg2, _ = bake(name, work, store_dir, g)
+            probe_bake = {"config": g, "seconds": time.perf_counter() - t1}
+            pv, probe_info = probe_values(recs2, cfg2, points[probe_idx], dirs)
+        for m, v in pv.items():
+            full = np.full((P, D, 3), np.nan)
+            full[probe_idx] = v
+            probes[m] = full
+    place = recs["place"].stats
+    out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times, "config": "default (BakeConfig())",
+           "kiln_pt": {"spp": pt_spp, "bounces": PT_BOUNCES, "rr_depth": PT_RR_DEPTH, "seconds": pt_seconds},
+           "grid": {k: place[k] for k in ("counts", "origin", "spacing")},
+           "grid_auto": place.get("auto"),
+           "light": {k: recs["light"].stats.get(k) for k in ("bounces", "converged", "mean_irradiance")},
+           "probes_off": int((np.asarray(recs["trace"]["probe_states"]).reshape(-1) == OFF).sum()),
+           "ingest_warnings": list(scene.warnings), "notes": notes, "probes": probe_info, "probe_bake": probe_bake,
+           "references": {}}
+    for mat, ref in refs.items():
+        target = np.asarray(ref.get("E_probe_rgb", ref["E_indirect_rgb"]), np.float64)
+        regs = {}
+        for region, idx in pdoc["regions"].items():
+            row = {"cycles_mean": float(target[idx].mean()), "modes": {}}
+            for m, v in {**modes, **(probes if region == "probes" else {})}.items():
+                c = compare(v, target, idx)
+                if c:
+                    row["modes"][m] = c
+            regs[region] = row
+        out["references"][mat] = {"regions": regs, "settings": ref["settings"], "seeds": ref["seeds"],
+                                  "spread": ref.get("spread", {})}
+    return out
+
+
+def table(res: dict) -> list[str]:
+    lines = []
+    cols = ["kiln_pt", "kiln_pt_diffuse", *MODES, *PROBE_MODES]
+    for mat, r in res["references"].items():
+        regs = r["regions"]
+        top = max((abs(v["cycles_mean"]) for v in regs.values()), default=0.0)
+        lines.append(f"== {res['scene']} vs Cycles {mat} ({r['settings']['samples']} spp x {len(r['seeds'])} seeds, "
+                     f"{r['settings']['bounces']} bounces): mean(kiln)/mean(cycles) of the indirect irradiance")
+        lines.append(f"{'region':<13}{'cycles W/m2':>12}" + "".join(f"{c:>11}" for c in
+                     ("kiln_pt", "pt_diffuse", "leaking", "vis_wtd", "ddgi", "mask", "mask_norm", "probe_oct", "probe_sh")) + f"{'ref sem':>9}")
+        spr = (r.get("spread") or {}).get("region_rel_sem", {})
+        for region, row in regs.items():
+            cells = []
+            dark = row["cycles_mean"] < ZERO * top
+            for c in cols:
+                v = row["modes"].get(c)
+                if v is None:
+                    cells.append(f"{'-':>11}")
+                elif dark or v["ratio"] is None:
+                    cells.append(f"{'=' + format(v['kiln_mean'], '.2e'):>11}")
+                else:
+                    cells.append(f"{v['ratio']:>11.3f}")
+            s = spr.get(region)
+            lines.append(f"{region:<13}{row['cycles_mean']:>12.4g}" + "".join(cells)
+                         + (f"{100 * s:>8.1f}%" if s is not None else f"{'':>9}"))
+    st = res["stage_seconds"]
+    slow = sorted(((v, k) for k, v in st.items()), reverse=True)[:4]
+    lines.append(f"bake {res['bake_seconds']:.1f} s (default config, grid {res['grid']['counts']}; slowest: "
+                 + ", ".join(f"{k} {v:.1f}" for v, k in slow) + ")")
+    n_cmp = sum(1 for p in res["probes"] if p.get("compared"))
+    lines.append(f"light stage: {res['light']['bounces']} bounces, converged {res['light']['converged']}; "
+                 f"{res['probes_off']} of {int(np.prod(res['grid']['counts']))} probes OFF")
+    if res["probes"]:
+        pb = res["probe_bake"] or {}
+        src = "the default bake" if pb.get("config") == "default" else \
+            f"a second bake with {pb.get('config')} ({pb.get('seconds', 0):.1f} s; the default grid holds no such probe)"
+        lines.append(f"probe_oct / probe_sh: stored values of {n_cmp}/{len(res['probes'])} probes of {src} "
+                     f"(not OFF, relocated < {MAX_PROBE_SHIFT * 100:.0f} cm)")
+    for w in res["ingest_warnings"]:
+        lines.append(f"ingest warning: {w}")
+    for n in res["notes"]:
+        lines.append(f"note: {n}")
+    return lines
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scenes", default=DEFAULT_SCENES, help="comma list of procedural scenes with references")
+    ap.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
+    ap.add_argument("--store", type=Path, default=None, help="stage store to reuse (default: a fresh temp store)")
+    ap.add_argument("--pt-spp", type=int, default=16384, help="paths per receiver of Kiln's path tracer (0: skip)")
+    args = ap.parse_args()
+    results = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in [s for s in args.scenes.split(",") if s]:
+            print(f"baking {name} ...", flush=True)
+            res = run_scene(name, Path(tmp), args.store, args.pt_spp)
+            results[name] = res
+            print("\n".join(table(res)), flush=True)
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1, default=_json_default) + "\n")
+        print(f"wrote {args.json}")
+    return 0
+
+
+def _json_default(x):
+    if isinstance(x, (np.floating, np.integer)):
+        v = x.item()
+        return v if not (isinstance(v, float) and not math.isfinite(v)) else None
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    raise TypeError(type(x))
+
+
+if __name__ == "__main__":
+    sys.exit(main())
