@@ -20,6 +20,9 @@ Outputs (float32, same layouts and names as the light stage's artifacts, proto/b
 - ``probe_sh`` (nz, ny, nx, K, 3): radiance SH per probe (three.js order), the probe light of the given
   lights alone (emission and sky are not part of the transfer);
 - ``sh_l1_r``, ``sh_l1_g``, ``sh_l1_b`` (nz, ny, nx, 4): L0 + L1 of each channel (leaking probe GI volumes);
+- ``sh_l2`` (7·(nz+2), ny, nx, 4): all 9 coefficients in the three.js LightProbeGrid layout
+  (:func:`workers.kernels.sh.sh_l2_atlas`), only when the bake's SH is L2 (K = 9, ``light.sh_order`` 2, the
+  default): what leaking probe GI and the prt GLSL mode shade with by default;
 - ``lightmap`` (R, R, 4): indirect irradiance (lux x colour) in rgb, a = 1 on covered (and dilated)
   texels, 0 elsewhere; only when the bake has a lightmap target;
 - ``prt_direct`` (M, 3): the direct vector x used.
@@ -35,6 +38,7 @@ from typing import Callable
 import numpy as np
 
 from workers.kernels import prt as kprt
+from workers.kernels.sh import sh_l2_atlas
 from workers.kernels.shading import direct_irradiance
 
 __all__ = ["PrtModel", "relight", "direct_vector", "get_caster"]
@@ -151,6 +155,8 @@ def relight(prt_arrays, lights: list[dict], caster=None, *, lightmap: bool = Tru
     out = {"probe_sh": sh, "prt_direct": x.astype(np.float32)}
     for i, c in enumerate("rgb"):
         out[f"sh_l1_{c}"] = np.ascontiguousarray(sh[..., :4, i])
+    if K == 9:
+        out["sh_l2"] = sh_l2_atlas(sh)
     if lightmap and model.lightmap is not None:
         res = model.lm_res
         img = np.zeros((res * res, 4), np.float32)

@@ -21,3 +21,12 @@ vec3 giProbeTexel(vec3 p) {
 vec3 giStackedUVW(vec3 texel, float slot, float count) {
   return vec3(texel.xy / uGridCounts.xy, (texel.z + slot * uGridCounts.z) / (uGridCounts.z * count));
 }
+
+// uvw of sub-volume `slot` in a 3D texture holding `count` padded probe volumes stacked along z (the sh_l2 layout
+// of three.js LightProbeGrid, proto/bundle.md 5.1): sub-volume s spans z texels [s (nz + 2), (s + 1)(nz + 2)),
+// its data at s (nz + 2) + 1 + k, one padding slice (a copy of the nearest data slice) at each end. `texel` from
+// giProbeTexel (clamped to the data's texel centres, so the padding is never weighted).
+vec3 giPaddedStackedUVW(vec3 texel, float slot, float count) {
+  float slices = uGridCounts.z + 2.0;
+  return vec3(texel.xy / uGridCounts.xy, (texel.z + 1.0 + slot * slices) / (slices * count));
+}

@@ -7,7 +7,7 @@
 //   that sum is 0.
 // A mask channel is 0 wherever its cluster has no probe in the cell (masks.canonicalize), so m_k > 0 marks the
 // clusters to sample ("only sample probe volumes whose masks are marked", MD §1).
-// Fetches per pixel: mask 1 + A + 3·z, normalized 1 + 2A + 3·z, with A = ceil(K / 4) and z the clusters with m_k > 0
+// Fetches per pixel: mask 1 + A + 3·z, normalized 1 + 2A + 3·z (7·z with KILN_SH_L2), with A = ceil(K / 4) and z the clusters with m_k > 0
 // at the pixel. The sampled clusters are listed first and then looped over with a data-dependent trip count: a GPU
 // wave or a llvmpipe SIMD group runs max(z) iterations. (llvmpipe runs the body of an `if` for every lane, fetches
 // included, even when no lane takes it; only loops exit early.)
@@ -18,6 +18,11 @@
 //   uMaskAtlas0123    mask_atlas_0123 (RGBA8 UNORM, LINEAR); uMaskAtlas4567 mask_atlas_4567 when K > 4
 //   uClusterSh        the 3·K volumes cluster_sh_{k}_{r,g,b} stacked along z in the order k0 r, k0 g, k0 b,
 //                     k1 r, ... (their bytes concatenated): depth 3·K·nz, RGBA32F, LINEAR
+//   uClusterShL2      with KILN_SH_L2 (the renderers define it when the bake has cluster_sh_l2_{k}; the default,
+//                     docs/architecture.md "Runtime SH evaluation"): the K volumes cluster_sh_l2_{k} (each the
+//                     sh_l2 layout: 7 padded sub-volumes, proto/bundle.md 5.2) stacked along z in k order: depth
+//                     7·K·(nz + 2), RGBA32F, LINEAR; 7 fetches per cluster with m_k > 0 instead of 3, E by the
+//                     linear L2 evaluation (sh.glsl shIrradianceL2Packed). uClusterSh is then not read.
 //   uClusterWeights   cluster_weights_0123 (+ _4567) stacked the same way, RGBA32F, LINEAR
 // Uniforms from the atlas meta: uMaskS (S, samples_per_cell), uMaskT (block_size), uMaskLo (border_lo);
 // uMaskOffset: refined samples (1, samplers.MASK_OFFSET_SAMPLES) the lookup moves along d = n + giViewDir, per axis
@@ -39,7 +44,11 @@
 uniform highp sampler3D uMaskIndirection;
 uniform highp sampler3D uMaskAtlas0123;
 uniform highp sampler3D uMaskAtlas4567;
+#ifdef KILN_SH_L2
+uniform highp sampler3D uClusterShL2;
+#else
 uniform highp sampler3D uClusterSh;
+#endif
 uniform highp sampler3D uClusterWeights;
 uniform int uClusterCount;  // K, 1..8
 uniform float uMaskS;
@@ -66,8 +75,23 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
 #endif
 }
 
-// m_k E_k(n) of cluster k (slots 3k, 3k+1, 3k+2 of uClusterSh): 3 fetches. Called in non-uniform control flow
+// m_k E_k(n) of cluster k (L1: slots 3k, 3k+1, 3k+2 of uClusterSh, 3 fetches; L2 below: 7). Called in non-uniform control flow
 // (the data-dependent loop below), where implicit derivatives are undefined: explicit LOD 0 (no mipmaps).
+#ifdef KILN_SH_L2
+// L2: sub-volumes 7k .. 7k + 6 of uClusterShL2 (7 fetches); `slots` = 7K.
+vec3 giClusterTerm(vec3 texel, int k, float slots, float mk, vec3 n) {
+  float s = 7.0 * float(k);
+  vec4 s0 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s, slots), 0.0);
+  vec4 s1 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s + 1.0, slots), 0.0);
+  vec4 s2 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s + 2.0, slots), 0.0);
+  vec4 s3 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s + 3.0, slots), 0.0);
+  vec4 s4 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s + 4.0, slots), 0.0);
+  vec4 s5 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s + 5.0, slots), 0.0);
+  vec4 s6 = textureLod(uClusterShL2, giPaddedStackedUVW(texel, s + 6.0, slots), 0.0);
+  return mk * shIrradianceL2Packed(s0, s1, s2, s3, s4, s5, s6, n);
+}
+const float GI_CLUSTER_SLOTS = 7.0;
+#else
 vec3 giClusterTerm(vec3 texel, int k, float slots, float mk, vec3 n) {
   float s = 3.0 * float(k);
   vec4 r = textureLod(uClusterSh, giStackedUVW(texel, s, slots), 0.0);
@@ -75,6 +99,8 @@ vec3 giClusterTerm(vec3 texel, int k, float slots, float mk, vec3 n) {
   vec4 b = textureLod(uClusterSh, giStackedUVW(texel, s + 2.0, slots), 0.0);
   return mk * shIrradianceL1(r, g, b, n);
 }
+const float GI_CLUSTER_SLOTS = 3.0;
+#endif
 
 // Σ_k m_k E_k(n) (rgb) and, when `normalized`, Σ_k m_k w_k (returned in den; else 1).
 vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
@@ -91,7 +117,7 @@ vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
       count += 1;
     }
   }
-  float slots = 3.0 * float(uClusterCount);
+  float slots = GI_CLUSTER_SLOTS * float(uClusterCount);
   vec3 e = vec3(0.0);
   for (int i = 0; i < count; ++i) {
     int k = (list >> (3 * i)) & 7;

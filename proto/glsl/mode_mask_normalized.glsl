@@ -5,6 +5,6 @@
 vec3 giIndirectIrradiance(vec3 p, vec3 n) {
   float den;
   vec3 e = giMaskSum(p, n, true, den);
-  // clamped at 0 like leaking: L1 SH of a strongly directional probe rings negative away from its light
+  // clamped at 0 like leaking: the SH of a strongly directional probe rings negative away from its light
   return den > 0.0 ? max(e / den, 0.0) : vec3(0.0);
 }

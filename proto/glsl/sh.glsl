@@ -1,4 +1,4 @@
-// L1 spherical harmonics: radiance coefficients -> irradiance.
+// L1 and L2 spherical harmonics: radiance coefficients -> irradiance.
 // Coefficient order per channel (proto/bundle.md 5.1, three.js SphericalHarmonics3):
 //   c.x = L0 (Y00 = 0.282095), c.y = L1(y), c.z = L1(z), c.w = L1(x)   (Y1m = 0.488603 · {y, z, x})
 // Python reference: workers/kernels/sh.py sh_irradiance (linear, order 1) and sh_irradiance_l1_nonlinear.
@@ -41,4 +41,24 @@ float shIrradianceL1Channel(vec4 c, vec3 n) {
 // E(n) for unit world-space normal n, linear RGB; constant radiance L gives π·L.
 vec3 shIrradianceL1(vec4 r, vec4 g, vec4 b, vec3 n) {
   return vec3(shIrradianceL1Channel(r, n), shIrradianceL1Channel(g, n), shIrradianceL1Channel(b, n));
+}
+
+// ---- L2 (9 coefficients; workers/kernels/sh.py sh_irradiance_l2, web/src/math/sh.js shIrradianceL2)
+// c0..c8: the radiance coefficients of the three.js order (sh.py module table), rgb per coefficient. Linear:
+// Ramamoorthi & Hanrahan 2001 eq 7, E(n) = Σ_lm Â_l L_lm Y_lm(n), with eq 8's clamped-cosine kernel
+// Â_0 = π, Â_1 = 2π/3, Â_2 = π/4 folded into SH_IRR_C0..C4 (common.glsl). Constant radiance L gives π·L.
+// Not clamped: the modes clamp E at 0 (L2 of a light seen through a doorway still rings slightly below 0).
+vec3 shIrradianceL2(vec3 c0, vec3 c1, vec3 c2, vec3 c3, vec3 c4, vec3 c5, vec3 c6, vec3 c7, vec3 c8, vec3 n) {
+  return SH_IRR_C0 * c0                                                  // Â_0 Y00
+       + SH_IRR_C1 * (c1 * n.y + c2 * n.z + c3 * n.x)                      // Â_1 Y1m
+       + SH_IRR_C2 * (c4 * (n.x * n.y) + c5 * (n.y * n.z) + c7 * (n.x * n.z))  // Â_2 Y2m, m = -2, -1, 1
+       + SH_IRR_C3 * (3.0 * n.z * n.z - 1.0) * c6                          // Â_2 Y20
+       + SH_IRR_C4 * (n.x * n.x - n.y * n.y) * c8;                         // Â_2 Y22
+}
+
+// The 7 RGBA texels of the sh_l2 layout (proto/bundle.md 5.1, three.js LightProbeGrid): the 27 numbers
+// c0.rgb, c1.rgb, ..., c8.rgb in order, 4 per texel (s6.w unused).
+vec3 shIrradianceL2Packed(vec4 s0, vec4 s1, vec4 s2, vec4 s3, vec4 s4, vec4 s5, vec4 s6, vec3 n) {
+  return shIrradianceL2(s0.xyz, vec3(s0.w, s1.xy), vec3(s1.zw, s2.x), s2.yzw, s3.xyz, vec3(s3.w, s4.xy),
+                        vec3(s4.zw, s5.x), s5.yzw, s6.xyz, n);
 }

@@ -215,3 +215,92 @@ def test_irradiance_dispatch_and_errors():
         SM.irradiance("nope", arrays, g, p, n)
     with pytest.raises(ValueError, match="probe volume"):
         SM.leaking(p, n, sh[0][:1], sh[1], sh[2], g)
+
+
+# ------------------------------------------------------------------------------------------------ L2
+def _random_l2(g, seed=0):
+    rng = np.random.default_rng(seed)
+    sh = rng.normal(0.0, 0.3, size=(int(g.counts[2]), int(g.counts[1]), int(g.counts[0]), 9, 3))
+    sh[..., 0, :] += 1.0
+    return sh.astype(np.float32)
+
+
+def _trilinear_coeffs(sh, g, p):
+    """Reference: the 9 x 3 coefficients trilinearly interpolated between the 8 cage probes (clamped)."""
+    t = np.clip(np.where(g.live, (p - g.origin) / np.where(g.live, g.spacing, 1.0), 0.0), 0, g.counts - 1)
+    i0 = np.minimum(np.floor(t).astype(int), np.maximum(g.counts - 2, 0))
+    f = t - i0
+    out = np.zeros((9, 3))
+    for c in range(8):
+        off = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
+        idx = np.minimum(i0 + off, g.counts - 1)
+        out += np.prod(np.where(off, f, 1 - f)) * sh[idx[2], idx[1], idx[0]]
+    return out
+
+
+@pytest.mark.parametrize("counts", [(4, 3, 5), (3, 1, 4), (1, 1, 1)])
+def test_leaking_l2_interpolates_the_nine_coefficients(counts):
+    """sh_l2_sample of the sh_l2 atlas = trilinear interpolation of the probes' 9 x 3 coefficients (clamped at the
+    border, constant along one-probe axes), and leaking_l2 = their linear L2 evaluation."""
+    from workers.kernels.sh import sh_irradiance_l2, sh_l2_atlas
+
+    g = _grid(counts=counts)
+    sh = _random_l2(g, 1)
+    atlas = sh_l2_atlas(sh)
+    pts = _points(g, 60, seed=2, margin=0.6)
+    n = _normals(60, 3)
+    got = SM.sh_l2_sample(atlas, pts, g)
+    want = np.stack([_trilinear_coeffs(sh.astype(np.float64), g, p) for p in pts])
+    np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(SM.leaking_l2(pts, n, atlas, g), sh_irradiance_l2(want, n), rtol=1e-5, atol=1e-6)
+    # probe positions return the probe itself
+    k, j, i = (np.asarray(sh.shape[:3]) - 1) // 2
+    np.testing.assert_allclose(SM.sh_l2_sample(atlas, (g.origin + np.array([i, j, k]) * g.spacing)[None], g)[0],
+                               sh[k, j, i], rtol=1e-6)
+
+
+def test_leaking_l2_constant_radiance_and_dispatch():
+    """Constant radiance L (L0 = L / Y00 only): π·L for every normal; irradiance() picks L2 where the bake has sh_l2
+    (sh_order None, the runtime default), L1 when asked, and refuses L2 without the volume."""
+    from workers.kernels.sh import sh_l2_atlas
+
+    g = _grid(counts=(2, 2, 2), origin=(0, 0, 0), spacing=(1, 1, 1))
+    L = np.array([0.5, 1.0, 2.0])
+    sh = np.zeros((2, 2, 2, 9, 3), np.float32)
+    sh[..., 0, :] = L / SH_C0
+    arrays = {f"sh_l1_{c}": np.ascontiguousarray(sh[..., :4, i]) for i, c in enumerate("rgb")}
+    pts, n = _points(g, 50, margin=0.5), _normals(50)
+    e1 = SM.irradiance("leaking", arrays, g, pts, n)
+    np.testing.assert_allclose(e1, np.tile(math.pi * L, (50, 1)), rtol=1e-6)
+    with pytest.raises(ValueError, match="no L2"):
+        SM.irradiance("leaking", arrays, g, pts, n, sh_order=2)
+    sh[..., 4:, :] = [0.3, -0.1, 0.2]                                     # band 2 only changes the L2 evaluation
+    arrays["sh_l2"] = sh_l2_atlas(sh)
+    e2 = SM.irradiance("leaking", arrays, g, pts, n)
+    np.testing.assert_allclose(e2, SM.leaking_l2(pts, n, arrays["sh_l2"], g))
+    assert not np.allclose(e2, e1)
+    np.testing.assert_allclose(SM.irradiance("leaking", arrays, g, pts, n, sh_order=1), e1)
+    assert SM.has_l2("leaking", arrays) and not SM.has_l2("mask", arrays)
+
+
+def test_mask_l2_sums_the_cluster_l2_volumes():
+    """Mask GI with cluster_sh_l2: Σ_k m_k E_L2(SH_k); with every mask 1 and the clusters partitioning the probes
+    (linear L2, additive), it is leaking_l2 of the whole grid."""
+    from workers.kernels.sh import sh_l2_atlas
+
+    g = _grid(counts=(3, 3, 3), origin=(0, 0, 0), spacing=(1, 1, 1))
+    sh = _random_l2(g, 4)
+    K = 2
+    labels = (np.arange(27) % K).reshape(3, 3, 3)
+    vols = [sh_l2_atlas(np.where((labels == k)[..., None, None], sh, 0)) for k in range(K)]
+    S = 2
+    masks = [np.full((2 * S, 2 * S, 2 * S, 4), 255, np.uint8)]
+    arrays = {"masks_0123": masks[0], **{f"cluster_sh_{k}_{c}": np.zeros((3, 3, 3, 4), np.float32)
+                                         for k in range(K) for c in "rgb"},
+              **{f"cluster_sh_l2_{k}": vols[k] for k in range(K)}}
+    pts, n = _points(g, 40, seed=5), _normals(40, 6)
+    got = SM.irradiance("mask", arrays, g, pts, n, mask_offset_samples=0.0)
+    np.testing.assert_allclose(got, SM.leaking_l2(pts, n, sh_l2_atlas(sh), g), rtol=1e-5, atol=1e-6)
+    assert SM.has_l2("mask", arrays)
+    # the L1 path reads the (here zero) L1 cluster volumes
+    assert np.all(SM.irradiance("mask", arrays, g, pts, n, mask_offset_samples=0.0, sh_order=1) == 0)

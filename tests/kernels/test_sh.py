@@ -11,6 +11,10 @@ from workers.kernels.sh import (
     sh_basis,
     sh_irradiance,
     sh_irradiance_l1_nonlinear,
+    sh_irradiance_l2,
+    sh_l2_atlas,
+    sh_l2_atlas_depth,
+    sh_l2_from_atlas,
     sh_project,
 )
 
@@ -193,3 +197,91 @@ def test_nonlinear_l1_rejects_bad_shapes():
         sh_irradiance_l1_nonlinear(np.ones((9, 3)), np.ones(3))
     with pytest.raises(ValueError):
         sh_irradiance_l1_nonlinear(np.ones((4, 3)), np.ones(2))
+
+
+# ------------------------------------------------------------------------------------------------ L2
+@pytest.mark.parametrize("seed", SEEDS)
+def test_l2_constant_radiance_is_pi_l_for_every_normal(seed):
+    """Identity 1: constant radiance L projects to L0 = L/Y00 only and evaluates to π·L for every normal."""
+    rng = np.random.default_rng(seed)
+    L = rng.uniform(0.1, 5.0, size=3)
+    d = _pattern(2048, seed)
+    c = sh_project(d, np.broadcast_to(L, (2048, 3)), order=2)                # (9, 3)
+    np.testing.assert_allclose(c[0], L / SH_C0, rtol=1e-6)
+    np.testing.assert_allclose(c[1:], 0.0, atol=2e-3 * L.max())
+    normals = np.concatenate([_random_dirs(rng, 200), np.eye(3), -np.eye(3)])
+    np.testing.assert_allclose(sh_irradiance_l2(c, normals), np.tile(np.pi * L, (len(normals), 1)), rtol=2e-3)
+    exact = np.zeros((9, 3))
+    exact[0] = L / SH_C0
+    np.testing.assert_allclose(sh_irradiance_l2(exact, normals), np.tile(np.pi * L, (len(normals), 1)), rtol=1e-12)
+
+
+def _brute_force_irradiance(radiance_fn, normals, n=400_000):
+    """E(n) = ∫ L(ω) max(0, n·ω) dω by a dense uniform (Fibonacci) quadrature of the sphere."""
+    d = fibonacci_sphere(n).astype(np.float64)
+    L = radiance_fn(d)
+    return np.array([(L * np.maximum(0.0, d @ nn)).sum() * 4 * np.pi / n for nn in normals])
+
+
+def test_l2_clamped_cosine_lobe_matches_its_integrated_irradiance():
+    """Identity 2: the clamped-cosine radiance max(0, a·ω). Its irradiance, integrated numerically, is the
+    closed form (2/3)((π − γ) cos γ + sin γ) (2π/3 facing a, γ = angle(n, a)); the L2 projection + RH01
+    evaluation reproduces it to 0.0164 (the band-3+ remainder; facing a: π/4 + π/3 + 5π/64 = 2.078, 0.8% low)."""
+    a = np.array([0.36, 0.48, 0.8])
+    rng = np.random.default_rng(9)
+    normals = np.concatenate([[a, -a], np.eye(3), -np.eye(3), _random_dirs(rng, 40)])
+    lobe = lambda d: np.maximum(0.0, d @ a)                                   # noqa: E731
+    exact = _brute_force_irradiance(lobe, normals)
+    np.testing.assert_allclose(exact, _cosine_lobe_irradiance(normals @ a), atol=2e-4)
+    assert abs(exact[0] - 2 * np.pi / 3) < 2e-4
+    d = _pattern(4096, 3)
+    c = sh_project(d, lobe(d)[:, None], order=2)
+    e2 = sh_irradiance_l2(c, normals)[:, 0]
+    np.testing.assert_allclose(e2, exact, atol=0.0175)
+    assert abs(e2[0] / exact[0] - 1) < 0.01
+    e1 = sh_irradiance(c[:4], normals)[:, 0]
+    assert np.abs(e2 - exact).max() < 0.2 * np.abs(e1 - exact).max()     # L2 is far closer than L1
+
+
+def test_l2_of_a_doorway_probe_rings_less_than_linear_l1():
+    """The probe lit through a doorway (a 25.8° cone, exact irradiance 0.597 facing it, 0 behind): the linear L1
+    rings to -0.149 behind it; L2 reads +0.028 there (the modes clamp at 0 anyway) and is closer than the linear L1
+    facing the light (0.657 vs 0.480). (The non-linear L1 is closer still on this one: 0.633 / 0.004 — a narrow
+    lobe is its best case; docs/architecture.md "Runtime SH evaluation" has the trade.)"""
+    d = _sphere(20000, 1)
+    light = np.array([-1.0, 0.0, 0.0])
+    cone = lambda v: (v @ light > 0.9).astype(np.float64)                   # noqa: E731
+    c = sh_project(d, cone(d)[:, None] * np.ones(3), order=2)
+    probes = np.stack([light, -light, [0, 1.0, 0]])                         # front, back, side
+    exact = _brute_force_irradiance(cone, probes, 200_000)
+    e2 = sh_irradiance_l2(c, probes)[:, 0]
+    e1 = sh_irradiance(c[:4], probes)[:, 0]
+    assert exact[1] == 0 and e1[1] < -0.1 and abs(e2[1]) < 0.05 * exact[0]
+    assert abs(e2[0] - exact[0]) < 0.6 * abs(e1[0] - exact[0])
+    assert abs(e2[2] - exact[2]) < 0.3 * abs(e1[2] - exact[2])
+
+
+def test_l2_atlas_is_the_threejs_light_probe_grid_layout():
+    """sh_l2: 7 sub-volumes of nz + 2 slices stacked along z; texel channel q of sub-volume t = number 4t + q of
+    [c0.rgb, ..., c8.rgb, 0] (three.js lightprobes_pars_fragment unpacks c1 = (s0.w, s1.xy), ...); padding slices
+    copy the nearest data slice; the inverse recovers the coefficients."""
+    rng = np.random.default_rng(2)
+    nz, ny, nx = 3, 2, 4
+    sh = rng.normal(size=(nz, ny, nx, 9, 3)).astype(np.float32)
+    a = sh_l2_atlas(sh)
+    assert a.shape == (sh_l2_atlas_depth(nz), ny, nx, 4) == (35, 2, 4, 4) and a.dtype == np.float32
+    k, j, i = 2, 1, 3
+    texels = [a[t * (nz + 2) + 1 + k, j, i] for t in range(7)]               # s0 .. s6 of probe (i, j, k)
+    s0, s1, s2, s3, s4, s5, s6 = texels
+    unpack = [s0[:3], [s0[3], *s1[:2]], [*s1[2:], s2[0]], s2[1:], s3[:3], [s3[3], *s4[:2]], [*s4[2:], s5[0]],
+              s5[1:], s6[:3]]
+    np.testing.assert_array_equal(np.array(unpack, np.float32), sh[k, j, i])
+    assert s6[3] == 0
+    for t in range(7):
+        np.testing.assert_array_equal(a[t * (nz + 2)], a[t * (nz + 2) + 1])             # lower padding
+        np.testing.assert_array_equal(a[t * (nz + 2) + nz + 1], a[t * (nz + 2) + nz])   # upper padding
+    np.testing.assert_array_equal(sh_l2_from_atlas(a), sh)
+    with pytest.raises(ValueError):
+        sh_l2_atlas(sh[..., :4, :])
+    with pytest.raises(ValueError):
+        sh_irradiance_l2(sh[..., :4, :], np.ones(3))

@@ -98,26 +98,30 @@ def test_preprocessor_contract():
 
 
 def test_every_mode_compiles_forward_and_deferred(ctx):
-    """scene.frag.glsl (the viewer's forward shader) and deferred.frag.glsl compile with every mode."""
+    """scene.frag.glsl (the viewer's forward shader) and deferred.frag.glsl compile with every mode, with the
+    L1 and the L2 (KILN_SH_L2) SH evaluation."""
     src = load_sources()
     vert = preprocess("scene.vert.glsl", src, target="desktop").code
-    for mode in MODES:
-        for entry in ("scene.frag.glsl",):
-            code = preprocess(entry, src, target="desktop", slots={"mode": f"mode_{mode}.glsl"},
-                              defines={"MAX_LIGHTS": 8}).code
-            ctx.program(vertex_shader=vert, fragment_shader=code).release()
-        preprocess("deferred.frag.glsl", src, target="webgl2", slots={"mode": f"mode_{mode}.glsl"},
-                   defines={"MAX_LIGHTS": 8})
-    r = ShadingRenderer(ctx)
-    try:
+    for extra in ({}, {"KILN_SH_L2": 1}):
         for mode in MODES:
-            r.program(mode)
-    finally:
-        r.release()
+            for entry in ("scene.frag.glsl",):
+                code = preprocess(entry, src, target="desktop", slots={"mode": f"mode_{mode}.glsl"},
+                                  defines={"MAX_LIGHTS": 8, **extra}).code
+                ctx.program(vertex_shader=vert, fragment_shader=code).release()
+            preprocess("deferred.frag.glsl", src, target="webgl2", slots={"mode": f"mode_{mode}.glsl"},
+                       defines={"MAX_LIGHTS": 8, **extra})
+        r = ShadingRenderer(ctx)
+        try:
+            for mode in MODES:
+                r.program(mode, extra)
+        finally:
+            r.release()
 
 
-@pytest.mark.parametrize("mode", ["leaking", "ddgi", "mask", "mask_normalized"])
-def test_glsl_equals_python(ctx, two_rooms, mode):
+@pytest.mark.parametrize("mode,sh_order", [("leaking", None), ("leaking", 1), ("ddgi", None), ("mask", None),
+                                           ("mask", 1), ("mask_normalized", None), ("mask_normalized", 1)])
+def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
+    """sh_order None: the default, L2 (the bake is light.sh_order 2: sh_l2, cluster_sh_l2_{k}); 1: the L1 path."""
     scene, s = two_rooms
     arrays, grid = _arrays(s), _grid(s)
     rng = np.random.default_rng(7)
@@ -126,7 +130,10 @@ def test_glsl_equals_python(ctx, two_rooms, mode):
     eye = np.array([4.0, 1.5, 2.0])
     view = (eye - p) / np.linalg.norm(eye - p, axis=1, keepdims=True)
     if mode == "leaking":
-        want = np.maximum(SM.leaking(p, n, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid), 0)
+        want = np.maximum(SM.irradiance("leaking", arrays, grid, p, n, sh_order=sh_order), 0)
+        if sh_order == 1:
+            assert np.array_equal(want, np.maximum(SM.leaking(p, n, arrays["sh_l1_r"], arrays["sh_l1_g"],
+                                                              arrays["sh_l1_b"], grid), 0))
     elif mode == "ddgi":
         counts = grid["counts"]
         irr = unpack_atlas(arrays["irradiance"], counts, arrays["irradiance"].shape[0] // counts[1])[..., :3]
@@ -135,9 +142,11 @@ def test_glsl_equals_python(ctx, two_rooms, mode):
                                  arrays["probe_positions_relocated"].reshape(-1, 3),
                                  arrays["probe_states"].reshape(-1), irr, dep, 0.3).astype(np.float64)
     else:
-        # the GLSL clamps L1 ringing at 0; its mask lookup moves along n + v (v = giViewDir, set from uEye)
-        want = np.maximum(SM.irradiance(mode, arrays, grid, p, n, views=view), 0)
-    res = prepare_mode(mode, arrays, grid, mask_meta=_mask_meta(s))
+        # the GLSL clamps SH ringing at 0; its mask lookup moves along n + v (v = giViewDir, set from uEye)
+        want = np.maximum(SM.irradiance(mode, arrays, grid, p, n, views=view, sh_order=sh_order), 0)
+    res = prepare_mode(mode, arrays, grid, mask_meta=_mask_meta(s), sh_order=sh_order)
+    if mode != "ddgi":
+        assert res.info["sh_order"] == (sh_order or 2) and ("KILN_SH_L2" in res.defines) == (sh_order is None)
     r = ShadingRenderer(ctx)
     try:
         r.set_mode(res)
@@ -155,6 +164,46 @@ def test_glsl_equals_python(ctx, two_rooms, mode):
     else:
         assert np.quantile(per_point, 0.995) <= F16, np.quantile(per_point, 0.995)
         assert per_point.max() <= (0.05 if mode == "ddgi" else 2.0 ** -8), per_point.max()
+
+
+def test_leaking_l2_glsl_equals_the_shared_fixture(ctx):
+    """Python = GLSL = JavaScript on proto/fixtures: mode_leaking.glsl with KILN_SH_L2 (7 hardware-trilinear fetches
+    of sh_l2.ktx2 through giPaddedStackedUVW, shIrradianceL2Packed) gives expected.json's L2 irradiance at the
+    fixture's points (written by Python, checked in JS by web/tests/parity.test.js), at the probes too."""
+    import json
+
+    from proto.ktx2 import read_ktx2
+    from tests.web.test_fixtures import FIX
+
+    e = json.loads((FIX / "expected.json").read_text())["sh_l2"]
+    atlas, _ = read_ktx2(FIX / e["file"])
+    grid = e["grid"]
+    normals = np.asarray(e["normals"])
+    nx, ny, nz = grid["counts"]
+    probes = [np.asarray(grid["origin"]) + np.asarray(grid["spacing"]) * (i, j, k)
+              for k in range(nz) for j in range(ny) for i in range(nx)]
+    pts = np.array([smp["p"] for smp in e["samples"]] + probes)
+    p = np.repeat(pts, len(normals), axis=0)
+    n = np.tile(normals, (len(pts), 1))
+    want_samples = np.array([smp["irradiance"][str(i)] for smp in e["samples"] for i in range(len(normals))])
+    want_probes = np.asarray(e["irradiance"]).reshape(-1, 3)                  # (D, H, W, N, 3) flattened
+    want = np.maximum(np.concatenate([want_samples, want_probes]), 0)
+    res = prepare_mode("leaking", {"sh_l2": atlas}, grid)
+    assert res.defines == {"KILN_SH_L2": 1} and set(res.textures) == {"uShL2"}
+    W = len(normals)
+    r = ShadingRenderer(ctx)
+    try:
+        r.set_mode(res)
+        H = len(p) // W
+        r.set_gbuffer(GBufferInputs(_as_image(p, W), _as_image(n, W), np.zeros((H, W, 3)), np.zeros((H, W, 3)),
+                                    np.ones((H, W), bool)))
+        got = r.render("leaking", output=1).reshape(-1, 3).astype(np.float64)
+    finally:
+        r.release()
+    scale = np.abs(want).max()
+    # the probes' own values are exact up to float32; between probes hardware filtering weights (8 bits) enter
+    np.testing.assert_allclose(got[len(want_samples):], want[len(want_samples):], rtol=1e-5, atol=1e-5 * scale)
+    assert np.abs(got - want).max() <= 2.0 ** -8 * scale
 
 
 def test_direct_matches_python_and_shadow_rays(ctx, two_rooms):
@@ -186,8 +235,10 @@ PRT_CFG = {"place": {"counts": [3, 3, 3]}, "trace": {"rays_per_probe": 32}, "lig
                    "scenario": {"types": ["point"], "box": {"min": [0.2, 0.2, 0.2], "max": [0.8, 0.8, 0.8]}}}}
 
 
-def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files):
-    """mode_prt.glsl's basis sum = prt_relight.relight's sh_l1 volumes sampled trilinearly."""
+@pytest.mark.parametrize("sh_order", [None, 1])
+def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files, sh_order):
+    """mode_prt.glsl's basis sum = prt_relight.relight's SH volumes sampled trilinearly: sh_l2 with all 9 basis
+    coefficients (the default: the bake is light.sh_order 2), sh_l1_* with the 4 of L1."""
     from proto.models import BakeConfig
     from workers.prt_relight import PrtModel, relight
     from workers.stages.base import StageContext
@@ -205,10 +256,15 @@ def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files):
     want_vol = relight(arrays, lights, caster, lightmap=False)
     rng = np.random.default_rng(5)
     p, n = _points(64 * 16, rng, {"min": [0.0, 0.0, 0.0], "max": [1.0, 1.0, 1.0]})
-    want = SM.leaking(p, n, want_vol["sh_l1_r"], want_vol["sh_l1_g"], want_vol["sh_l1_b"], grid)
+    if sh_order is None:
+        want = np.maximum(SM.leaking_l2(p, n, want_vol["sh_l2"], grid), 0)
+    else:
+        want = SM.leaking(p, n, want_vol["sh_l1_r"], want_vol["sh_l1_g"], want_vol["sh_l1_b"], grid)
+    res = _prt_resources(arrays, grid, lights, caster, sh_order=sh_order)
+    assert res.info["coefficients"] == (9 if sh_order is None else 4)
     r = ShadingRenderer(ctx)
     try:
-        r.set_mode(_prt_resources(arrays, grid, lights, caster))
+        r.set_mode(res)
         r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((16, 64, 3)), np.zeros((16, 64, 3)),
                                     np.ones((16, 64), bool)))
         got = r.render("prt", output=1).reshape(-1, 3)

@@ -11,7 +11,8 @@ import numpy as np
 
 from proto.ktx2 import read_ktx2
 from workers.kernels.octahedral import oct_decode, oct_encode
-from workers.kernels.sh import sh_irradiance, sh_irradiance_l1_nonlinear
+from workers.kernels.samplers import sh_l2_sample
+from workers.kernels.sh import sh_irradiance, sh_irradiance_l1_nonlinear, sh_irradiance_l2, sh_l2_from_atlas
 
 ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "proto" / "fixtures"
@@ -52,3 +53,27 @@ def test_python_decodes_fixtures_to_expected():
     o = e["octahedral"]
     np.testing.assert_allclose(oct_encode(np.asarray(o["dirs"])), o["encoded"], atol=1e-12)
     np.testing.assert_allclose(oct_decode(np.asarray(o["uv"])), o["decoded"], atol=1e-12)
+
+
+def test_python_decodes_the_l2_fixture_and_its_identities():
+    """sh_l2.ktx2 (three.js LightProbeGrid layout) decodes to the coefficients, evaluates (L2, RH01) and samples
+    (7 fetches, samplers.sh_l2_sample) to expected.json's numbers — what parity.test.js checks in JavaScript and
+    tests/render/test_shading.py in GLSL — and the identities hold: constant radiance -> π·L, clamped-cosine
+    lobe -> its exact irradiance (to L2's band-limit, 0.02)."""
+    e = _expected()["sh_l2"]
+    atlas, info = read_ktx2(FIX / e["file"])
+    assert info["format_name"] == "R32G32B32A32_SFLOAT" and list(atlas.shape) == e["atlas_shape"]
+    sh = sh_l2_from_atlas(atlas)
+    assert np.array_equal(sh.ravel(), np.asarray(e["coeffs"], np.float32))
+    irr = sh_irradiance_l2(sh.astype(np.float64)[..., None, :, :], np.asarray(e["normals"]))
+    np.testing.assert_allclose(irr.ravel(), e["irradiance"], rtol=1e-12)
+    for smp in e["samples"]:
+        c9 = sh_l2_sample(atlas, np.asarray([smp["p"]]), e["grid"])[0]
+        np.testing.assert_allclose(c9, smp["coeffs"], rtol=1e-12, atol=1e-15)
+    const = e["constant"]
+    np.testing.assert_allclose(sh_irradiance_l2(np.asarray(const["coeffs"]), np.asarray(e["normals"])),
+                               const["irradiance"], rtol=1e-3)
+    lobe = e["cosine_lobe"]
+    got = sh_irradiance_l2(np.asarray(lobe["coeffs"])[:, None], np.asarray(e["normals"]))[:, 0]
+    np.testing.assert_allclose(got, lobe["irradiance"], rtol=1e-12)
+    np.testing.assert_allclose(got, lobe["exact"], atol=0.02)

@@ -47,7 +47,7 @@ def _md(scene, s, cfg):
 
 def _arrays(s, m) -> dict:
     arrays = {a.name: a.data for a in m.artifacts}
-    for n in ("sh_l1_r", "sh_l1_g", "sh_l1_b"):
+    for n in ("sh_l1_r", "sh_l1_g", "sh_l1_b", "sh_l2"):      # sh_l2: the references shade L2 like the masks
         arrays[n] = s["light"][n]
     for n in ("theta_0123", "theta_4567", "dont_care"):
         arrays[n] = s["visibility"][n]
@@ -105,6 +105,7 @@ def test_stage_outputs_layout(tmp_path, scene_files, K):
     assert arts["clusters"].data.max() < K
     assert arts["anneal_loss"].format == "npy" and arts["anneal_loss"].data.shape == (201,)
     want = {"masks_0123", "cluster_weights_0123"} | {f"cluster_sh_{k}_{c}" for k in range(K) for c in "rgb"}
+    want |= {f"cluster_sh_l2_{k}" for k in range(K)}                 # light.sh_order 2 (the default): L2 too
     if K > 4:
         want |= {"masks_4567", "cluster_weights_4567"}
     assert {x.name for x in m.artifacts} == want
@@ -121,6 +122,15 @@ def test_stage_outputs_layout(tmp_path, scene_files, K):
         total = sum(arts[f"cluster_sh_{k}_{c}"].data for k in range(K))
         assert total.shape == (nz, ny, nx, 4) and total.dtype == np.float32
         assert np.array_equal(total, np.where(on[..., None], s["light"][f"sh_l1_{c}"], 0))
+    # the L2 cluster volumes (sh_l2 layout) partition the probes' 9 coefficients the same way
+    from workers.kernels.sh import sh_l2_atlas_depth, sh_l2_from_atlas
+
+    l2 = [arts[f"cluster_sh_l2_{k}"].data for k in range(K)]
+    assert all(v.shape == (sh_l2_atlas_depth(nz), ny, nx, 4) and v.dtype == np.float32 for v in l2)
+    total2 = sum(sh_l2_from_atlas(v) for v in l2)
+    assert np.array_equal(total2, np.where(on[..., None, None], s["light"]["probe_sh"], 0))
+    assert np.array_equal(total2[..., :4, :], np.stack([total_c for total_c in
+                          (sum(arts[f"cluster_sh_{k}_{c}"].data for k in range(K)) for c in "rgb")], -1))
     # every artifact goes through the bundle format and back unchanged
     for x in a.artifacts + m.artifacts:
         info = write_artifact(tmp_path / "bundle", x.name, x.data, "md", format=x.format, zstd_level=x.zstd_level)
@@ -164,15 +174,19 @@ def test_parity_masks_reproduce_visibility_weighting(tmp_path, scene_files, scen
     n = rng.normal(size=pts.shape)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     # (masks read at the point itself: the runtime's normal offset moves the lookup off the sample)
-    # (and with the linear SH evaluation: the non-linear one is not additive)
-    ref = SM.irradiance("visibility_weighted", arrays, grid, pts, n, linear=True)
-    got = SM.irradiance("mask_normalized", arrays, grid, pts, n, mask_offset_samples=0, linear=True)
+    # (and with the linear L1 SH evaluation: the non-linear one is not additive; visibility_weighted is L1)
+    ref = SM.irradiance("visibility_weighted", arrays, grid, pts, n, linear=True, sh_order=1)
+    got = SM.irradiance("mask_normalized", arrays, grid, pts, n, mask_offset_samples=0, linear=True, sh_order=1)
     assert np.abs(ref).max() > 0.01
     assert np.allclose(got, ref, rtol=1e-9, atol=1e-12)
     ref_un = SM.visibility_weighted(pts, n, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"],
                                     arrays["theta_0123"], arrays["theta_4567"], grid, normalize=False, linear=True)
-    assert np.allclose(SM.irradiance("mask", arrays, grid, pts, n, mask_offset_samples=0, linear=True), ref_un,
-                       rtol=1e-9, atol=1e-12)
+    assert np.allclose(SM.irradiance("mask", arrays, grid, pts, n, mask_offset_samples=0, linear=True, sh_order=1),
+                       ref_un, rtol=1e-9, atol=1e-12)
+    # and with L2 (the default; linear, so additive): cluster_sh_l2 against the probes' sh_l2
+    ref2 = SM.irradiance("visibility_weighted", arrays, grid, pts, n, sh_order=2)
+    got2 = SM.irradiance("mask_normalized", arrays, grid, pts, n, mask_offset_samples=0)
+    assert np.allclose(got2, ref2, rtol=1e-6, atol=1e-9 * np.abs(ref2).max())
 
 
 def _six_normals(n):

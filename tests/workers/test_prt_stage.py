@@ -189,6 +189,11 @@ def test_relight_linear_and_reproduces_the_dataset(cornell):
     # the float32 relight path equals the kernel's reconstruction
     assert np.allclose(rel[0], kprt.reconstruct(f, ds.direct[0]), rtol=1e-3, atol=1e-4 * np.abs(truth[0]).max())
     assert one["sh_l1_g"].shape == (4, 4, 4, 4) and np.array_equal(one["sh_l1_g"], one["probe_sh"][..., :4, 1])
+    # L2 bake (light.sh_order 2, the default): relight also gives the sh_l2 volume (three.js LightProbeGrid layout)
+    from workers.kernels.sh import sh_l2_from_atlas
+
+    assert one["probe_sh"].shape == (4, 4, 4, 9, 3) and one["sh_l2"].shape == (7 * (4 + 2), 4, 4, 4)
+    assert np.array_equal(sh_l2_from_atlas(one["sh_l2"]), one["probe_sh"])
     assert one["lightmap"].shape == (64, 64, 4) and set(np.unique(one["lightmap"][..., 3])) == {0.0, 1.0}
 
 

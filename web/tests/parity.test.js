@@ -4,7 +4,9 @@ import { describe, expect, it } from 'vitest';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 import { parseKTX2, texelsAsNumbers } from '../src/loader/ktx2.js';
-import { probeGridUVW, sampleVolumeTrilinear, shIrradianceL1, shIrradianceL1Nonlinear } from '../src/math/sh.js';
+import {
+  probeGridUVW, sampleShL2, sampleVolumeTrilinear, shIrradianceL1, shIrradianceL1Nonlinear, shIrradianceL2, shL2Unpack,
+} from '../src/math/sh.js';
 import { atlasTexel, octDecode, octEncode, octTexelDirection } from '../src/math/octahedral.js';
 
 const FIX = fileURLToPath(new URL('../../proto/fixtures/', import.meta.url));
@@ -113,6 +115,82 @@ describe('L1 SH irradiance', () => {
         shIrradianceL1(ch[0], ch[1], ch[2], nrm).forEach((x, c) => expect(x).toBeCloseTo(smp.irradiance[ni][c], 4));
       });
     }
+  });
+});
+
+describe('L2 SH irradiance (sh_l2: three.js LightProbeGrid layout)', () => {
+  const e = expected.sh_l2;
+  const vol = load(e.file);
+  const [W, H, D] = e.grid.counts;
+  const N = e.normals.length;
+  const slices = D + 2;
+  const texels = (i, j, k) => Array.from({ length: 7 }, (_, t) => {
+    const base = ((((t * slices + 1 + k) * H + j) * W) + i) * 4;
+    return Array.from(vol.data.subarray(base, base + 4));
+  });
+  it('the volume is 7 padded sub-volumes of the 27 coefficients, c0.rgb first', () => {
+    expect([vol.width, vol.height, vol.depth, vol.components]).toEqual([W, H, 7 * slices, 4]);
+    expect(e.atlas_shape).toEqual([7 * slices, H, W, 4]);
+    for (let k = 0; k < D; k++) for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+      const c = shL2Unpack(texels(i, j, k));
+      const p = (k * H + j) * W + i;
+      c.forEach((rgb, q) => rgb.forEach((x, ch) => expect(x).toBe(f32(e.coeffs[(p * 9 + q) * 3 + ch]))));
+    }
+    // padding slices copy the nearest data slice
+    const at = (z, j, i) => Array.from(vol.data.subarray(((z * H + j) * W + i) * 4, ((z * H + j) * W + i) * 4 + 4));
+    for (let t = 0; t < 7; t++) {
+      expect(at(t * slices, 1, 2)).toEqual(at(t * slices + 1, 1, 2));
+      expect(at(t * slices + D + 1, 1, 2)).toEqual(at(t * slices + D, 1, 2));
+    }
+  });
+  it('evaluates like workers.kernels.sh.sh_irradiance_l2 for every probe and normal', () => {
+    for (let k = 0; k < D; k++) for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+      const c = shL2Unpack(texels(i, j, k));
+      const p = (k * H + j) * W + i;
+      e.normals.forEach((nrm, ni) => {
+        shIrradianceL2(c, nrm).forEach((x, ch) => expect(x).toBeCloseTo(e.irradiance[(p * N + ni) * 3 + ch], 5));
+      });
+    }
+  });
+  it('samples the padded stack trilinearly like samplers.sh_l2_sample (7 fetches)', () => {
+    for (const smp of e.samples) {
+      const c = sampleShL2(vol, smp.p, e.grid);
+      c.forEach((rgb, q) => rgb.forEach((x, ch) => expect(x).toBeCloseTo(smp.coeffs[q][ch], 5)));
+      e.normals.forEach((nrm, ni) => shIrradianceL2(c, nrm).forEach((x, ch) => expect(x).toBeCloseTo(smp.irradiance[ni][ch], 4)));
+    }
+  });
+  it('constant radiance gives π·L; the clamped-cosine lobe its exact irradiance (to L2\'s band limit)', () => {
+    e.normals.forEach((nrm, ni) => {
+      shIrradianceL2(e.constant.coeffs, nrm).forEach((x, ch) => expect(x).toBeCloseTo(Math.PI * e.constant.radiance[ch], 3));
+      const lobe = shIrradianceL2(e.cosine_lobe.coeffs.map((v) => [v, v, v]), nrm)[0];
+      expect(lobe).toBeCloseTo(e.cosine_lobe.irradiance[ni], 5);   // the folded constants have 6 digits
+      expect(Math.abs(lobe - e.cosine_lobe.exact[ni])).toBeLessThan(0.02);
+    });
+  });
+});
+
+describe('SH order per mode (state/modes.js shOrder, as workers/render/shading.py prepare_mode)', () => {
+  it('L2 where the bake has the L2 volumes, else L1; caps can force L1 or rule out a too deep stack', async () => {
+    const { shOrder, modeById, modeTextures, modeDefines, prtBasisNames } = await import('../src/state/modes.js');
+    const l1 = ['sh_l1_r', 'sh_l1_g', 'sh_l1_b', 'cluster_sh_0_r', 'cluster_sh_0_g', 'cluster_sh_0_b', 'cluster_sh_1_r', 'cluster_sh_1_g', 'cluster_sh_1_b'];
+    const l2 = [...l1, 'sh_l2', 'cluster_sh_l2_0', 'cluster_sh_l2_1'];
+    expect(shOrder('leaking', l1)).toBe(1);
+    expect(shOrder('leaking', l2)).toBe(2);
+    expect(shOrder('leaking', l2, {}, { shOrder: 1 })).toBe(1);
+    expect(shOrder('mask', l2, {}, { nz: 8, max3D: 2048 })).toBe(2);
+    expect(shOrder('mask', l2, {}, { nz: 8, max3D: 256 })).toBe(2);         // 7 · K · (nz + 2) = 140 fits
+    expect(shOrder('mask', l2, {}, { nz: 8, max3D: 128 })).toBe(1);         // ... not in 128: L1
+    expect(shOrder('mask', [...l2, 'cluster_sh_2_r'], {}, {})).toBe(1);      // cluster 2 has no L2 volume
+    const leaking = modeById('leaking');
+    expect(modeTextures(leaking, l2)).toEqual({ uShL2: ['sh_l2', 'volume'] });
+    expect(Object.keys(modeTextures(leaking, l1))).toEqual(['uShR', 'uShG', 'uShB']);
+    expect(modeDefines(leaking, l2)).toEqual({ KILN_SH_L2: true });
+    expect(modeDefines(leaking, l1)).toEqual({});
+    expect(modeTextures(modeById('mask'), l2).uClusterShL2).toEqual([['cluster_sh_l2_0', 'cluster_sh_l2_1'], 'stack']);
+    const basis = Array.from({ length: 9 }, (_, k) => [`prt_sh_basis_c${k}_g0`]);
+    expect(prtBasisNames({ sh: { basis } })).toHaveLength(9);
+    expect(prtBasisNames({ sh: { basis } }, { shOrder: 1 })).toHaveLength(4);
+    expect(modeDefines(modeById('prt'), [], { prt: { sh: { basis } } })).toEqual({ KILN_SH_L2: true });
   });
 });
 

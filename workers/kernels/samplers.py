@@ -3,8 +3,17 @@
 The Python twin of what the GLSL in ``proto/glsl`` does with the baked volumes, fetch for fetch:
 every volume is read by :func:`trilinear`, which is a ``sampler3D`` with ``LINEAR`` filtering and
 ``CLAMP_TO_EDGE`` wrapping (texel space, texel centres at integer + 0.5; ``R8G8B8A8_UNORM`` bytes read
-as byte / 255). Irradiance is the L1 SH of :mod:`workers.kernels.sh` (three.js order, clamped-cosine
+as byte / 255). Irradiance is the SH of :mod:`workers.kernels.sh` (three.js order, clamped-cosine
 convolution): ``E(n) = Σ_k Â_l L_k Y_k(n)`` per colour channel.
+
+SH order (docs/architecture.md "Runtime SH evaluation")
+-------------------------------------------------------
+The runtime default is **L2** wherever the bake has the L2 volumes (``sh_l2``, ``cluster_sh_l2_{k}``: the three.js
+LightProbeGrid layout, :func:`workers.kernels.sh.sh_l2_atlas`, read by :func:`sh_l2_sample`), evaluated linearly
+(RH01 eq 7-8, :func:`workers.kernels.sh.sh_irradiance_l2`); measured on an open lit floor it is within a few % of
+Cycles on all 6 axis normals where the non-linear L1 reads the sides 15-25% low. Bakes without them (light.sh_order
+= 1, older bundles) are shaded with L1 as below. :func:`irradiance` picks the order (``sh_order=None``: L2 when
+present); the mode functions take the L2 volumes as keyword arguments.
 
 Addressing (proto/bundle.md §5)
 -------------------------------
@@ -21,14 +30,17 @@ Addressing (proto/bundle.md §5)
 
 Modes (each ``(points (N, 3), normals (N, 3)) -> irradiance (N, 3) float64``, linear RGB)
 ------------------------------------------------------------------------------------------
-"E = SH·n" below is the **non-linear L1 reconstruction** (:func:`workers.kernels.sh.sh_irradiance_l1_nonlinear`,
-Hazel 2017; ``proto/glsl/sh.glsl``'s default): the same mean as the linear ``Σ Â_l L_lm Y_lm(n)`` but never
+With L1 volumes, "E = SH·n" below is the **non-linear L1 reconstruction**
+(:func:`workers.kernels.sh.sh_irradiance_l1_nonlinear`,
+Hazel 2017; ``proto/glsl/sh.glsl`` ``shIrradianceL1``): the same mean as the linear ``Σ Â_l L_lm Y_lm(n)`` but never
 negative (the linear one rings below zero on the far side of a probe lit through a doorway). It is
 homogeneous of degree 1, so scaling (normalization, masks) commutes with it, but it is not additive:
 ``linear=True`` selects the linear evaluation, which MD §3.2's exact equivalence below needs.
 ``leaking`` (MD eq 1)
-    SH = trilinear(``sh_l1_{r,g,b}``) at the point; E = SH·n.
-``visibility_weighted`` (MD eq 2, normalized as RTXGI)
+    SH = trilinear(``sh_l1_{r,g,b}``) at the point; E = SH·n. L2: :func:`leaking_l2`, SH = the 7 sub-volumes of
+    ``sh_l2`` read trilinearly at the point's clamped probe texel (:func:`probe_texel`, ``gi_grid.glsl``
+    ``giPaddedStackedUVW``).
+``visibility_weighted`` (MD eq 2, normalized as RTXGI; L2 with ``sh_l2=``: P_c the probes' 9 coefficients)
     ``Σ_c θ_c(x) φ_c(x) P_c / Σ_c θ_c(x) φ_c(x)`` over the 8 corner probes c of the point's cell
     (:func:`workers.kernels.grid.cell_coords`: base cell clamped to the grid, α clamped to [0, 1]),
     P_c fetched unfiltered (texelFetch) from ``sh_l1_*``; 0 where the denominator is 0.
@@ -54,6 +66,7 @@ homogeneous of degree 1, so scaling (normalization, masks) commutes with it, but
     :func:`workers.kernels.masks.canonicalize`) in a cell where its cluster has no probe; filtered across a
     face it would change that cluster's weight in the neighbour, where it is present. ``offset = 0`` reads
     at x.
+    L2 (``cluster_sh_l2=``): E_k from ``cluster_sh_l2_{k}`` as :func:`leaking_l2` reads ``sh_l2``.
 ``mask_normalized`` (ours, DESIGN stage 4)
     The ``mask`` sum divided by ``Σ_k m_k(x') · w_k(x)`` with ``w_k`` = channel k of trilinear
     (``cluster_weights_0123`` / ``_4567``) = ``Σ_i φ_i g_i^k``; 0 where that is 0.
@@ -74,11 +87,11 @@ import numpy as np
 
 from workers.kernels.compress import mask_lookup_texel
 from workers.kernels.grid import cage_indices, cell_coords
-from workers.kernels.sh import sh_irradiance, sh_irradiance_l1_nonlinear
+from workers.kernels.sh import SH_L2_TEXELS, sh_irradiance, sh_irradiance_l1_nonlinear, sh_irradiance_l2
 
 __all__ = ["MODES", "Grid", "trilinear", "texel_fetch", "probe_uvw", "field_uvw", "field_samples_per_cell",
-           "leaking", "visibility_weighted", "mask", "mask_normalized", "irradiance", "mask_values",
-           "MASK_OFFSET_SAMPLES"]
+           "leaking", "leaking_l2", "visibility_weighted", "mask", "mask_normalized", "irradiance", "mask_values",
+           "probe_texel", "sh_l2_sample", "has_l2", "MASK_OFFSET_SAMPLES"]
 
 MODES = ("leaking", "visibility_weighted", "mask", "mask_normalized")
 MASK_OFFSET_SAMPLES = 1.0
@@ -185,6 +198,37 @@ def probe_uvw(points, grid) -> np.ndarray:
     return np.where(g.live, uvw, 0.5)
 
 
+def probe_texel(points, grid) -> np.ndarray:
+    """(N, 3) texel coordinate of world points in a probe volume, clamped to the border texel centres
+    (``gi_grid.glsl`` ``giProbeTexel``): ``clamp((p − origin)/spacing + 0.5, 0.5, counts − 0.5)``, 0.5 on one-probe
+    axes. With LINEAR filtering this reads like CLAMP_TO_EDGE and never leaves the volume (stacked volumes)."""
+    g = Grid.of(grid)
+    p = _points(points)
+    safe = np.where(g.live, g.spacing, 1.0)
+    t = np.where(g.live, (p - g.origin) / safe, 0.0) + 0.5
+    return np.clip(t, 0.5, g.counts - 0.5)
+
+
+def sh_l2_sample(atlas, points, grid) -> np.ndarray:
+    """(N, 9, 3) L2 radiance SH at world points from an L2 volume in the three.js LightProbeGrid layout
+    (``sh_l2``, ``cluster_sh_l2_{k}``; :func:`workers.kernels.sh.sh_l2_atlas`): 7 trilinear fetches, sub-volume t
+    at z texel ``tz + 1 + t·(nz + 2)`` (``gi_grid.glsl`` ``giPaddedStackedUVW``)."""
+    g = Grid.of(grid)
+    a = np.asarray(atlas)
+    nx, ny, nz = (int(c) for c in g.counts)
+    want = (SH_L2_TEXELS * (nz + 2), ny, nx, 4)
+    if a.shape != want:
+        raise ValueError(f"an L2 volume of this grid must have shape {want}, got {a.shape}")
+    t = probe_texel(points, g)
+    slices = nz + 2.0
+    parts = []
+    for sub in range(SH_L2_TEXELS):
+        uvw = np.stack([t[:, 0] / nx, t[:, 1] / ny, (t[:, 2] + 1.0 + sub * slices) / (slices * SH_L2_TEXELS)], -1)
+        parts.append(trilinear(a, uvw))                                            # (N, 4)
+    flat = np.concatenate(parts, axis=1)[:, :27]                                   # c0.rgb, c1.rgb, ...
+    return flat.reshape(-1, 9, 3)
+
+
 def field_uvw(points, grid) -> np.ndarray:
     """uvw of world points in a refined-grid volume: ``(p − origin)/(spacing·(counts − 1))`` (0.5 on
     one-probe axes)."""
@@ -233,6 +277,13 @@ def leaking(points, normals, sh_r, sh_g, sh_b, grid, *, linear: bool = False) ->
     return _irr(sh, _points(normals, "normals"), linear)
 
 
+def leaking_l2(points, normals, sh_l2, grid) -> np.ndarray:
+    """MD eq 1 with L2 SH: E = the linear L2 evaluation (RH01 eq 7-8) of :func:`sh_l2_sample` of ``sh_l2``
+    (7·(nz + 2), ny, nx, 4) at the points. Not clamped (the GLSL clamps at 0)."""
+    sh = sh_l2_sample(sh_l2, points, grid)
+    return sh_irradiance_l2(sh, _points(normals, "normals"))
+
+
 def _theta_in_cell(theta_0123, theta_4567, points, g: Grid, base) -> np.ndarray:
     """(N, 8) θ_c(x) read trilinearly with the texel coordinate clamped to x's cell block (module doc)."""
     S = field_samples_per_cell(theta_0123, g)
@@ -246,21 +297,29 @@ def _theta_in_cell(theta_0123, theta_4567, points, g: Grid, base) -> np.ndarray:
 
 
 def visibility_weighted(points, normals, sh_r, sh_g, sh_b, theta_0123, theta_4567, grid, *,
-                        normalize: bool = True, linear: bool = False) -> np.ndarray:
+                        normalize: bool = True, linear: bool = False, sh_l2=None) -> np.ndarray:
     """MD eq 2: ``Σ θ_c φ_c P_c / Σ θ_c φ_c`` over the cell's 8 corners (0 where the sum is 0).
 
     ``normalize=False`` gives eq 2 as written, ``Σ θ_c φ_c P_c`` (what ``mask`` reproduces with K = 8
-    and the parity colouring). theta_* : (Z, Y, X, 4) uint8 refined-grid volumes.
+    and the parity colouring). theta_* : (Z, Y, X, 4) uint8 refined-grid volumes. ``sh_l2`` (the ``sh_l2``
+    volume): P_c are the probes' 9 coefficients and E the linear L2 evaluation (sh_r/g/b are then not read).
     """
     g = Grid.of(grid)
     p = _points(points)
-    for v, n in ((sh_r, "sh_r"), (sh_g, "sh_g"), (sh_b, "sh_b")):
-        _probe_check(v, g, n)
+    if sh_l2 is None:
+        for v, n in ((sh_r, "sh_r"), (sh_g, "sh_g"), (sh_b, "sh_b")):
+            _probe_check(v, g, n)
     base, alpha = cell_coords(p, g.counts, g.origin, g.spacing)
     theta = _theta_in_cell(np.asarray(theta_0123), np.asarray(theta_4567), p, g, base)  # (N, 8)
     cage = cage_indices(base, g.counts)                                                 # (N, 8) flat
-    sh_all = [np.asarray(v, np.float64).reshape(-1, 4) for v in (sh_r, sh_g, sh_b)]
-    num = np.zeros((p.shape[0], 4, 3))
+    if sh_l2 is not None:
+        from workers.kernels.sh import sh_l2_from_atlas
+
+        coeffs = sh_l2_from_atlas(sh_l2).astype(np.float64).reshape(-1, 9, 3)            # texelFetch per probe
+        sh_all = [coeffs[..., c] for c in range(3)]
+    else:
+        sh_all = [np.asarray(v, np.float64).reshape(-1, 4) for v in (sh_r, sh_g, sh_b)]
+    num = np.zeros((p.shape[0], sh_all[0].shape[1], 3))
     den = np.zeros(p.shape[0])
     for c in range(8):
         off = np.array([c & 1, (c >> 1) & 1, (c >> 2) & 1])
@@ -273,6 +332,8 @@ def visibility_weighted(points, normals, sh_r, sh_g, sh_b, theta_0123, theta_456
         ok = den > 0
         num[ok] /= den[ok, None, None]
         num[~ok] = 0.0
+    if sh_l2 is not None:
+        return sh_irradiance_l2(num, _points(normals, "normals"))
     return _irr(num, _points(normals, "normals"), linear)
 
 
@@ -297,11 +358,11 @@ def mask_values(masks, points, normals, grid, samples: float = 0.0, views=None) 
 
 
 def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None, offset: float = 0.0,
-                linear: bool = False, views=None):
+                linear: bool = False, views=None, cluster_sh_l2=None):
     g = Grid.of(grid)
     p = _points(points)
     n = _points(normals, "normals")
-    K = len(cluster_sh)
+    K = len(cluster_sh) if cluster_sh_l2 is None else len(cluster_sh_l2)
     if K < 1:
         raise ValueError("cluster_sh must hold at least one cluster")
     m = mask_values(masks, p, n, g, offset, views)[:, :K]                    # (N, K)
@@ -309,11 +370,15 @@ def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None, 
         raise ValueError(f"masks hold {m.shape[1]} channels for {K} clusters")
     uvw = probe_uvw(p, g)
     e = np.zeros((p.shape[0], 3))
-    for k, (r, gg, b) in enumerate(cluster_sh):
-        for v in (r, gg, b):
-            _probe_check(v, g, f"cluster_sh[{k}]")
-        sh = _stack_rgb([trilinear(v, uvw) for v in (r, gg, b)])
-        e += m[:, k:k + 1] * _irr(sh, n, linear)
+    if cluster_sh_l2 is not None:
+        for k, atlas in enumerate(cluster_sh_l2):                                 # L2: 7 fetches per cluster
+            e += m[:, k:k + 1] * sh_irradiance_l2(sh_l2_sample(atlas, p, g), n)
+    else:
+        for k, (r, gg, b) in enumerate(cluster_sh):
+            for v in (r, gg, b):
+                _probe_check(v, g, f"cluster_sh[{k}]")
+            sh = _stack_rgb([trilinear(v, uvw) for v in (r, gg, b)])
+            e += m[:, k:k + 1] * _irr(sh, n, linear)
     den = None
     if cluster_weights is not None:
         w = np.concatenate([trilinear(v, uvw) for v in cluster_weights], axis=1)[:, :K]
@@ -322,53 +387,84 @@ def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None, 
 
 
 def mask(points, normals, masks, cluster_sh, grid, offset: float = 0.0, *, linear: bool = False,
-         views=None) -> np.ndarray:
+         views=None, cluster_sh_l2=None) -> np.ndarray:
     """MD eq 3: ``Σ_k m_k(x') · E(trilinear(cluster_sh_k)(x), n)``, x' the mask lookup point
     (:func:`mask_values`: ``offset`` refined samples along n + v, v = ``views`` or 0; 0 = at x).
 
     masks : list of (Z, Y, X, 4) uint8 volumes (``masks_0123``[, ``masks_4567``]);
-    cluster_sh : list of K ``(r, g, b)`` tuples of (nz, ny, nx, 4) float volumes.
+    cluster_sh : list of K ``(r, g, b)`` tuples of (nz, ny, nx, 4) float volumes (L1);
+    cluster_sh_l2 : None, or a list of K L2 volumes ``cluster_sh_l2_{k}`` (7·(nz + 2), ny, nx, 4): then E_k is their
+    linear L2 evaluation and ``cluster_sh`` is not read (may be None).
     """
-    return _mask_terms(points, normals, masks, cluster_sh, grid, offset=offset, linear=linear, views=views)[0]
+    return _mask_terms(points, normals, masks, cluster_sh, grid, offset=offset, linear=linear, views=views,
+                       cluster_sh_l2=cluster_sh_l2)[0]
 
 
 def mask_normalized(points, normals, masks, cluster_sh, cluster_weights, grid, offset: float = 0.0, *,
-                    linear: bool = False, views=None) -> np.ndarray:
+                    linear: bool = False, views=None, cluster_sh_l2=None) -> np.ndarray:
     """``mask`` divided by ``Σ_k m_k(x') w_k(x)`` (0 where that is 0); cluster_weights : list of
-    (nz, ny, nx, 4) float volumes (``cluster_weights_0123``[, ``_4567``])."""
+    (nz, ny, nx, 4) float volumes (``cluster_weights_0123``[, ``_4567``]); ``cluster_sh_l2`` as :func:`mask`."""
     e, den = _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights, offset=offset, linear=linear,
-                         views=views)
+                         views=views, cluster_sh_l2=cluster_sh_l2)
     out = np.zeros_like(e)
     ok = den > 0
     out[ok] = e[ok] / den[ok, None]
     return out
 
 
-def irradiance(mode: str, arrays: Mapping, grid, points, normals,
-               mask_offset_samples: float = MASK_OFFSET_SAMPLES, linear: bool = False, views=None) -> np.ndarray:
-    """Shade with ``mode`` (one of :data:`MODES`) from baked artifacts addressed by name.
-
-    arrays : mapping artifact name → array (a dict, or the pipeline's LazyArtifacts merged), using
-    ``sh_l1_{r,g,b}``; ``theta_0123``, ``theta_4567``; ``masks_0123``[, ``masks_4567``],
-    ``cluster_sh_{k}_{r,g,b}``, ``cluster_weights_0123``[, ``_4567``] (K = number of cluster_sh_k_r).
-    The mask modes read the masks ``mask_offset_samples`` refined samples along n + v (``views``: unit
-    directions to the viewer, (N, 3); without them along n) — the runtime default, as the GLSL renders them
-    (0 = at the point). ``linear``: the linear L1 SH evaluation instead of the non-linear default.
-    """
-    if mode == "leaking":
-        return leaking(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid, linear=linear)
-    if mode == "visibility_weighted":
-        return visibility_weighted(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"],
-                                   arrays["theta_0123"], arrays["theta_4567"], grid, linear=linear)
+def has_l2(mode: str, arrays: Mapping) -> bool:
+    """Whether the bake's arrays hold the L2 volumes ``mode`` reads (``sh_l2``; ``cluster_sh_l2_{k}`` for every
+    cluster of the mask modes)."""
+    if mode in ("leaking", "visibility_weighted"):
+        return "sh_l2" in arrays
     if mode in ("mask", "mask_normalized"):
         K = 0
         while f"cluster_sh_{K}_r" in arrays:
             K += 1
-        cl = [tuple(arrays[f"cluster_sh_{k}_{c}"] for c in "rgb") for k in range(K)]
+        return K > 0 and all(f"cluster_sh_l2_{k}" in arrays for k in range(K))
+    return False
+
+
+def irradiance(mode: str, arrays: Mapping, grid, points, normals,
+               mask_offset_samples: float = MASK_OFFSET_SAMPLES, linear: bool = False, views=None,
+               sh_order: int | None = None) -> np.ndarray:
+    """Shade with ``mode`` (one of :data:`MODES`) from baked artifacts addressed by name.
+
+    arrays : mapping artifact name → array (a dict, or the pipeline's LazyArtifacts merged), using
+    ``sh_l1_{r,g,b}``; ``theta_0123``, ``theta_4567``; ``masks_0123``[, ``masks_4567``],
+    ``cluster_sh_{k}_{r,g,b}``, ``cluster_weights_0123``[, ``_4567``] (K = number of cluster_sh_k_r); the L2
+    volumes ``sh_l2``, ``cluster_sh_l2_{k}`` when the bake has them.
+    The mask modes read the masks ``mask_offset_samples`` refined samples along n + v (``views``: unit
+    directions to the viewer, (N, 3); without them along n) — the runtime default, as the GLSL renders them
+    (0 = at the point). ``sh_order``: None (the runtime default) = L2 where the bake has the L2 volumes
+    (:func:`has_l2`: ``sh_l2``, ``cluster_sh_l2_{k}``), else L1; 1 or 2 to choose (2 needs them).
+    ``visibility_weighted`` (no GLSL mode) follows ``sh_l2`` like leaking. ``linear``: with L1, the linear
+    evaluation instead of the non-linear default.
+    """
+    if sh_order not in (None, 1, 2):
+        raise ValueError(f"sh_order must be None, 1 or 2, got {sh_order!r}")
+    l2 = has_l2(mode, arrays) if sh_order is None else sh_order == 2
+    if l2 and mode in MODES and not has_l2(mode, arrays):
+        raise ValueError(f"sh_order=2: the bake has no L2 volumes for mode {mode!r} (light.sh_order = 1?)")
+    if mode == "leaking":
+        if l2:
+            return leaking_l2(points, normals, arrays["sh_l2"], grid)
+        return leaking(points, normals, arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"], grid, linear=linear)
+    if mode == "visibility_weighted":
+        l1 = (None, None, None) if l2 else (arrays["sh_l1_r"], arrays["sh_l1_g"], arrays["sh_l1_b"])
+        return visibility_weighted(points, normals, *l1, arrays["theta_0123"], arrays["theta_4567"], grid,
+                                   linear=linear, sh_l2=arrays["sh_l2"] if l2 else None)
+    if mode in ("mask", "mask_normalized"):
+        K = 0
+        while f"cluster_sh_{K}_r" in arrays:
+            K += 1
+        cl2 = [arrays[f"cluster_sh_l2_{k}"] for k in range(K)] if l2 else None
+        cl = None if l2 else [tuple(arrays[f"cluster_sh_{k}_{c}"] for c in "rgb") for k in range(K)]
         masks = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
         off = float(mask_offset_samples)
         if mode == "mask":
-            return mask(points, normals, masks, cl, grid, off, linear=linear, views=views)
+            return mask(points, normals, masks, cl, grid, off, linear=linear, views=views, cluster_sh_l2=cl2)
         wts = [arrays["cluster_weights_0123"]] + ([arrays["cluster_weights_4567"]] if K > 4 else [])
-        return mask_normalized(points, normals, masks, cl, wts, grid, off, linear=linear, views=views)
+        return mask_normalized(points, normals, masks, cl, wts, grid, off, linear=linear, views=views,
+                               cluster_sh_l2=cl2)
     raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")

@@ -29,6 +29,12 @@ that constant radiance L gives E = π·L. Folded constants as in three.js ``getI
 π·c0 = 0.886227, (2π/3)·c1 = 1.023328, (π/4)·c2 = 0.858086, (π/4)·c3 = 0.247708,
 (π/4)·c4 = 0.429043.
 
+L2 volumes (``sh_l2``, proto/bundle.md 5.1): three.js ``LightProbeGrid`` layout, :func:`sh_l2_atlas` —
+the 27 numbers of a probe (coefficient k major, colour minor: c0.rgb, c1.rgb, ..., c8.rgb, then one 0) in 7
+RGBA texels, each of the 7 a probe sub-volume of nz + 2 z slices (one padding slice, a copy of the nearest
+data slice, at each end) stacked along z: one 3D texture, 7 fetches. :func:`sh_l2_sample` reads it as the GLSL
+does (``gi_grid.glsl`` ``giPaddedStackedUVW``, ``sh.glsl`` ``shIrradianceL2Packed``).
+
 Consumers: stages/light (projection), stages/evaluate and proto/glsl (irradiance).
 
 References
@@ -52,6 +58,11 @@ __all__ = [
     "sh_project",
     "sh_irradiance",
     "sh_irradiance_l1_nonlinear",
+    "sh_irradiance_l2",
+    "SH_L2_TEXELS",
+    "sh_l2_atlas",
+    "sh_l2_from_atlas",
+    "sh_l2_atlas_depth",
 ]
 
 SH_C0 = 0.5 / np.sqrt(np.pi)  # 0.282095, Y00
@@ -180,6 +191,7 @@ def sh_irradiance(coeffs, normals) -> np.ndarray:
     _order_of(count)  # validates 4 or 9
     if n.shape[-1:] != (3,):
         raise ValueError(f"sh_irradiance: normals must have shape (..., 3), got {n.shape}")
+    # RH01 eq 7: E(n) = Σ_lm Â_l L_lm Y_lm(n), with eq 8's clamped-cosine kernel Â_l = π, 2π/3, π/4
     y = _sh_basis(n, count) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:count]]  # Â_l · Y_k(n)
     return np.einsum("...k,...kc->...c", y, c)
 
@@ -220,3 +232,57 @@ def sh_irradiance_l1_nonlinear(coeffs, normals) -> np.ndarray:
     a = (1.0 - r) / (1.0 + r)
     e = r0 * (a + (1.0 - a) * (p_ + 1.0) * q ** p_)
     return np.where(directional, e, np.where(pos, r0, 0.0))
+
+
+def sh_irradiance_l2(coeffs, normals) -> np.ndarray:
+    """L2 irradiance E(n) of 9-coefficient radiance SH (RH01 eq 7-8; what ``sh.glsl`` ``shIrradianceL2`` and
+    ``web/src/math/sh.js`` ``shIrradianceL2`` compute): :func:`sh_irradiance` restricted to ``(..., 9, C)``.
+
+    Per band the clamped-cosine kernel Â_l (RH01 eq 8) multiplies the coefficients:
+    E = π·c0·L0 + (2π/3)·c1·(L1y y + L1z z + L1x x) + (π/4)·[c2 (L4 xy + L5 yz + L7 xz) + c3 L6 (3z² − 1)
+    + c4 L8 (x² − y²)]. Not clamped (the GLSL modes clamp at 0).
+    """
+    c = np.asarray(coeffs, dtype=np.float64)
+    if c.ndim < 2 or c.shape[-2] != 9:
+        raise ValueError(f"sh_irradiance_l2: coeffs must have shape (..., 9, C), got {c.shape}")
+    return sh_irradiance(c, normals)
+
+
+SH_L2_TEXELS = 7
+"""RGBA texels (sub-volumes) per probe of an L2 volume: 27 numbers in 28 slots (three.js LightProbeGrid)."""
+
+
+def sh_l2_atlas_depth(nz: int, volumes: int = 1) -> int:
+    """z size of ``volumes`` L2 volumes of a grid with ``nz`` probes along z stacked: 7·(nz + 2) each."""
+    return SH_L2_TEXELS * (int(nz) + 2) * int(volumes)
+
+
+def sh_l2_atlas(probe_sh) -> np.ndarray:
+    """Pack L2 radiance SH per probe into the three.js LightProbeGrid 3D atlas (``sh_l2``).
+
+    probe_sh : (nz, ny, nx, 9, 3) radiance SH (this module's order), e.g. the light stage's ``probe_sh``.
+    Returns (7·(nz + 2), ny, nx, 4) float32: sub-volume t (t = 0..6) occupies z slices
+    [t·(nz + 2), (t + 1)·(nz + 2)); its slice t·(nz + 2) + 1 + k holds probe layer k, and the first / last slice
+    copy layers 0 / nz − 1 (padding, so hardware filtering never mixes sub-volumes). Texel channel q of
+    sub-volume t is number 4t + q of the probe's ``[c0.r, c0.g, c0.b, c1.r, ..., c8.b, 0]``.
+    """
+    a = np.asarray(probe_sh, np.float32)
+    if a.ndim != 5 or a.shape[3:] != (9, 3):
+        raise ValueError(f"sh_l2_atlas: probe_sh must have shape (nz, ny, nx, 9, 3), got {a.shape}")
+    nz, ny, nx = a.shape[:3]
+    flat = np.zeros((nz, ny, nx, 4 * SH_L2_TEXELS), np.float32)
+    flat[..., :27] = a.reshape(nz, ny, nx, 27)
+    sub = flat.reshape(nz, ny, nx, SH_L2_TEXELS, 4).transpose(3, 0, 1, 2, 4)     # (7, nz, ny, nx, 4)
+    padded = np.concatenate([sub[:, :1], sub, sub[:, -1:]], axis=1)               # (7, nz + 2, ny, nx, 4)
+    return np.ascontiguousarray(padded.reshape(SH_L2_TEXELS * (nz + 2), ny, nx, 4))
+
+
+def sh_l2_from_atlas(atlas) -> np.ndarray:
+    """Inverse of :func:`sh_l2_atlas`: (7·(nz + 2), ny, nx, 4) -> (nz, ny, nx, 9, 3) float32."""
+    a = np.asarray(atlas, np.float32)
+    if a.ndim != 4 or a.shape[3] != 4 or a.shape[0] % SH_L2_TEXELS or a.shape[0] // SH_L2_TEXELS < 3:
+        raise ValueError(f"sh_l2_from_atlas: atlas must have shape (7·(nz + 2), ny, nx, 4), got {a.shape}")
+    nz = a.shape[0] // SH_L2_TEXELS - 2
+    sub = a.reshape(SH_L2_TEXELS, nz + 2, *a.shape[1:])[:, 1:-1]                 # (7, nz, ny, nx, 4)
+    flat = sub.transpose(1, 2, 3, 0, 4).reshape(nz, *a.shape[1:3], 4 * SH_L2_TEXELS)
+    return np.ascontiguousarray(flat[..., :27].reshape(nz, *a.shape[1:3], 9, 3))

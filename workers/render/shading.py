@@ -21,13 +21,20 @@ Modes and their textures (:func:`prepare_mode`; the GLSL headers document each b
 
 =================== ===========================================================================================
 ``direct``          none
-``leaking``         ``sh_l1_{r,g,b}`` 3D RGBA32F, LINEAR
+``leaking``         ``sh_l2`` 3D RGBA32F, LINEAR (L2, ``KILN_SH_L2``; the default when the bake has it), else
+                    ``sh_l1_{r,g,b}`` 3D RGBA32F, LINEAR (L1)
 ``ddgi``            ``uProbeData`` (relocated positions + non-OFF flag, 3D RGBA32F, NEAREST), ``irradiance`` and
                     ``depth_moments`` atlases (2D, LINEAR)
 ``mask``            ``mask_indirection`` (NEAREST), ``mask_atlas_*`` (LINEAR), the cluster SH volumes stacked
-``mask_normalized`` along z (3D RGBA32F), cluster weights stacked (normalized only)
-``prt``             the PRT SH basis (L1 coefficients) stacked along z; per-channel coefficients as uniforms
+``mask_normalized`` along z (3D RGBA32F; L2: the ``cluster_sh_l2_{k}`` volumes, ``KILN_SH_L2``), cluster weights
+                    stacked (normalized only)
+``prt``             the PRT SH basis stacked along z (all 9 coefficients of an L2 bake, ``KILN_SH_L2``, else the 4
+                    of L1); per-channel coefficients as uniforms
 =================== ===========================================================================================
+
+SH order (``prepare_mode(sh_order=...)``): None, the default, uses L2 wherever the bake has the L2 volumes
+(docs/architecture.md "Runtime SH evaluation": measured better on every axis of an open lit floor), 1 forces L1,
+2 requires L2. The mode's ``info["sh_order"]`` says which was bound.
 
 Timing (:meth:`ShadingRenderer.time_pass`): wall clock of ``render(); ctx.finish()``, median of repeats
 after one warm-up (llvmpipe's timer queries are wrong).
@@ -46,7 +53,8 @@ import numpy as np
 from proto.glsl_preprocess import ShaderSourceError, format_compile_errors, load_sources, preprocess
 from workers.kernels.ddgi import bias_scale
 from workers.kernels.grid import OFF
-from workers.kernels.samplers import MASK_OFFSET_SAMPLES
+from workers.kernels.samplers import MASK_OFFSET_SAMPLES, has_l2
+from workers.kernels.sh import sh_l2_atlas_depth
 from workers.kernels.shading import direct_irradiance
 
 from .context import create_context
@@ -57,6 +65,9 @@ __all__ = ["MODES", "MAX_LIGHTS", "ModeResources", "GBufferInputs", "ShadingRend
 MODES = ("direct", "leaking", "ddgi", "mask", "mask_normalized", "prt")
 MAX_LIGHTS = 8
 PRT_MAX_GROUPS = 16
+MAX_3D_TEXTURE_DEPTH = 2048
+"""Deepest stacked 3D texture the pass builds for L2 cluster volumes (GL_MAX_3D_TEXTURE_SIZE of desktop GL / llvmpipe
+and most WebGL2 GPUs; WebGL2 only guarantees 256): deeper stacks fall back to L1."""
 _SAMPLER_TYPES = {0x8B5E: "2d", 0x8B5F: "3d"}  # GL_SAMPLER_2D, GL_SAMPLER_3D  # basis slots ≤ 64 (mode_prt.glsl KILN_PRT_MAX_GROUPS)
 
 
@@ -161,23 +172,38 @@ def cluster_count(arrays) -> int:
     return K
 
 
+def _want_l2(sh_order, available: bool, mode: str) -> bool:
+    if sh_order not in (None, 1, 2):
+        raise ValueError(f"sh_order must be None, 1 or 2, got {sh_order!r}")
+    if sh_order == 2 and not available:
+        raise ValueError(f"sh_order=2: the bake has no L2 data for mode {mode!r} (light.sh_order = 1?)")
+    return available and sh_order != 1
+
+
 def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask_meta: dict | None = None,
                  mask_offset_samples: float = MASK_OFFSET_SAMPLES, prt_model=None,
-                 prt_coefficients=None) -> ModeResources:
+                 prt_coefficients=None, sh_order: int | None = None) -> ModeResources:
     """Textures and uniforms of one mode from baked artifacts addressed by name (``arrays[name]``).
 
     grid : counts (nx, ny, nz), origin, spacing. mask modes need ``mask_meta`` with ``samples_per_cell`` (S),
     ``block_size`` (T) and ``border_lo``; they read the masks ``mask_offset_samples`` refined samples along
     n + v (``uMaskOffset``; :func:`workers.kernels.samplers.mask_values`). prt needs ``prt_model``
     (:class:`workers.prt_relight.PrtModel`, mono, no gamma) and ``prt_coefficients`` (n, 3) (u of PRT eq 10 per colour channel).
+    ``sh_order``: None = L2 where the bake has it (the default), 1 = L1, 2 = L2 required (module doc).
     """
     r = ModeResources(mode, uniforms=_grid_uniforms(grid))
     nx, ny, nz = (int(c) for c in grid["counts"])
     if mode == "direct":
         return r
     if mode == "leaking":
+        if _want_l2(sh_order, has_l2(mode, arrays), mode):
+            r.textures["uShL2"] = (np.ascontiguousarray(arrays["sh_l2"], np.float32), True)
+            r.defines["KILN_SH_L2"] = 1
+            r.info.update(sh_order=2)
+            return r
         for u, c in (("uShR", "r"), ("uShG", "g"), ("uShB", "b")):
             r.textures[u] = (np.ascontiguousarray(arrays[f"sh_l1_{c}"], np.float32), True)
+        r.info.update(sh_order=1)
         return r
     if mode == "ddgi":
         pos = np.asarray(arrays["probe_positions_relocated"], np.float32).reshape(nz, ny, nx, 3)
@@ -199,10 +225,21 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask
         K = cluster_count(arrays)
         if K < 1:
             raise ValueError("mask modes need cluster_sh_{k}_{r,g,b} volumes")
-        sh = stack_volumes([arrays[f"cluster_sh_{k}_{c}"] for k in range(K) for c in "rgb"])
-        r.textures.update(uMaskIndirection=(np.ascontiguousarray(arrays["mask_indirection"]), False),
-                          uMaskAtlas0123=(np.ascontiguousarray(arrays["mask_atlas_0123"]), True),
-                          uClusterSh=(sh, True))
+        l2 = _want_l2(sh_order, has_l2(mode, arrays), mode)
+        if l2 and sh_order is None and sh_l2_atlas_depth(nz, K) > MAX_3D_TEXTURE_DEPTH:
+            l2 = False                           # the stack would not fit one 3D texture: L1 (info says so)
+            r.info.update(sh_l2_skipped=f"7·K·(nz + 2) = {sh_l2_atlas_depth(nz, K)} > {MAX_3D_TEXTURE_DEPTH}")
+        if l2:
+            sh = stack_volumes([arrays[f"cluster_sh_l2_{k}"] for k in range(K)])
+            r.defines["KILN_SH_L2"] = 1
+            sh_uniform = "uClusterShL2"
+        else:
+            sh = stack_volumes([arrays[f"cluster_sh_{k}_{c}"] for k in range(K) for c in "rgb"])
+            sh_uniform = "uClusterSh"
+        r.info.update(sh_order=2 if l2 else 1)
+        r.textures.update({"uMaskIndirection": (np.ascontiguousarray(arrays["mask_indirection"]), False),
+                           "uMaskAtlas0123": (np.ascontiguousarray(arrays["mask_atlas_0123"]), True),
+                           sh_uniform: (sh, True)})
         if K > 4:
             r.textures["uMaskAtlas4567"] = (np.ascontiguousarray(arrays["mask_atlas_4567"]), True)
         if mode == "mask_normalized":
@@ -226,14 +263,18 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask
         if G > PRT_MAX_GROUPS:
             raise ValueError(f"prt mode: at most {4 * PRT_MAX_GROUPS} basis slots, got {n}")
         names = prt_model.section["sh"]["basis"]            # [k][g] artifact names
-        vols = [arrays[names[k][g]] for k in range(4) for g in range(G)]
+        l2 = _want_l2(sh_order, len(names) == 9, mode)      # an L2 bake's basis has all 9 coefficients
+        C = 9 if l2 else 4
+        vols = [arrays[names[k][g]] for k in range(C) for g in range(G)]
+        if l2:
+            r.defines["KILN_SH_L2"] = 1
         coef = np.zeros((3, PRT_MAX_GROUPS, 4), np.float32)
         padded = np.zeros((4 * G, 3), np.float32)
         padded[:n] = u
         coef[:, :G, :] = padded.T.reshape(3, G, 4)
         r.textures["uPrtBasis"] = (stack_volumes(vols), True)
         r.uniforms.update(uPrtGroups=G, uPrtCoef=coef.reshape(-1, 4))
-        r.info.update(basis=n, groups=G)
+        r.info.update(basis=n, groups=G, sh_order=2 if l2 else 1, coefficients=C)
         return r
     raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
 

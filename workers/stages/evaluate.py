@@ -160,7 +160,7 @@ def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarr
     if mode == "direct" or N == 0:
         return np.zeros(N)
     if mode == "leaking":
-        return np.full(N, 3.0)
+        return np.full(N, 7.0 if res.info.get("sh_order") == 2 else 3.0)     # sh_l2 sub-volumes, or sh_l1_{r,g,b}
     if mode == "ddgi":
         _, cage = cage_probes(points, normals, views, grid["counts"], grid["origin"], grid["spacing"], 0.3)
         live = (np.asarray(arrays["probe_states"]).reshape(-1)[cage] != OFF).sum(axis=1)
@@ -171,13 +171,14 @@ def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarr
         vols = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
         m = SM.mask_values(vols, points, normals, grid, float(res.uniforms.get("uMaskOffset", 0.0)), views)[:, :K]
         z = (m > 0).sum(axis=1)
-        return 1.0 + A + 3.0 * z + (A if mode == "mask_normalized" else 0)
+        per = 7.0 if res.info.get("sh_order") == 2 else 3.0                   # L2: 7 sub-volumes per cluster
+        return 1.0 + A + per * z + (A if mode == "mask_normalized" else 0)
     if mode == "prt":
-        return np.full(N, 4.0 * res.info["groups"])
+        return np.full(N, float(res.info.get("coefficients", 4)) * res.info["groups"])
     raise ValueError(mode)
 
 
-def _prt_resources(arrays, grid, lights, caster):
+def _prt_resources(arrays, grid, lights, caster, sh_order=None):
     from workers.prt_relight import PrtModel, direct_vector
     from workers.kernels import prt as kprt
 
@@ -186,7 +187,7 @@ def _prt_resources(arrays, grid, lights, caster):
     xg = kprt.gamma_encode(x, model.gamma)
     xa = np.concatenate([xg, np.linalg.norm(xg, axis=0)[None]], axis=0).astype(np.float32)
     u = np.einsum("cnm,mc->nc", model.sh.transfer, xa)
-    return prepare_mode("prt", arrays, grid, prt_model=model, prt_coefficients=u)
+    return prepare_mode("prt", arrays, grid, prt_model=model, prt_coefficients=u, sh_order=sh_order)
 
 
 def run_evaluate(ctx: StageContext) -> StageOutput:

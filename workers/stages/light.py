@@ -24,7 +24,9 @@ Outputs: ``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) float32 RGBA (rgb
 octahedral n×n per probe with its border (grid.pack_atlas); ``probe_sh`` (nz, ny, nx, 9|4, 3) float32
 radiance SH per probe (three.js order, :mod:`workers.kernels.sh`); ``sh_l1_r``, ``sh_l1_g``,
 ``sh_l1_b`` (nz, ny, nx, 4) float32 volumes holding each channel's L0 and L1 coefficients, the
-form leaking probe GI samples with hardware trilinear filtering.
+form leaking probe GI samples with hardware trilinear filtering; with ``light.sh_order`` 2 (the default) also
+``sh_l2`` (7·(nz+2), ny, nx, 4) float32, all 9 coefficients in the three.js LightProbeGrid layout
+(:func:`workers.kernels.sh.sh_l2_atlas`, proto/bundle.md 5.1), what leaking probe GI samples by default.
 """
 from __future__ import annotations
 
@@ -39,7 +41,7 @@ from workers.kernels.ddgi import cage_probes, cage_rays, sample_irradiance
 from workers.kernels.grid import OFF, pack_atlas, unpack_atlas
 from workers.kernels.materials import albedo_warnings
 from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
-from workers.kernels.sh import sh_project
+from workers.kernels.sh import sh_l2_atlas, sh_project
 from workers.kernels.shading import direct_irradiance, surface_at_hits
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
@@ -265,6 +267,11 @@ def run_light(ctx: StageContext) -> StageOutput:
             *[Artifact(f"sh_l1_{c}", np.ascontiguousarray(shv[..., :4, i]),
                        description=f"L0 + L1 radiance SH of the {c} channel per probe")
               for i, c in enumerate("rgb")],
+            *([Artifact("sh_l2", sh_l2_atlas(shv), meta={"layout": "three.js LightProbeGrid", "texels": 7,
+                                                          "padding": 1},
+                        description="L2 radiance SH per probe: 9 coefficients x rgb in 7 padded RGBA sub-volumes "
+                                    "stacked along z (three.js LightProbeGrid layout)")]
+              if shv.shape[3] == 9 else []),
         ],
         stats=stats,
     )

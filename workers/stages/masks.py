@@ -27,6 +27,10 @@ Outputs
 ``cluster_sh_{k}_{r,g,b}`` for k < K : (nz, ny, nx, 4) float32 RGBA32F — the L0 + L1 radiance SH of
     colour channel r/g/b (``sh_l1_*`` layout: L0, L1y, L1z, L1x) of the probes of cluster k; 0 for the
     other probes and for OFF probes.
+``cluster_sh_l2_{k}`` for k < K, when the light stage's ``probe_sh`` is L2 (``light.sh_order`` 2, the default) :
+    (7·(nz+2), ny, nx, 4) float32 — the 9 radiance SH coefficients of cluster k's probes (0 elsewhere and for OFF
+    probes) in the ``sh_l2`` layout (three.js LightProbeGrid, :func:`workers.kernels.sh.sh_l2_atlas`): what the mask
+    modes shade with by default (the GLSL stacks the K of them in one texture).
 ``cluster_weights_0123`` (and ``_4567`` when K > 4) : (nz, ny, nx, 4) float32 — channel k = g_i^k
     (1 for non-OFF probes of cluster k, else 0), so trilinear filtering gives w_k(x) = Σ_i φ_i g_i^k
     and normalized mask GI divides by Σ_k m_k w_k.
@@ -44,6 +48,7 @@ import numpy as np
 
 from workers.kernels.masks import (canonicalize, cluster_volumes, fill_dont_care, fit_masks, gaussian_filter, join_theta,
                                    light_aware_fit, mask_residual, quantize)
+from workers.kernels.sh import sh_l2_atlas
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 ZSTD_LEVEL = 3
@@ -110,6 +115,13 @@ def run_masks(ctx: StageContext) -> StageOutput:
             arts.append(Artifact(f"cluster_sh_{k}_{c}", np.ascontiguousarray(vols[k][..., i]),
                                  description=f"L0 + L1 radiance SH of the {c} channel of cluster {k}'s probes "
                                              f"(0 elsewhere)", meta={"cluster": k}))
+    probe_sh = light["probe_sh"] if "probe_sh" in light else None
+    if probe_sh is not None and np.shape(probe_sh)[3] == 9:                               # L2 bake
+        vols2, _ = cluster_volumes(np.asarray(probe_sh, np.float32), g, K, states)
+        for k in range(K):
+            arts.append(Artifact(f"cluster_sh_l2_{k}", sh_l2_atlas(vols2[k]),
+                                 meta={"cluster": k, "layout": "three.js LightProbeGrid", "texels": 7, "padding": 1},
+                                 description=f"L2 radiance SH of cluster {k}'s probes (0 elsewhere), sh_l2 layout"))
     arts.append(Artifact("cluster_weights_0123", _rgba(weights, 0), meta={"clusters": K},
                          description="g_i^k of clusters 0-3 per probe: trilinear gives w_k = Σ φ_i g_i^k"))
     if K > 4:

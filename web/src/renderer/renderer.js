@@ -39,6 +39,7 @@ export class GIRenderer {
     this.sources = new Map();  // preprocessed code -> line map, to name files in compile errors
     this.three.debug.onShaderError = (gl, program, vs, fs) => this.reportShaderError(gl, vs, fs);
     this.floatLinear = this.three.extensions.has('OES_texture_float_linear');
+    this.max3DTextureSize = this.gl.getParameter(this.gl.MAX_3D_TEXTURE_SIZE) || 256;  // the L2 cluster stack's limit
     this.timer = new FrameTimer(this.gl);
     this.lightsVec = () => Array.from({ length: MAX_LIGHTS }, () => new Vector4());
     this.shared = {
@@ -84,6 +85,7 @@ export class GIRenderer {
     this.sceneRoot = null;
     this.materials = new Map();  // original material -> our RawShaderMaterial
     this.modeShader = 'mode_direct.glsl';
+    this.modeDefines = {};  // the GI mode shader's #defines (state/modes.js modeDefines: KILN_SH_L2)
     this.probeMesh = null;
     this.sky = [0, 0, 0];
     this.updateClearColor();
@@ -104,7 +106,9 @@ export class GIRenderer {
    * the source and writes the version line itself (glslVersion GLSL3), so ours is dropped here.
    */
   source(entry, slots = {}) {
-    const s = shaderSource(entry, { slots, defines: { MAX_LIGHTS, KILN_SHADOWS: this.shadowsEnabled && entry === 'scene.frag.glsl' } });
+    const scene = entry === 'scene.frag.glsl';
+    const defines = { MAX_LIGHTS, KILN_SHADOWS: this.shadowsEnabled && scene, ...(scene ? this.modeDefines : {}) };
+    const s = shaderSource(entry, { slots, defines });
     const code = s.code.slice(s.code.indexOf('\n') + 1);
     this.sources.set(code, s.lineMap.slice(1));
     return code;
@@ -268,10 +272,14 @@ export class GIRenderer {
     this.world.add(root);
   }
 
-  /** Switch the GI mode's shader (file in proto/glsl); programs are compiled on the next draw. */
-  setModeShader(file) {
-    if (file === this.modeShader) return;
+  /**
+   * Switch the GI mode's shader (file in proto/glsl) and its #defines (KILN_SH_L2: the L2 evaluation); programs are
+   * compiled on the next draw.
+   */
+  setModeShader(file, defines = {}) {
+    if (file === this.modeShader && JSON.stringify(defines) === JSON.stringify(this.modeDefines)) return;
     this.modeShader = file;
+    this.modeDefines = { ...defines };
     const frag = this.source('scene.frag.glsl', { mode: file });
     for (const m of this.materials.values()) { m.fragmentShader = frag; m.needsUpdate = true; }
   }

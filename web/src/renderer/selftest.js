@@ -1,6 +1,6 @@
 /**
- * GLSL parity on the real GPU path: runs proto/glsl's sh.glsl, probe_grid.glsl (with hardware trilinear
- * filtering of RGBA32F 3D textures) and octahedral.glsl on a throwaway WebGL2 context and reads the results
+ * GLSL parity on the real GPU path: runs proto/glsl's sh.glsl (L1 and L2), probe_grid.glsl and gi_grid.glsl (with
+ * hardware trilinear filtering of RGBA32F 3D textures; the padded sh_l2 stack) and octahedral.glsl on a throwaway WebGL2 context and reads the results
  * back, for the browser tests to compare with the Python kernels' numbers in proto/fixtures/expected.json.
  * Needs EXT_color_buffer_float (to read float results back).
  */
@@ -14,7 +14,9 @@ const FRAG = `// parity entry (web/src/renderer/selftest.js)
 #include "sh.glsl"
 #include "octahedral.glsl"
 #include "probe_grid.glsl"
+#include "gi_grid.glsl"
 uniform highp sampler2D uIn;  // column = case, rows = inputs
+uniform highp sampler3D uShL2;  // the sh_l2 fixture (three.js LightProbeGrid layout)
 uniform highp sampler3D uShR;
 uniform highp sampler3D uShG;
 uniform highp sampler3D uShB;
@@ -32,6 +34,18 @@ void main() {
     fragColor = vec4(shIrradianceL1(texture(uShR, uvw), texture(uShG, uvw), texture(uShB, uvw), b.xyz), 1.0);
   } else if (uTest == 2) fragColor = vec4(octEncode(a.xyz), 0.0, 1.0);
   else if (uTest == 3) fragColor = vec4(octDecode(a.xy), 1.0);
+  else if (uTest == 5) {  // L2 of one probe: its 7 texels (rows 0-6 via texelFetch of uShL2), normal in row 0
+    ivec3 pr = ivec3(a.xyz);
+    int slices = int(uGridCounts.z) + 2;
+    vec4 s[7];
+    for (int t = 0; t < 7; ++t) s[t] = texelFetch(uShL2, ivec3(pr.xy, pr.z + 1 + t * slices), 0);
+    fragColor = vec4(shIrradianceL2Packed(s[0], s[1], s[2], s[3], s[4], s[5], s[6], b.xyz), 1.0);
+  } else if (uTest == 6) {  // L2 at a world point: 7 trilinear fetches, as mode_leaking.glsl (unclamped)
+    vec3 tx = giProbeTexel(a.xyz);
+    vec4 s[7];
+    for (int t = 0; t < 7; ++t) s[t] = texture(uShL2, giPaddedStackedUVW(tx, float(t), 7.0));
+    fragColor = vec4(shIrradianceL2Packed(s[0], s[1], s[2], s[3], s[4], s[5], s[6], b.xyz), 1.0);
+  }
   else fragColor = vec4(shIrradianceL1LinearChannel(a, d.xyz), shIrradianceL1LinearChannel(b, d.xyz),
                         shIrradianceL1LinearChannel(c, d.xyz), 1.0);
 }`;
@@ -46,7 +60,7 @@ function compile(gl, type, src) {
 
 /**
  * @param {object} fx  proto/fixtures/expected.json
- * @returns {{sh: number[][], shLinear: number[][], trilinear: number[][], octEncode: number[][], octDecode: number[][], renderer: string}}
+ * @returns {{sh: number[][], shLinear: number[][], trilinear: number[][], shL2: number[][], shL2Trilinear: number[][], octEncode: number[][], octDecode: number[][], renderer: string}}
  */
 export function glslParity(fx) {
   const canvas = document.createElement('canvas');
@@ -77,6 +91,28 @@ export function glslParity(fx) {
       [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_3D, k, v);
     gl.uniform1i(gl.getUniformLocation(prog, name), 1 + ch);
   });
+  // the L2 fixture volume: 7·(D + 2) slices of RGBA32F (fx.sh_l2.coeffs packed as workers/kernels/sh.py sh_l2_atlas)
+  const l2 = fx.sh_l2;
+  if (l2) {
+    const slices = D + 2;
+    const data = new Float32Array(W * H * 7 * slices * 4);
+    for (let k = 0; k < D; k++) for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+      const p = (k * H + j) * W + i;
+      for (let q = 0; q < 27; q++) {
+        const t = Math.floor(q / 4);
+        for (const z of [k + 1, ...(k === 0 ? [0] : []), ...(k === D - 1 ? [D + 1] : [])]) {
+          data[(((t * slices + z) * H + j) * W + i) * 4 + (q % 4)] = l2.coeffs[p * 27 + q];
+        }
+      }
+    }
+    const t = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE4);
+    gl.bindTexture(gl.TEXTURE_3D, t);
+    gl.texImage3D(gl.TEXTURE_3D, 0, gl.RGBA32F, W, H, 7 * slices, 0, gl.RGBA, gl.FLOAT, data);
+    for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.LINEAR], [gl.TEXTURE_MAG_FILTER, gl.LINEAR], [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
+      [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE], [gl.TEXTURE_WRAP_R, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_3D, k, v);
+    gl.uniform1i(gl.getUniformLocation(prog, 'uShL2'), 4);
+  }
   gl.uniform3fv(gl.getUniformLocation(prog, 'uGridOrigin'), s.grid.origin);
   gl.uniform3fv(gl.getUniformLocation(prog, 'uGridSpacing'), s.grid.spacing);
   gl.uniform3fv(gl.getUniformLocation(prog, 'uGridCounts'), s.grid.counts);
@@ -120,11 +156,23 @@ export function glslParity(fx) {
   const tri = [[], [], [], []];
   for (const smp of s.samples) for (const n of s.normals) { tri[0].push(smp.p); tri[1].push(n); tri[2].push([]); tri[3].push([]); }
   const trilinear = run(1, tri).map((v) => v.slice(0, 3));
+  // 5, 6: L2 per probe and normal (texelFetch), and at world points (trilinear through the padded stack)
+  let shL2 = [], shL2Trilinear = [];
+  if (l2) {
+    const c5 = [[], [], [], []];
+    for (let k = 0; k < D; k++) for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
+      for (const n of l2.normals) { c5[0].push([i, j, k]); c5[1].push(n); c5[2].push([]); c5[3].push([]); }
+    }
+    shL2 = run(5, c5).map((v) => v.slice(0, 3));
+    const c6 = [[], [], [], []];
+    for (const smp of l2.samples) for (const n of l2.normals) { c6[0].push(smp.p); c6[1].push(n); c6[2].push([]); c6[3].push([]); }
+    shL2Trilinear = run(6, c6).map((v) => v.slice(0, 3));
+  }
   const o = fx.octahedral;
   const enc = run(2, [o.dirs, o.dirs.map(() => []), o.dirs.map(() => []), o.dirs.map(() => [])]).map((v) => v.slice(0, 2));
   const dec = run(3, [o.uv, o.uv.map(() => []), o.uv.map(() => []), o.uv.map(() => [])]).map((v) => v.slice(0, 3));
   const dbg = gl.getExtension('WEBGL_debug_renderer_info');
   const renderer = dbg ? gl.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
   gl.getExtension('WEBGL_lose_context')?.loseContext();
-  return { sh, shLinear, trilinear, octEncode: enc, octDecode: dec, renderer };
+  return { sh, shLinear, trilinear, shL2, shL2Trilinear, octEncode: enc, octDecode: dec, renderer };
 }

@@ -11,7 +11,8 @@
  * 'volume-nearest', 'atlas' (2D, linear), 'stack' (a list of probe volumes concatenated along z:
  * gi_grid.glsl giStackedUVW) or 'probe-data' ([relocated positions, states] -> RGBA32F xyz + non-OFF flag,
  * NEAREST). `uniforms({grid, names, info, artifacts})` gives the mode's other uniforms, as
- * workers/render/shading.py prepare_mode binds them.
+ * workers/render/shading.py prepare_mode binds them. `defines(names, artifacts, caps)` (optional) gives the
+ * preprocessor #defines of the mode's shader: KILN_SH_L2 where the bake has the L2 volumes (shOrder below).
  */
 const CHANNELS = ['r', 'g', 'b'];
 
@@ -25,6 +26,44 @@ export function clusterCount(names) {
 
 /** The `cluster_sh_{k}_{c}` names in stacking order (k0 r, k0 g, k0 b, k1 r, ...: gi_mask.glsl). */
 const clusterShNames = (names) => Array.from({ length: clusterCount(names) }, (_, k) => CHANNELS.map((c) => `cluster_sh_${k}_${c}`)).flat();
+
+/** The `cluster_sh_l2_{k}` names in stacking order (gi_mask.glsl uClusterShL2). */
+const clusterShL2Names = (names) => Array.from({ length: clusterCount(names) }, (_, k) => `cluster_sh_l2_${k}`);
+
+/**
+ * Deepest stacked 3D texture built for L2 cluster volumes without knowing the device (workers/render/shading.py
+ * MAX_3D_TEXTURE_DEPTH); the viewer passes the device's MAX_3D_TEXTURE_SIZE as caps.max3D.
+ */
+export const MAX_3D_TEXTURE_DEPTH = 2048;
+
+/**
+ * SH order a mode shades with for a bake (docs/architecture.md "Runtime SH evaluation"): 2 where the bake has the
+ * L2 volumes the mode reads (leaking: `sh_l2`; mask modes: `cluster_sh_l2_{k}` for every cluster, their stack of
+ * 7·K·(nz + 2) slices within caps.max3D when caps.nz is known; prt: the 9 coefficients of an L2 basis), else 1.
+ * caps.shOrder = 1 forces L1. As workers/render/shading.py prepare_mode decides.
+ */
+export function shOrder(modeId, names = [], artifacts = {}, caps = {}) {
+  if (caps.shOrder === 1) return 1;
+  const set = new Set(names);
+  if (modeId === 'leaking') return set.has('sh_l2') ? 2 : 1;
+  if (modeId === 'mask' || modeId === 'mask_normalized') {
+    const K = clusterCount(names);
+    if (!K || !clusterShL2Names(names).every((n) => set.has(n))) return 1;
+    const depth = caps.nz ? 7 * K * (caps.nz + 2) : 0;
+    return depth <= (caps.max3D || MAX_3D_TEXTURE_DEPTH) ? 2 : 1;
+  }
+  if (modeId === 'prt') {
+    const basis = artifacts.prt?.sh?.basis;
+    if (basis) return basis.length === 9 ? 2 : 1;
+    return names.some((n) => /^prt_sh_basis_c8_/.test(n)) ? 2 : 1;
+  }
+  return 1;
+}
+
+const l2Defines = (id) => (names, artifacts, caps) => (shOrder(id, names, artifacts, caps) === 2 ? { KILN_SH_L2: true } : {});
+
+/** The probe spheres' SH colouring reads the L1 volumes (probe.frag.glsl, texelFetch per probe). */
+export const PROBE_SH_TEXTURES = { uShR: ['sh_l1_r', 'volume'], uShG: ['sh_l1_g', 'volume'], uShB: ['sh_l1_b', 'volume'] };
 
 /**
  * Mask atlas uniforms (S, block size T, border_lo): the atlas artifact's meta when the bake lists it, else the
@@ -56,6 +95,12 @@ export function maskParams({ names, info, bake, grid }) {
  */
 export const MASK_OFFSET_SAMPLES = 1.0;
 
+/** The mask modes' cluster SH binding: the L2 stack (uClusterShL2) or the L1 one (uClusterSh). */
+function clusterShTextures(id, names, artifacts, caps) {
+  return shOrder(id, names, artifacts, caps) === 2 ? { uClusterShL2: [clusterShL2Names(names), 'stack'] }
+    : { uClusterSh: [clusterShNames(names), 'stack'] };
+}
+
 function maskUniforms(ctx) {
   const { S, T, lo } = maskParams(ctx);
   return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo, uMaskOffset: MASK_OFFSET_SAMPLES };
@@ -68,11 +113,13 @@ export function ddgiBias(spacing, selfShadowBias = 0.3) {
 }
 
 /**
- * The PRT basis volume names of the 4 L1 coefficients, k = 0..3 (an L2 bake lists 9: the shader sums L1),
- * g = 0..G-1, stacked k slowest (mode_prt.glsl).
+ * The PRT basis volume names, stacked k slowest (mode_prt.glsl): all 9 coefficients of an L2 bake (the shader
+ * then sums and evaluates L2, KILN_SH_L2), else (or with caps.shOrder = 1) the 4 of L1; g = 0..G-1.
  */
-export function prtBasisNames(section) {
-  return section?.sh?.basis ? section.sh.basis.slice(0, 4).flat() : [];
+export function prtBasisNames(section, caps = {}) {
+  if (!section?.sh?.basis) return [];
+  const C = section.sh.basis.length === 9 && caps.shOrder !== 1 ? 9 : 4;
+  return section.sh.basis.slice(0, C).flat();
 }
 
 export const GI_MODES = [
@@ -80,7 +127,10 @@ export const GI_MODES = [
   {
     id: 'leaking', label: 'Leaking SH', shader: 'mode_leaking.glsl',
     needs: ['sh_l1_r', 'sh_l1_g', 'sh_l1_b'],
-    textures: { uShR: ['sh_l1_r', 'volume'], uShG: ['sh_l1_g', 'volume'], uShB: ['sh_l1_b', 'volume'] },
+    // L2 (sh_l2, three.js LightProbeGrid layout, one texture) where the bake has it, else the L1 volumes
+    textures: (names, artifacts, caps) => (shOrder('leaking', names, artifacts, caps) === 2
+      ? { uShL2: ['sh_l2', 'volume'] } : { ...PROBE_SH_TEXTURES }),
+    defines: l2Defines('leaking'),
   },
   {
     // workers/render/shading.py prepare_mode("ddgi")
@@ -102,22 +152,24 @@ export const GI_MODES = [
     // workers/render/shading.py prepare_mode("mask")
     id: 'mask', label: 'Mask GI', shader: 'mode_mask.glsl',
     needs: ['mask_indirection', 'mask_atlas_0123', { prefix: 'cluster_sh_' }],
-    textures: (names) => ({
+    textures: (names, artifacts, caps) => ({
       uMaskIndirection: ['mask_indirection', 'volume-nearest'], uMaskAtlas0123: ['mask_atlas_0123', 'volume'],
       ...(clusterCount(names) > 4 ? { uMaskAtlas4567: ['mask_atlas_4567', 'volume'] } : {}),
-      uClusterSh: [clusterShNames(names), 'stack'],
+      ...clusterShTextures('mask', names, artifacts, caps),
     }),
+    defines: l2Defines('mask'),
     uniforms: maskUniforms,
   },
   {
     id: 'mask_normalized', label: 'Mask GI (normalized)', shader: 'mode_mask_normalized.glsl',
     needs: ['mask_indirection', 'mask_atlas_0123', 'cluster_weights_0123', { prefix: 'cluster_sh_' }],
-    textures: (names) => ({
+    textures: (names, artifacts, caps) => ({
       uMaskIndirection: ['mask_indirection', 'volume-nearest'], uMaskAtlas0123: ['mask_atlas_0123', 'volume'],
       ...(clusterCount(names) > 4 ? { uMaskAtlas4567: ['mask_atlas_4567', 'volume'] } : {}),
-      uClusterSh: [clusterShNames(names), 'stack'],
+      ...clusterShTextures('mask_normalized', names, artifacts, caps),
       uClusterWeights: [clusterCount(names) > 4 ? ['cluster_weights_0123', 'cluster_weights_4567'] : ['cluster_weights_0123'], 'stack'],
     }),
+    defines: l2Defines('mask_normalized'),
     uniforms: maskUniforms,
   },
   {
@@ -129,21 +181,31 @@ export const GI_MODES = [
       + 'so a light behind a wall still feeds the other room.',
     needs: ['prt', 'prt_points', 'prt_point_offsets', 'prt_sh_transfer', { prefix: 'prt_sh_basis_' }],
     // the basis names are in the `prt` json: resolved by the viewer once it has the section
-    textures: (names, artifacts = {}) => ({
-      uPrtBasis: [artifacts.prt ? prtBasisNames(artifacts.prt) : names.filter((n) => /^prt_sh_basis_c[0-3]_/.test(n)), 'stack'],
+    textures: (names, artifacts = {}, caps = {}) => ({
+      uPrtBasis: [artifacts.prt ? prtBasisNames(artifacts.prt, caps)
+        : names.filter((n) => (shOrder('prt', names, artifacts, caps) === 2 ? /^prt_sh_basis_c[0-8]_/ : /^prt_sh_basis_c[0-3]_/).test(n)), 'stack'],
     }),
+    defines: l2Defines('prt'),
     prerequisites: ['prt', 'prt_lights', 'prt_points', 'prt_point_offsets', 'prt_sh_transfer'],  // fetched first: `prt` names the basis
     uniforms: ({ artifacts }) => ({ uPrtGroups: Math.ceil(Number(artifacts.prt.basis) / 4) }),
   },
 ];
 
 /** Every sampler uniform any mode binds (the renderer creates their slots up front). */
-export const MODE_SAMPLERS = ['uShR', 'uShG', 'uShB', 'uIrradianceAtlas', 'uDepthAtlas', 'uProbeData', 'uMaskIndirection',
-  'uMaskAtlas0123', 'uMaskAtlas4567', 'uClusterSh', 'uClusterWeights', 'uPrtBasis'];
+export const MODE_SAMPLERS = ['uShR', 'uShG', 'uShB', 'uShL2', 'uIrradianceAtlas', 'uDepthAtlas', 'uProbeData',
+  'uMaskIndirection', 'uMaskAtlas0123', 'uMaskAtlas4567', 'uClusterSh', 'uClusterShL2', 'uClusterWeights', 'uPrtBasis'];
 
-/** A mode's {uniform: [artifact name | names, kind]} for a bake's artifact names (and artifacts loaded so far). */
-export function modeTextures(mode, names = [], artifacts = {}) {
-  return typeof mode.textures === 'function' ? mode.textures(names, artifacts) : mode.textures;
+/**
+ * A mode's {uniform: [artifact name | names, kind]} for a bake's artifact names (and artifacts loaded so far;
+ * caps: {max3D, nz, shOrder} as shOrder takes them).
+ */
+export function modeTextures(mode, names = [], artifacts = {}, caps = {}) {
+  return typeof mode.textures === 'function' ? mode.textures(names, artifacts, caps) : mode.textures;
+}
+
+/** A mode's shader #defines for a bake (KILN_SH_L2 where it shades with L2). */
+export function modeDefines(mode, names = [], artifacts = {}, caps = {}) {
+  return mode.defines ? mode.defines(names, artifacts, caps) : {};
 }
 
 export function modeById(id) {
@@ -169,8 +231,8 @@ export function modeAvailability(mode, artifactNames, hasShader) {
 }
 
 /** Artifacts to stream for a mode (those its textures bind, plus its prerequisites). */
-export function modeArtifacts(mode, names = [], artifacts = {}) {
+export function modeArtifacts(mode, names = [], artifacts = {}, caps = {}) {
   const out = [...(mode.prerequisites || [])];
-  for (const [name] of Object.values(modeTextures(mode, names, artifacts))) out.push(...(Array.isArray(name) ? name : [name]));
+  for (const [name] of Object.values(modeTextures(mode, names, artifacts, caps))) out.push(...(Array.isArray(name) ? name : [name]));
   return [...new Set(out)];
 }
