@@ -34,8 +34,9 @@ class StageDef:
 
 
 STAGES: tuple[StageDef, ...] = (
-    StageDef("ingest", 2, ("scene",), (), timeout=600),   # 2: stats["warnings"] (unlit_scene, light_outside_scene)
-    StageDef("place", 2, ("place", "seed"), ("ingest",), timeout=600),
+    # 2: stats["warnings"] (unlit_scene, light_outside_scene); 3: the `scene` artifact (GLB)
+    StageDef("ingest", 3, ("scene",), (), timeout=600),
+    StageDef("place", 5, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     StageDef("light", 1, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
@@ -93,8 +94,13 @@ def dependencies(stages: list[StageDef]) -> dict[str, list[str]]:
     return deps
 
 
-def plan(scene_id: str, config: BakeConfig) -> list[tuple[StageDef, str]]:
-    """Stages in run order (shards expanded) with their cache keys (hex sha256)."""
+def plan(scene_id: str, config: BakeConfig, namespace: str | None = None) -> list[tuple[StageDef, str]]:
+    """Stages in run order (shards expanded) with their cache keys (hex sha256).
+
+    ``namespace`` (the server passes the bake's team) goes into the first stage's key and so into every
+    key: one team's bakes never find another team's stage outputs in the shared store, so the cache tells a
+    team nothing of what others baked. ``None`` (the CLI's in-process bakes) gives the keys without one.
+    """
     keys: dict[str, str] = {}
     out = []
     for st in expand(config):
@@ -104,6 +110,8 @@ def plan(scene_id: str, config: BakeConfig) -> list[tuple[StageDef, str]]:
             h.update(f":shard={st.shard}/{st.shard_count}".encode())
         if not st.inputs:
             h.update(f":scene={scene_id}".encode())
+            if namespace is not None:
+                h.update(f":namespace={namespace}".encode())
         for dep in st.inputs:
             h.update(f":{dep}={keys[dep]}".encode())
         keys[st.name] = h.hexdigest()
@@ -155,11 +163,11 @@ def collect_warnings(stages: list[tuple[str, dict | None]], scene_warnings: list
 
 
 def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_id: str | None = None,
-                   cached: dict[str, bool] | None = None) -> Manifest:
+                   cached: dict[str, bool] | None = None, namespace: str | None = None) -> Manifest:
     """The bundle manifest of a bake whose stages are all in the store, with every stage's and the scene's
-    warnings collected into ``warnings`` (:func:`collect_warnings`)."""
+    warnings collected into ``warnings`` (:func:`collect_warnings`). ``namespace``: as for :func:`plan`."""
     stages, artifacts, grid = [], [], {}
-    for st, key in plan(scene_summary["id"], config):
+    for st, key in plan(scene_summary["id"], config, namespace):
         rec = store.get_stage(key)
         if rec is None:
             raise RuntimeError(f"stage {st.name} is not in the store")
@@ -185,7 +193,7 @@ def finalize_bake(catalog: Catalog, store: Store, bake: dict) -> dict:
         raise RuntimeError(f"scene {bake['scene_id']} of bake {bake['id']} is not in the catalog")
     summary = {k: scene[k] for k in ("id", "triangles", "bounds", "lights", "materials", "warnings")}
     cached = {s["name"]: s["cached"] for s in bake.get("stages", [])}
-    manifest = build_manifest(store, summary, config, bake_id=bake["id"], cached=cached)
+    manifest = build_manifest(store, summary, config, bake_id=bake["id"], cached=cached, namespace=bake["team"])
     metrics = {f"stage_seconds.{s.name}": s.seconds for s in manifest.stages}
     metrics["artifact_bytes"] = sum(a.bytes for a in manifest.artifacts)
     for s in manifest.stages:  # the evaluate stage's quality metrics: "<mode>.<metric>"

@@ -85,3 +85,22 @@ def test_explicit_counts_and_spacing_still_win(tmp_path, scene_files):
     assert out["place"].stats["counts"] == [4, 3, 2] and "auto" not in out["place"].stats
     _, out = bake_until(tmp_path / "s", scene_files["two-rooms"], {"place": {"spacing": 1.0}}, "place")
     assert out["place"].stats["spacing"][0] == 1.0 and "auto" not in out["place"].stats
+
+
+def test_probe_layers_straddle_the_thin_wall(scene_files):
+    # two-rooms' shared wall (x 4.00..4.05) lies between two probe layers, not inside one
+    _, (counts, origin, spacing, auto) = _plan(scene_files["two-rooms"])
+    layers = origin[0] + spacing[0] * np.arange(counts[0])
+    gap = np.abs(layers - 4.025).min()
+    assert gap > 0.3 * spacing[0], (layers, gap)
+    assert auto["layer_score"][0] > 0.5
+    # and the grid still covers the box
+    lo, hi = np.array(auto["box"])
+    assert np.all(origin <= lo + 1e-9) and np.all(origin + spacing * (counts - 1) >= hi - 1e-9)
+
+
+def test_open_scene_gets_probes_everywhere(scene_files):
+    # sealed-box: a closed box on a wide open floor -> "open": the grid spans the floor, not just the box
+    s, (counts, origin, spacing, auto) = _plan(scene_files["sealed-box"])
+    assert auto["kind"] == "open"
+    np.testing.assert_allclose(auto["box"], s.bounds, atol=1e-9)

@@ -13,15 +13,20 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    back faces is inside a solid (dropped). Above an open ground plane half the rays escape; a point that sees
    geometry in at least ``NEAR`` of its directions is near something light can bounce between (a wall, a
    building, a street), and one that sees it in at least ``ENCLOSED`` stands in an enclosed space.
-2. **Box**: the bounds of the near points, grown by one lattice step — the building and its surroundings,
-   not its ground slab. The scene is "enclosed" when at least half of those points are enclosed, else
-   "open" (a town, a terrain).
+2. **Box**: the scene is "enclosed" when at least half of the near points are enclosed (rooms, a building on a
+   slab), else "open" (a town, a terrain, objects on a floor). An enclosed scene's box is the bounds of the
+   near points, grown by one lattice step — the building and its surroundings, not its ground slab; an open
+   scene's box is the scene bounds.
 3. **Spacing**: the room scale ``ℓ`` = the median over enclosed points of the mean free distance of their rays
    (a 4 x 3 x 4 m room gives about 1.5 m); spacing = ``ℓ / ROOM_DIVISIONS`` (default 6: about 0.25 m in such a
    room), never finer than ``min_spacing``, and coarser where the probe budget requires:
    ``s ≥ (V / budget)^(1/3)`` for the box volume V (a uniform grid: the budget binds on large levels — the
    manifest says so).
-4. **Walls**: rays from enclosed points continue past their first hit; where a ray enters a solid through a
+4. **Layers between walls**: per axis, the grid's phase (and its spacing, within -12%..+12% of the chosen
+   one; never finer while the budget binds) is chosen so that axis-aligned faces (walls, floors, ceilings,
+   weighted by area) lie as far as possible from probe layers: a thin wall sits midway between two layers
+   (:func:`fit_layers`), not inside one.
+5. **Walls**: rays from enclosed points continue past their first hit; where a ray enters a solid through a
    front face and leaves through a back face, the distance is that wall's thickness. The 5th percentile ``w``
    sets the visibility field's samples per cell, ``S = ceil(2 s / w)`` within [4, 16], so that samples lie on
    both sides of the thinnest walls (MD §3.4: θ is sampled on a refined grid of S per cell axis), and no more
@@ -70,6 +75,7 @@ class FreeSpace:
     wall_thickness: np.ndarray  # (W,) float64 thicknesses found (m)
     step: np.ndarray            # (3,) lattice step (m)
     rays: int                   # rays cast
+    planes: tuple = ((), (), ())  # per axis: (positions (k,), areas (k,)) of the axis-aligned faces (walls, floors)
 
 
 def analyze_free_space(caster, bounds, double_sided=None, *, n_points: int = 4096, n_dirs: int = 48,
@@ -129,7 +135,60 @@ def analyze_free_space(caster, bounds, double_sided=None, *, n_points: int = 409
         thick = (h2.t[exits].astype(np.float64) - h.t[idx][exits].astype(np.float64))
         thick = thick[thick > 0]
     return FreeSpace(points=pts, inside=inside, hit_fraction=frac, mean_free=mean_free, wall_thickness=thick,
-                     step=step, rays=rays)
+                     step=step, rays=rays, planes=axis_planes(caster.triangles))
+
+
+def axis_planes(triangles) -> tuple:
+    """Per axis a: the a-coordinates and areas (m²) of the triangles facing ±a (|n_a| > 0.99): the walls,
+    floors and ceilings a probe layer should not sit on (architecture is mostly axis-aligned)."""
+    t = np.asarray(triangles, np.float64)
+    if t.shape[0] == 0:
+        return ((np.zeros(0), np.zeros(0)),) * 3
+    c = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
+    area = 0.5 * np.linalg.norm(c, axis=1)
+    n = np.divide(c, 2 * area[:, None], out=np.zeros_like(c), where=area[:, None] > 0)
+    out = []
+    for a in range(3):
+        sel = np.abs(n[:, a]) > 0.99
+        out.append((t[sel, :, a].mean(axis=1), area[sel]))
+    return tuple(out)
+
+
+def layer_phase(positions: np.ndarray, weights: np.ndarray, spacing: float, candidates: int = 48) -> tuple[float, float]:
+    """The offset φ ∈ [0, s) of probe layers ``φ + k·s`` that keeps them farthest from the given planes, and its
+    score: the area-weighted mean of d / (s/2) over the planes (1: every plane midway between two layers).
+    A thin wall midway between two layers puts a probe at most half a spacing from a point on either side
+    (instead of a layer inside the wall, relocated or OFF, and the next one a whole spacing away)."""
+    if positions.size == 0 or spacing <= 0:
+        return 0.0, 0.0
+    phases = (np.arange(candidates) + 0.5) / candidates * spacing
+    frac = np.mod(positions[None, :] - phases[:, None], spacing)            # (C, k) in [0, s)
+    d = np.minimum(frac, spacing - frac)
+    score = (d * weights[None, :]).sum(axis=1) / (max(float(weights.sum()), 1e-30) * spacing / 2)
+    best = int(np.argmax(score))
+    return float(phases[best]), float(score[best])
+
+
+def _binned_planes(pos: np.ndarray, w: np.ndarray, resolution: float) -> tuple[np.ndarray, np.ndarray]:
+    """Plane positions merged to ``resolution`` (their areas summed): a few hundred instead of every triangle."""
+    if pos.size == 0:
+        return pos, w
+    key = np.round(pos / resolution).astype(np.int64)
+    uniq, inv = np.unique(key, return_inverse=True)
+    return uniq * resolution, np.bincount(inv, weights=w)
+
+
+def fit_layers(pos: np.ndarray, w: np.ndarray, lo: float, hi: float, s0: float,
+               stretch=(0.88, 1.12), steps: int = 25) -> tuple[float, float, float]:
+    """Per axis: the spacing s ∈ s0·[stretch] and phase φ whose layers keep the walls midway (best
+    :func:`layer_phase` score); returns (s, first layer at or below ``lo``, score)."""
+    best = (s0, lo, -1.0)
+    for f in np.linspace(stretch[0], stretch[1], steps):
+        sp = s0 * float(f)
+        phi, score = layer_phase(pos, w, sp)
+        if score > best[2] + 1e-9:
+            best = (sp, lo - float(np.mod(lo - phi, sp)), score)
+    return best
 
 
 def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spacing: float = 0.05,
@@ -154,6 +213,8 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
         sel = free
     frac_enclosed = float(enclosed.sum()) / max(int(sel.sum()), 1)
     kind = "enclosed" if frac_enclosed >= 0.5 else "open"
+    if kind == "open":                               # light reaches everywhere: probes everywhere
+        blo, bhi = lo.copy(), hi.copy()
     mf = fs.mean_free[sel]
     scale = float(np.nanmedian(mf)) if np.isfinite(mf).any() else float(np.linalg.norm(hi - lo)) / 4
     ext = np.maximum(bhi - blo, 0.0)
@@ -171,17 +232,37 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
         s = max(s, (volume / budget) ** (1.0 / live.size))
         while count(s) > budget:                       # rounding of the per-axis counts
             s *= 1.02
+    bound_now = s > wanted * 1.0001
     counts = np.array([math.ceil(e / s - 1e-9) + 1 if e > 1e-9 else 1 for e in ext], np.int64)
     spacing = np.where(counts > 1, s, 0.0)
     origin = (blo + bhi) / 2 - spacing * (counts - 1) / 2
+    phases = [None, None, None]
+    scores = [None, None, None]
+    for a in range(3):                              # layers midway between walls (see fit_layers)
+        pos_a, w_a = fs.planes[a] if len(fs.planes) == 3 else ((), ())
+        pos_a, w_a = np.asarray(pos_a, np.float64), np.asarray(w_a, np.float64)
+        keep = (pos_a >= blo[a] - s) & (pos_a <= bhi[a] + s)
+        if counts[a] < 2 or not keep.any():
+            continue
+        pa, wa = _binned_planes(pos_a[keep], w_a[keep], s / 200)
+        # shrink no axis while the budget binds (more probes), stretch at most 12%
+        sp, first, score = fit_layers(pa, wa, blo[a], bhi[a], s, stretch=(1.0, 1.12) if bound_now else (0.88, 1.12))
+        spacing[a] = sp
+        origin[a] = first
+        counts[a] = int(math.ceil((bhi[a] - first) / sp - 1e-9)) + 1
+        phases[a], scores[a] = float(np.mod(first, sp)), score
+    while int(np.prod(counts)) > budget:            # the stretch may add a layer: drop the axis' last
+        a = int(np.argmax(counts))
+        counts[a] -= 1
     thick = fs.wall_thickness
     w5 = float(np.percentile(thick, 5)) if thick.size >= 20 else None
+    s = float(spacing[counts > 1].max()) if (counts > 1).any() else s       # the coarsest axis, after fitting
     S = 8 if w5 is None else int(min(16, max(4, math.ceil(2.0 * s / max(w5, 1e-6)))))
     n_probes = int(np.prod(counts))
     s_budget = max(4, int((field_budget / max(n_probes, 1)) ** (1.0 / 3.0)))    # θ costs 8 rays a sample
     field_bound = S > s_budget
     S = min(S, s_budget)
-    bound = s > wanted * 1.0001
+    bound = bound_now
     reason = (f"{kind} scene: room scale {scale:.2f} m (median free distance of the planning rays) / "
               f"{divisions:g} = {wanted:.3f} m")
     if bound:
@@ -192,6 +273,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
             reason += f" (the field budget of {field_budget} samples allows no more)"
     auto = {"box": [blo.tolist(), bhi.tolist()], "kind": kind, "enclosed_fraction": frac_enclosed,
             "room_scale": scale, "spacing_wanted": wanted, "spacing": s, "budget": int(budget),
-            "budget_bound": bool(bound), "wall_thickness_p5": w5, "samples_per_cell": S, "reason": reason,
+            "budget_bound": bool(bound), "wall_thickness_p5": w5,
+            "layer_phase": phases, "layer_score": scores, "spacing_per_axis": [float(x) for x in spacing], "samples_per_cell": S, "reason": reason,
             "planning_rays": int(fs.rays)}
     return counts, origin, spacing, auto
