@@ -7,6 +7,7 @@ Byte-level description in ``proto/bundle.md``. In short::
     <bundle>/<name>.npy          any other array (numpy .npy v1+, no pickles)
     <bundle>/<name>.json         a JSON object (metrics, tables)
     <bundle>/<name>.png          previews (written by the evaluate stage)
+    <bundle>/<name>.glb          the baked scene as glTF 2.0 binary (written by the ingest stage)
 
 Every write is atomic (temp file in the same folder + ``os.replace``); every read
 checks each file's byte size and sha256 against the manifest.
@@ -45,8 +46,10 @@ __all__ = [
 MANIFEST_NAME = "manifest.json"
 NAME_RE = re.compile(r"[a-z0-9_.-]{1,64}")
 """Artifact names: lower-case letters, digits, ``_ . -``; 1..64 chars; not starting with a dot."""
-_FILE_RE = re.compile(r"[a-z0-9_][a-z0-9_.-]{0,63}\.(ktx2|npy|json|png)")
-_EXTENSIONS = {"ktx2": "ktx2", "npy": "npy", "json": "json", "png": "png"}
+_FILE_RE = re.compile(r"[a-z0-9_][a-z0-9_.-]{0,63}\.(ktx2|npy|json|png|glb)")
+_EXTENSIONS = {"ktx2": "ktx2", "npy": "npy", "json": "json", "png": "png", "glb": "glb"}
+GLB_MAGIC = b"glTF"
+"""The first bytes of a glTF 2.0 binary file (its version, 2, follows as a little-endian uint32)."""
 ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
 """Timestamp of every zip entry, so that the same bundle always zips to the same bytes."""
 MAX_ARTIFACT_BYTES = 1 << 32
@@ -115,7 +118,7 @@ def _sha256_file(path: Path) -> tuple[str, int]:
 
 
 def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndarray | dict[str, Any],
-                   stage: str, *, format: Literal["ktx2", "npy", "json", "png"] = "ktx2",
+                   stage: str, *, format: Literal["ktx2", "npy", "json", "png", "glb"] = "ktx2",
                    vk_format: int | str | None = None, zstd_level: int | None = None,
                    description: str = "", meta: dict[str, Any] | None = None,
                    volume: bool | None = None) -> ArtifactInfo:
@@ -126,6 +129,7 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
       in :func:`proto.ktx2.write_ktx2`. The format details go to ``meta["ktx2"]``.
     * ``npy``: any non-object array, saved with ``allow_pickle=False``.
     * ``json``: ``array`` is a dict (numpy scalars/arrays are converted; NaN refused).
+    * ``png`` / ``glb``: ``array`` is the encoded file's bytes (PNG signature / GLB header checked).
 
     ``shape``/``dtype`` describe the array :func:`load_artifact` gives back (``[]`` and
     ``"dict"`` for JSON). ``sha256`` and ``bytes`` are computed from the written file.
@@ -164,6 +168,12 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
         data = bytes(array)
         if not data.startswith(b"\x89PNG\r\n\x1a\n"):
             raise ValueError(f"png artifact {name!r} must be PNG-encoded bytes")
+        shape, dtype = [len(data)], "uint8"
+    elif format == "glb":  # glTF 2.0 binary (the baked scene); loads back as its bytes
+        data = bytes(array)
+        if len(data) < 12 or not data.startswith(GLB_MAGIC) or int.from_bytes(data[4:8], "little") != 2 \
+                or int.from_bytes(data[8:12], "little") != len(data):
+            raise ValueError(f"glb artifact {name!r} must be glTF 2.0 binary bytes (header glTF, version 2, length)")
         shape, dtype = [len(data)], "uint8"
     else:  # pragma: no cover - artifact_file_name checked the format
         raise ValueError(format)
@@ -243,7 +253,7 @@ def load_artifact(path_or_bytes: str | os.PathLike[str] | bytes | bytearray | me
     """Decode one artifact file; with ``verify`` its size and sha256 must match ``info``.
 
     KTX2 arrays come back in ``info.shape`` (e.g. without the channel axis when written
-    that way); PNG previews come back as their encoded bytes (1-D uint8).
+    that way); PNG previews and GLB scenes come back as their encoded bytes (1-D uint8).
     """
     if isinstance(path_or_bytes, (str, os.PathLike)):
         data = Path(path_or_bytes).read_bytes()
@@ -284,6 +294,10 @@ def load_artifact(path_or_bytes: str | os.PathLike[str] | bytes | bytearray | me
     if info.format == "png":
         if not data.startswith(b"\x89PNG\r\n\x1a\n"):
             raise BundleError(f"{where}: not a PNG file")
+        return np.frombuffer(data, dtype=np.uint8).copy()
+    if info.format == "glb":
+        if not data.startswith(GLB_MAGIC):
+            raise BundleError(f"{where}: not a glTF binary (GLB) file")
         return np.frombuffer(data, dtype=np.uint8).copy()
     raise BundleError(f"{where}: unknown format {info.format!r}")  # pragma: no cover
 

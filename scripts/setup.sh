@@ -12,6 +12,8 @@ DEB_PACKAGES="python3-venv python3-dev libgomp1 libegl1 libegl-mesa0 libgl1-mesa
 DEB_OPTIONAL="chromium"
 
 log() { printf 'kiln setup: %s\n' "$*" >&2; }
+# apt_get: apt-get that waits (bounded, with a message) while another process holds the apt/dpkg lock
+. scripts/apt_lock.sh
 
 missing=()
 if command -v dpkg-query >/dev/null 2>&1; then
@@ -35,8 +37,8 @@ done
 if [ ${#need_apt[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     log "installing Debian packages: ${need_apt[*]}"
-    DEBIAN_FRONTEND=noninteractive apt-get update -qq
-    DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${need_apt[@]}" >/dev/null
+    apt_get update -qq
+    apt_get install -y -qq --no-install-recommends "${need_apt[@]}" >/dev/null
   else
     log "missing Debian packages: ${need_apt[*]}"
     log "run as root: apt-get install -y ${need_apt[*]}   (then re-run this command)"
@@ -53,8 +55,8 @@ fi
 if [ ${#opt_missing[@]} -gt 0 ]; then
   if [ "$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then
     log "installing optional Debian packages: ${opt_missing[*]}"
-    { DEBIAN_FRONTEND=noninteractive apt-get update -qq &&
-      DEBIAN_FRONTEND=noninteractive apt-get install -y -qq --no-install-recommends "${opt_missing[@]}" >/dev/null; } ||
+    { apt_get update -qq &&
+      apt_get install -y -qq --no-install-recommends "${opt_missing[@]}" >/dev/null; } ||
       log "could not install ${opt_missing[*]}: the browser tests will be skipped"
   else
     log "optional Debian packages missing: ${opt_missing[*]} (the browser tests will be skipped; as root: apt-get install -y ${opt_missing[*]})"

@@ -61,6 +61,9 @@ class NormalizedScene:
     uv1_partial: np.ndarray | None = None
     uv1_chart: np.ndarray | None = None
     colors: np.ndarray | None = None
+    #: The glTF's own cameras (perspective, world space): ``[{"name", "position", "target", "fov_y"}]`` (fov in
+    #: degrees; target one metre along the camera's -Z). The evaluate stage's review cameras when present.
+    cameras: list[dict] = field(default_factory=list)
     #: Upper bound on the diffuse GI albedo at every hit (``scene.max_albedo`` of the bake config); not part
     #: of the scene's bytes or id: the bake sets it on its loaded copy.
     max_albedo: float | None = field(default=None, compare=False)
@@ -89,13 +92,22 @@ class NormalizedScene:
         chart = self.uv1_chart if self.uv1_chart is not None else np.zeros(self.n_triangles, np.int32)
         return uv, chart
 
+    def emissive_materials(self) -> int:
+        """How many materials that some triangle uses emit light (an emissive factor above 0 or a texture)."""
+        used = set(np.unique(self.material).tolist()) if self.n_triangles else set()
+        return sum(1 for i, m in enumerate(self.materials) if i in used
+                   and (max(m.get("emissive", [0, 0, 0]) or [0]) > 0 or m.get("emissive_texture") is not None))
+
     def summary(self, scene_id: str) -> dict:
+        """What the catalog and the API show of a scene; ``emissive_materials`` lets the web app warn about an
+        unlit scene before a bake starts."""
         return {
             "id": scene_id,
             "triangles": self.n_triangles,
             "bounds": self.bounds.round(6).tolist(),
             "lights": len(self.lights),
             "materials": len(self.materials),
+            "emissive_materials": self.emissive_materials(),
             "warnings": list(self.warnings),
         }
 
@@ -120,6 +132,8 @@ class NormalizedScene:
             arrays[f"texture_{i:04d}"] = np.ascontiguousarray(t, np.uint8)
         meta = {"materials": self.materials, "lights": self.lights, "warnings": self.warnings,
                 "n_textures": len(self.textures)}
+        if self.cameras:  # only then: the bytes (and ids) of scenes without cameras stay as they were
+            meta["cameras"] = self.cameras
         arrays["meta"] = np.frombuffer(json.dumps(meta, sort_keys=True).encode(), np.uint8)
         buf = io.BytesIO()
         # np.savez writes zip entries with a fixed timestamp, so the bytes are reproducible.
@@ -146,4 +160,5 @@ class NormalizedScene:
                 uv1_partial=z["uv1_partial"] if "uv1_partial" in z.files else None,
                 uv1_chart=z["uv1_chart"] if "uv1_chart" in z.files else None,
                 colors=z["colors"] if "colors" in z.files else None,
+                cameras=list(meta.get("cameras") or []),
             )

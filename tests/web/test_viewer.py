@@ -67,9 +67,14 @@ def _after(page, action, mode: str):
 
 
 def _field(page, name: str):
-    """The input of a config field, its folded sections opened (as a person clicks the section titles)."""
+    """The input of a config field, its folded sections opened (as a person clicks the section titles) and,
+    for a field that is unset by default (automatic), its "set" box ticked."""
     sel = f'#config-form input[name="{name}"]'
-    page.eval_on_selector(sel, "e => { for (let d = e.closest('details'); d; d = d.parentElement.closest('details')) d.open = true; }")
+    page.eval_on_selector(sel, """e => {
+        for (let d = e.closest('details'); d; d = d.parentElement.closest('details')) d.open = true;
+        const set = e.disabled && e.closest('.nullable')?.querySelector(':scope > label.set > input');
+        if (set && !set.checked) set.click();
+    }""")
     return page.locator(sel)
 
 
@@ -164,12 +169,15 @@ def test_upload_bake_and_view_every_mode(page, tmp_path, kiln_server, shots):
     _assert_not_blank(_shot(canvas, shots / "leaking-indirect-only.png"), "indirect only")
     page.select_option("#viewer-output", "shaded")
 
-    # probes coloured by state: ACTIVE green and OFF red both present in the two-rooms grid
+    # probes coloured by state: ACTIVE green, and OFF red where the grid has probes inside walls (the
+    # automatic grid fills the rooms' free space: it may have none)
     _after(page, lambda: page.check("#show-probes"), "leaking")
     img = _shot(canvas, shots / "probes-by-state.png")
     r, g, b = img[..., 0], img[..., 1], img[..., 2]
     assert ((g > 120) & (r < 90) & (b < 110)).sum() > 50, "no ACTIVE (green) probes on screen"
-    assert ((r > 120) & (g < 80)).sum() > 50, "no OFF (red) probes on screen"
+    n_off = page.evaluate("Array.from(window.kiln.viewer.artifacts.probe_states.data).filter(x => x === 0).length")
+    if n_off > 20:
+        assert ((r > 120) & (g < 80)).sum() > 50, f"no OFF (red) probes on screen ({n_off} in the grid)"
     _after(page, lambda: page.select_option("#probe-coloring", "sh"), "leaking")
     _shot(canvas, shots / "probes-by-sh.png")
     page.uncheck("#show-probes")
@@ -201,25 +209,27 @@ def test_upload_bake_and_view_every_mode(page, tmp_path, kiln_server, shots):
     page.screenshot(path=str(shots / "viewer-page.png"))
     assert not page.kiln_errors, page.kiln_errors
 
-    # the same bake opened in a fresh session: no scene file, probes over an empty scene, with a note
+    # the same bake opened in a fresh session: no scene file, the geometry comes from the bake's `scene`
+    # artifact (tests/web/test_artist.py checks it in a new browser context)
     page.goto(f"/#/viewer/{bake_id}")
     page.reload()
     page.wait_for_selector("#viewer-canvas[data-ready-mode=direct]", timeout=60000)
-    assert "empty scene" in page.inner_text("#viewer-note")
+    assert page.get_attribute("#viewer-canvas", "data-scene") == "server"
+    assert "empty scene" not in page.inner_text("#viewer-note")
     page.wait_for_function("document.getElementById('stream-label').textContent === 'volumes loaded'", timeout=60000)
     _after(page, lambda: page.evaluate("window.kiln.viewer.invalidate()"), "direct")
-    img = _shot(canvas, shots / "no-scene-probes.png")
-    # every artifact came from the Cache API this time (ETag = the sha256 the bake lists), none from the network
+    _assert_not_blank(_shot(canvas, shots / "fresh-session-scene.png"), "the bake in a fresh session")
+    # every volume came from the Cache API this time (ETag = the sha256 the bake lists); only the scene GLB,
+    # never fetched by the session that had the file, from the network
     stats = page.evaluate("window.kiln.viewer.loader.stats")
-    assert stats["cached"] >= 5 and stats["network"] == 0, stats
-    assert ((img[..., 1] > 120) & (img[..., 0] < 90)).sum() > 50, "probes not shown over the empty scene"
+    assert stats["cached"] >= 5 and stats["network"] <= 1, stats
 
 
 def test_dashboard_lists_bakes_and_compares_two(page, tmp_path, kiln_server, shots):
     glb = _scene(tmp_path)
     first = _upload_and_bake(page, glb, FAST)
     # a second bake of the same scene with another grid, through the form
-    _field(page, "place.counts.0").fill("6")
+    _fill_config(page, {"place.counts.0": "6", "place.counts.1": "4", "place.counts.2": "4"})
     page.click("#start-bake")
     page.wait_for_selector("#bake-status.ok", timeout=30000)
     second = page.inner_text("#bake-status").split()[1]
@@ -231,7 +241,7 @@ def test_dashboard_lists_bakes_and_compares_two(page, tmp_path, kiln_server, sho
     ids = page.locator("#bake-table tbody tr[data-bake]").evaluate_all("e => e.map(x => x.dataset.bake)")
     assert first in ids and any(i.startswith(second) for i in ids)
     header = page.inner_text("#bake-table thead")
-    for col in ("status", "place", "trace", "light", "visibility", "total", "memory"):
+    for col in ("status", "place", "trace", "light", "visibility", "total", "artifact size", "probes"):
         assert col in header, header
     row = page.inner_text(f'#bake-table tr[data-bake="{first}"]')
     assert "succeeded" in row and "KiB" in row or "MiB" in row, row
@@ -243,7 +253,7 @@ def test_dashboard_lists_bakes_and_compares_two(page, tmp_path, kiln_server, sho
     cards = page.locator("#compare .compare-card").evaluate_all("e => e.map(x => x.dataset.bake)")
     assert sorted(cards) == sorted([first, second_id])
     table = page.inner_text("#compare-table")
-    assert "bake seconds" in table and "memory MiB" in table
+    assert "bake seconds" in table and "artifact size MiB" in table
     assert "place.counts" in page.inner_text("#config-delta")
     assert "no previews: bake with evaluate.enabled" in page.inner_text("#compare")
     page.wait_for_selector("#chart[data-points] canvas", timeout=10000)
@@ -268,6 +278,10 @@ def test_glsl_matches_the_python_kernels_on_the_gpu(page, kiln_server):
     want = [smp["irradiance_nonlinear"][str(n)] for smp in s["samples"] for n in range(len(s["normals"]))]
     # hardware filtering weights may be quantized (8 fractional bits on many GPUs): a looser tolerance
     np.testing.assert_allclose(np.asarray(got["trilinear"]), np.asarray(want), rtol=1e-2, atol=1e-2)
+    l2 = fx["sh_l2"]                                   # L2: sh.glsl shIrradianceL2Packed, gi_grid.glsl padded stack
+    np.testing.assert_allclose(np.asarray(got["shL2"]).ravel(), l2["irradiance"], rtol=1e-5, atol=1e-5)
+    want2 = [smp["irradiance"][str(n)] for smp in l2["samples"] for n in range(len(l2["normals"]))]
+    np.testing.assert_allclose(np.asarray(got["shL2Trilinear"]), np.asarray(want2), rtol=1e-2, atol=1e-2)
     o = fx["octahedral"]
     np.testing.assert_allclose(np.asarray(got["octEncode"]), o["encoded"], atol=1e-5)
     np.testing.assert_allclose(np.asarray(got["octDecode"]), o["decoded"], atol=1e-5)
@@ -431,6 +445,14 @@ def test_dashboard_compares_evaluate_previews(page, tmp_path, kiln_server, shots
     row = page.locator("#compare-previews tbody tr").first
     assert row.locator("img").count() >= 2 and all(w > 0 for w in row.locator("img").evaluate_all("e => e.map(i => i.naturalWidth)"))
     assert page.locator("#compare-previews img[data-artifact$=_error]").count() >= 2  # the error heatmaps
+    # large enough to read, and full size on a click
+    shown = imgs.evaluate_all("e => e.map(i => i.getBoundingClientRect().width)")
+    assert min(shown) >= 200, shown  # four columns side by side on a 1280 px page (was ~120 px)
+    imgs.first.click()
+    page.wait_for_selector("#image-zoom:not([hidden])")
+    assert page.evaluate("document.getElementById('image-zoom-img').getBoundingClientRect().width") >= 600
+    page.click("#image-zoom")
+    page.wait_for_selector("#image-zoom[hidden]", state="attached")
     page.locator("#compare").screenshot(path=str(shots / "compare-previews.png"))
     assert not page.kiln_errors, page.kiln_errors
 

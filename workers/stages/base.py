@@ -35,8 +35,8 @@ class Artifact:
     """One output array (or JSON dict) of a stage, in the bundle format (proto/bundle.md)."""
 
     name: str
-    data: np.ndarray | dict
-    format: str = "ktx2"           # "ktx2" | "npy" | "json" | "png" (PNG-encoded bytes)
+    data: np.ndarray | dict | bytes
+    format: str = "ktx2"           # "ktx2" | "npy" | "json" | "png" (PNG-encoded bytes) | "glb" (glTF binary bytes)
     vk_format: int | None = None   # KTX2 only; inferred from dtype/channels when None
     zstd_level: int | None = None  # KTX2 only: Zstandard supercompression level
     description: str = ""

@@ -5,7 +5,9 @@ The upload itself was parsed and validated when it arrived (:mod:`workers.ingest
 stage resolves the lights every later stage uses: the glTF's KHR_lights_punctual lights
 (unless ``scene.use_scene_lights`` is false) followed by the config's lights, and the sky.
 
-Output ``lights`` (json): ``{"lights": [light dicts as in workers.scene], "sky": [r, g, b]}``.
+Output ``lights`` (json): ``{"lights": [light dicts as in workers.scene], "sky": [r, g, b]}``; ``scene``
+(glb): the normalized scene with those lights as glTF binary (:mod:`workers.scene_glb`), so a bundle shows
+its geometry without the original upload.
 Warnings (``stats["warnings"]``): ``unlit_scene`` when no light, no emissive surface and a black sky leave
 the bake black; ``light_outside_scene`` for a point/spot light far outside the scene bounds.
 """
@@ -13,6 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from workers.scene_glb import scene_to_glb
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
 
 
@@ -91,8 +94,15 @@ def run_ingest(ctx: StageContext) -> StageOutput:
     warnings = _lighting_warnings(scene, section, lights, n_emissive)
     if warnings:  # the contract of every stage: stats["warnings"] = [{"code", "message"}, ...]
         stats.setdefault("warnings", []).extend(warnings)
+    glb = scene_to_glb(scene, lights)
+    stats["scene_bytes"] = len(glb)
     return StageOutput(
         artifacts=[Artifact("lights", {"lights": lights, "sky": list(section.sky)}, format="json",
-                            description="resolved lights (scene + config) and sky radiance")],
+                            description="resolved lights (scene + config) and sky radiance"),
+                   Artifact("scene", glb, format="glb",
+                            description="the baked scene as glTF binary: normalized geometry, materials, "
+                                        "textures, vertex colours and the resolved lights (KHR_lights_punctual)",
+                            meta={"triangles": scene.n_triangles, "materials": len(scene.materials),
+                                  "textures": len(scene.textures), "lights": len(lights)})],
         stats=stats,
     )

@@ -76,6 +76,8 @@ export class KilnApi {
   }
   getBake(id) { return this.request(`/v1/bakes/${encodeURIComponent(id)}`); }
   createBake(sceneId, config) { return this.request('/v1/bakes', { method: 'POST', json: { scene_id: sceneId, config } }); }
+  /** The server's estimate of a bake, nothing started: {estimate: {probes, seconds, peak_memory_bytes, artifact_bytes, ...}, limits, over_budget}. */
+  estimateBake(sceneId, config) { return this.request('/v1/bakes?dry_run=true', { method: 'POST', json: { scene_id: sceneId, config } }); }
   cancelBake(id) { return this.request(`/v1/bakes/${encodeURIComponent(id)}/cancel`, { method: 'POST' }); }
   deleteBake(id) { return this.request(`/v1/bakes/${encodeURIComponent(id)}`, { method: 'DELETE' }); }
   artifactPath(bakeId, name) { return `/v1/bakes/${encodeURIComponent(bakeId)}/artifacts/${encodeURIComponent(name)}`; }

@@ -1,7 +1,8 @@
 /**
- * The uploaded scene, loaded with three's GLTFLoader from the File the user dropped (the server keeps no
- * copy of the original upload to return). .glb and .gltf (data URIs) load directly; a .zip is unzipped in
- * memory and its .gltf's relative URIs are served from the zip's entries.
+ * The scene, loaded with three's GLTFLoader: from the File the user dropped in this session
+ * (`loadSceneFile`: .glb and .gltf (data URIs) load directly; a .zip is unzipped in memory and its .gltf's
+ * relative URIs are served from the zip's entries), or from the bake's `scene` artifact, the GLB the ingest
+ * stage writes of the normalized scene (`loadSceneBytes`; the server keeps no copy of the original upload).
  */
 import { LoadingManager } from 'three';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
@@ -42,4 +43,15 @@ export async function loadSceneFile(file) {
   }
   const loader = new GLTFLoader();
   return (await parseWith(loader, buf, '')).scene;
+}
+
+/**
+ * The baked scene from the server: the bake's `scene` artifact (GLB bytes written by the ingest stage,
+ * workers/scene_glb.py), so a bake shows its geometry in any session, not only the one that uploaded it.
+ * @param {Uint8Array|ArrayBuffer} bytes  @returns {Promise<import('three').Group>}
+ */
+export async function loadSceneBytes(bytes) {
+  const u8 = bytes instanceof Uint8Array ? bytes : new Uint8Array(bytes);
+  const buf = u8.byteOffset === 0 && u8.byteLength === u8.buffer.byteLength ? u8.buffer : u8.slice().buffer;
+  return (await parseWith(new GLTFLoader(), buf, '')).scene;
 }

@@ -1,6 +1,7 @@
 /**
- * Dashboard numbers from bake objects (GET /v1/bakes/{id}): time per stage, total bake time, memory (sum of
- * artifact bytes), flattened metrics, and deltas between two bakes. Pure functions.
+ * Dashboard numbers from bake objects (GET /v1/bakes/{id}): time per stage, total bake time, artifact size
+ * (sum of artifact bytes), probes, K, lights, flattened metrics with their units, and deltas between two
+ * bakes. Pure functions.
  */
 
 /** Stage name -> seconds (wall, as recorded; cached stages count their original time but are flagged). */
@@ -49,18 +50,99 @@ export function flattenMetrics(metrics, prefix = '', out = {}) {
   return out;
 }
 
-/** Union of metric keys over bakes, sorted. */
-export function metricColumns(bakes) {
+/** The bytes of the bake's artifacts on disk (the bundle's size): named "artifact size" for people. */
+export const artifactBytes = memoryBytes;
+
+/**
+ * Catalog metrics that repeat a column of their own (stage times: one column per stage; artifact_bytes:
+ * "artifact size"), left out of the metric columns and the chart's list.
+ */
+export const isDerivedMetric = (key) => key.startsWith('stage_seconds.') || key === 'artifact_bytes';
+
+/** The metrics of the evaluate stage shown by default ("key metrics"); the rest on request. */
+export const KEY_METRICS = ['rmse', 'flip', 'leak', 'pass_ms'];
+
+/**
+ * Union of metric keys over bakes, sorted, without the derived ones; `which` = 'key' keeps KEY_METRICS
+ * (and the time ratios), 'none' none, 'all' every one.
+ */
+export function metricColumns(bakes, which = 'all') {
   const keys = new Set();
-  for (const b of bakes) Object.keys(flattenMetrics(b.metrics)).forEach((k) => keys.add(k));
-  return [...keys].sort();
+  for (const b of bakes) Object.keys(flattenMetrics(b.metrics)).forEach((k) => { if (!isDerivedMetric(k)) keys.add(k); });
+  const all = [...keys].sort();
+  if (which === 'none') return [];
+  if (which === 'key') return all.filter((k) => KEY_METRICS.includes(k.split('.').pop()) && !k.startsWith('ratio.'));
+  return all;
+}
+
+const METRIC_INFO = {
+  rmse: { label: 'RMSE', unit: '', help: 'tone-mapped colour error against the path-traced reference, 0..1 (MD §4.2)' },
+  flip: { label: 'FLIP', unit: '', help: 'perceptual error against the reference, 0..1' },
+  leak: { label: 'leak', unit: '', help: 'fraction of indirect light where the reference has none (light through walls)' },
+  indirect_relative_rmse: { label: 'indirect error', unit: '×', help: 'RMSE of the indirect light relative to the reference\'s' },
+  indirect_excess: { label: 'excess indirect', unit: 'lx', help: 'mean indirect light above the reference\'s' },
+  gi_fetches_per_pixel: { label: 'GI fetches', unit: '/px', help: 'texture fetches of the GI lookup per pixel' },
+  pass_fetches_per_pixel: { label: 'fetches', unit: '/px', help: 'texture fetches of the whole shading pass per pixel' },
+  pass_ms: { label: 'shading pass', unit: 'ms', help: 'GPU time of the full-screen shading pass (median)' },
+  texture_bytes: { label: 'GI textures', unit: 'bytes', help: 'memory of the mode\'s GI textures' },
+};
+
+/**
+ * A metric key ("mask.rmse", "ratio.mask_over_leaking.pass_ms") in words: {mode, label, unit, help,
+ * lowerIsBetter, bytes, header}. Every metric the evaluate stage writes is an error, a cost or a ratio of
+ * costs: lower is better.
+ */
+export function metricInfo(key) {
+  const parts = key.split('.');
+  const name = parts[parts.length - 1];
+  const known = METRIC_INFO[name] || { label: name.replace(/_/g, ' '), unit: '', help: '' };
+  let mode = parts.length > 1 ? parts[0] : '';
+  let { label, unit, help } = known;
+  if (parts[0] === 'ratio' && parts.length === 3) {
+    mode = parts[1].replace('_over_', ' / ');
+    label = `${known.label} ratio`;
+    unit = '×';
+    help = `${known.label} of ${parts[1].replace('_over_', ' over ')}`;
+  }
+  const bytes = unit === 'bytes';
+  const header = `${mode ? `${mode} ` : ''}${label}${unit && !bytes ? ` (${unit})` : ''} ↓`;
+  return { key, mode, label, unit, help: `${help}${help ? '; ' : ''}lower is better`, lowerIsBetter: true, bytes, header };
+}
+
+/** The scene's name for people: the uploaded file's name, else the start of its id. */
+export function sceneLabel(scenes, id) {
+  const s = (scenes || []).find((x) => x.id === id);
+  return s && s.filename ? s.filename : id ? id.slice(0, 10) : '';
+}
+
+/** Probes in the bake's grid (nx·ny·nz from the place stage), null before it ran. */
+export function probeCount(bake) {
+  const st = (bake?.stages || []).find((s) => s.name === 'place')?.stats;
+  const c = st?.counts || bake?.manifest?.grid?.counts;
+  return Array.isArray(c) ? c.reduce((a, b) => a * b, 1) : null;
+}
+
+/** K, the mask clusters of the bake (config masks.clusters, default 4); null without a masks stage. */
+export function clusterCount(bake) {
+  if (!(bake?.stages || []).some((s) => s.name === 'anneal' || s.name === 'masks')) return null;
+  return bake?.config?.masks?.clusters ?? 4;
+}
+
+/** Lights the bake used (the file's and the config's, ingest stage), else the config's count. */
+export function lightCount(bake) {
+  const st = (bake?.stages || []).find((s) => s.name === 'ingest')?.stats;
+  if (st && Number.isFinite(st.lights)) return st.lights;
+  const l = bake?.config?.scene?.lights;
+  return Array.isArray(l) ? l.length : null;
 }
 
 /** Every numeric series the chart can plot for a bake: derived ones plus metrics. */
 export function chartValues(bake) {
-  const out = { 'bake seconds': bakeSeconds(bake), 'memory MiB': memoryBytes(bake) != null ? memoryBytes(bake) / 2 ** 20 : null };
+  const out = { 'bake seconds': bakeSeconds(bake), 'artifact size MiB': memoryBytes(bake) != null ? memoryBytes(bake) / 2 ** 20 : null,
+    probes: probeCount(bake) };
   for (const [g, v] of Object.entries(stageGroups(bake))) out[`${g} seconds`] = v.seconds;
-  return { ...out, ...flattenMetrics(bake.metrics) };
+  const metrics = Object.fromEntries(Object.entries(flattenMetrics(bake.metrics)).filter(([k]) => !isDerivedMetric(k)));
+  return { ...out, ...metrics };
 }
 
 /** Rows of (name, a, b, delta, relative) for two bakes over the union of chart values. */

@@ -1,11 +1,13 @@
 /**
  * "Upload and bake": drop or pick a .glb/.gltf/.zip (the API's refusal shown in words), pick a scene,
  * fill the config form generated from the JSON Schema, start a bake, follow it stage by stage over SSE,
- * cancel it, open it in the viewer.
+ * cancel it, open it in the viewer. Before the bake starts the page warns about what would make it wrong
+ * (a light outside the scene, nothing lighting the scene: state/lighting.js) and asks to confirm.
  */
 import { createConfigForm } from './configForm.js';
 import { clear, h, shortId } from './dom.js';
-import { bakeWarnings, formatSeconds } from '../state/stats.js';
+import { preBakeWarnings } from '../state/lighting.js';
+import { bakeWarnings, formatBytes, formatSeconds, sceneLabel } from '../state/stats.js';
 import { warningBadge, warningList } from './warnings.js';
 
 const ACTIVE = new Set(['queued', 'running']);
@@ -20,14 +22,19 @@ export function createBakePage(app) {
   const formHolder = h('div#config-form', h('p.muted', 'Loading the config schema…'));
   const startBtn = h('button#start-bake.primary', { type: 'button' }, 'Start bake');
   const bakeStatus = h('p#bake-status.status', { role: 'status' });
+  const preWarnings = h('div#prebake-warnings.warnings-banner', { role: 'alert', hidden: true });
+  const estimate = h('p#bake-estimate.muted', { title: 'the server\'s estimate (POST /v1/bakes?dry_run=true); nothing is started' });
+  const placeBtn = h('button.small#place-in-viewer', { type: 'button', title: 'open the scene in the 3D view and click a surface to place a point light' }, 'Place a light in the 3D view…');
   const progressList = h('div#bake-progress');
   let form = null;
 
   const el = h('section.page#page-bake',
     h('h2', 'Upload a scene'), drop, uploadStatus,
     h('h2', 'Bake'),
-    h('div.row', h('label', 'Scene ', sceneSelect), sceneInfo),
+    h('div.row', h('label', 'Scene ', sceneSelect), sceneInfo, placeBtn),
     formHolder,
+    preWarnings,
+    estimate,
     h('div.row', startBtn, bakeStatus),
     h('h2', 'Bakes in progress and recent'),
     progressList);
@@ -39,7 +46,7 @@ export function createBakePage(app) {
       const s = await api.uploadScene(file);
       app.sessionFiles.set(s.id, file);
       uploadStatus.className = 'status ok';
-      uploadStatus.textContent = `Scene ${shortId(s.id)} ready: ${s.triangles} triangles, ${s.lights} lights, ${s.materials} materials` +
+      uploadStatus.textContent = `${s.filename || file.name} ready: ${s.triangles} triangles, ${s.lights} light${s.lights === 1 ? '' : 's'}, ${s.materials} material${s.materials === 1 ? '' : 's'} (scene ${shortId(s.id)})` +
         (s.warnings && s.warnings.length ? ` (warnings: ${s.warnings.join('; ')})` : '');
       await app.refreshScenes();
       store.set({ currentSceneId: s.id });
@@ -60,12 +67,61 @@ export function createBakePage(app) {
 
   sceneSelect.addEventListener('change', () => store.set({ currentSceneId: sceneSelect.value || null }));
 
+  const currentScene = () => store.get().scenes.find((x) => x.id === store.get().currentSceneId) || null;
+  let confirmed = null;  // the config JSON whose warnings the user accepted with "Bake anyway"
+
+  /** The warnings of the form's config for the picked scene, shown above "Start bake" (before any bake). */
+  function renderPreWarnings() {
+    const list = form ? preBakeWarnings(form.values(), currentScene()) : [];
+    clear(preWarnings);
+    preWarnings.hidden = !list.length;
+    preWarnings.dataset.warnings = String(list.length);
+    if (!list.length) return list;
+    preWarnings.append(h('strong', `⚠ Before you bake: ${list.length} thing${list.length === 1 ? '' : 's'} will probably make this bake wrong`),
+      h('ul.bake-warnings', list.map((w) => h('li', { dataset: { code: w.code } }, h('code.warn-code', w.code), ' ', w.message))));
+    return list;
+  }
+
+  let estimateTimer = null;
+  let estimateSeq = 0;
+  /** The estimate of the form's bake (debounced): probes, time, peak memory, artifact size. */
+  function updateEstimate() {
+    clearTimeout(estimateTimer);
+    estimateTimer = setTimeout(async () => {
+      const sceneId = store.get().currentSceneId;
+      const seq = ++estimateSeq;
+      if (!sceneId || !form) { estimate.textContent = ''; return; }
+      try {
+        const r = await api.estimateBake(sceneId, form.config());
+        if (seq !== estimateSeq) return;
+        const e = r.estimate || {};
+        estimate.textContent = `Estimate: ${e.probes_exact === false ? 'at most ' : ''}${e.probes ?? '?'} probes · about ${formatSeconds(e.seconds)}`
+          + ` · peak memory ${formatBytes(e.peak_memory_bytes)} · artifact size ${formatBytes(e.artifact_bytes)}`
+          + `${r.over_budget && r.over_budget.length ? ' · over the server\'s budget: the bake would be refused' : ''}`;
+        estimate.classList.toggle('error', !!(r.over_budget && r.over_budget.length));
+      } catch (err) {
+        if (seq === estimateSeq) estimate.textContent = err.status === 422 ? '' : `No estimate: ${err.message}`;
+      }
+    }, 300);
+  }
+
   startBtn.addEventListener('click', async () => {
     const sceneId = store.get().currentSceneId;
     bakeStatus.className = 'status';
     if (!sceneId) { bakeStatus.className = 'status error'; bakeStatus.textContent = 'Upload or pick a scene first.'; return; }
     if (!form) return;
     form.clearErrors();
+    const warned = renderPreWarnings();
+    const key = JSON.stringify([sceneId, form.config()]);
+    if (warned.length && confirmed !== key) {
+      confirmed = key;  // a second click on "Bake anyway" starts it
+      startBtn.textContent = 'Bake anyway';
+      bakeStatus.className = 'status error';
+      bakeStatus.textContent = `Not started: ${warned.map((w) => w.code).join(', ')} (see above). Fix the settings, or click “Bake anyway”.`;
+      preWarnings.scrollIntoView({ block: 'nearest' });
+      return;
+    }
+    startBtn.textContent = 'Start bake';
     startBtn.disabled = true;
     try {
       const b = await api.createBake(sceneId, form.config());
@@ -91,8 +147,19 @@ export function createBakePage(app) {
     }
     sceneSelect.value = currentSceneId || '';
     const s = scenes.find((x) => x.id === currentSceneId);
-    sceneInfo.textContent = s ? `bounds ${JSON.stringify(s.bounds)} · ${s.lights} lights` : '';
+    const f = (v) => v.map((x) => Number(x.toFixed(2))).join(', ');
+    sceneInfo.textContent = s ? `spans (${f(s.bounds[0])}) … (${f(s.bounds[1])}) m · ${s.lights} light${s.lights === 1 ? '' : 's'} in the file`
+      + `${s.emissive_materials ? ` · ${s.emissive_materials} emissive material${s.emissive_materials === 1 ? '' : 's'}` : ''}` : '';
+    if (form) { form.setScene(s || null); renderPreWarnings(); updateEstimate(); }
   }
+
+  /** Open the picked scene in the 3D view to place light `index` of the form (null: a new one) by clicking. */
+  function placeInViewer(index = null) {
+    const id = store.get().currentSceneId;
+    if (!id) { bakeStatus.className = 'status error'; bakeStatus.textContent = 'Upload or pick a scene first.'; return; }
+    location.hash = `#/viewer?scene=${encodeURIComponent(id)}&place=${index == null ? 'new' : index}`;
+  }
+  placeBtn.addEventListener('click', () => placeInViewer(null));
 
   function stageRow(s) {
     const pct = Math.round((s.progress || 0) * 100);
@@ -122,9 +189,9 @@ export function createBakePage(app) {
       const err = b.error ? h('p.error', `${b.error.stage || 'bake'}: ${b.error.code}: ${b.error.message}`) : null;
       const warnings = bakeWarnings(b);
       progressList.append(h('div.bake-card', { dataset: { bake: b.id, status: b.status, warnings: String(warnings.length) } },
-        h('div.bake-head', h('code', shortId(b.id)), ' ', h('span.badge', { dataset: { status: b.status } }, b.status), ' ',
-          warningBadge(warnings), ' ',
-          h('span.muted', `scene ${shortId(b.scene_id)}`), h('span.spacer'), actions),
+        h('div.bake-head', h('strong.scene-name', { title: `scene ${b.scene_id}` }, sceneLabel(store.get().scenes, b.scene_id)), ' ',
+          h('code.muted', shortId(b.id)), ' ', h('span.badge', { dataset: { status: b.status } }, b.status), ' ',
+          warningBadge(warnings), h('span.spacer'), actions),
         err,
         warningList(warnings),
         h('div.stages', (b.stages || []).map(stageRow))));
@@ -133,7 +200,7 @@ export function createBakePage(app) {
 
   store.subscribe((s, prev) => {
     if (s.scenes !== prev.scenes || s.currentSceneId !== prev.currentSceneId) renderScenes();
-    if (s.bakes !== prev.bakes) renderBakes();
+    if (s.bakes !== prev.bakes || s.scenes !== prev.scenes) renderBakes();
   });
 
   return {
@@ -145,7 +212,16 @@ export function createBakePage(app) {
         const schema = await api.configSchema();
         form = createConfigForm(schema);
         app.configForm = form;
+        form.setScene(currentScene());
+        form.onChange(() => {
+          renderPreWarnings();
+          updateEstimate();
+          if (startBtn.textContent !== 'Start bake') { startBtn.textContent = 'Start bake'; confirmed = null; }
+        });
+        form.onPlaceLight((i) => placeInViewer(i));
         clear(formHolder).append(form.el);
+        renderPreWarnings();
+        updateEstimate();
       } catch (e) {
         clear(formHolder).append(h('p.error', `Could not load the config schema: ${e.message}`));
       }

@@ -3,9 +3,15 @@
  * Sections fold; numbers carry the schema's bounds; nullable fields have a "set" checkbox; lists of objects
  * (lights) add and remove entries; anything exotic is edited as JSON. Errors from a 422 land on the field
  * the message names (data-path = the dotted config path).
+ *
+ * For people (state/formLabels.js): labels in words, help lines without paper references (those go to the
+ * tooltip), advanced fields folded under "Advanced"; lights and sky have their own controls (ui/lightEditor.js:
+ * a type, physical units, degrees, colour pickers).
  */
 import { buildFieldTree, configDiff, fieldErrors, walkFields } from '../state/schema.js';
+import { OPEN_SECTIONS, fieldUi, humanize } from '../state/formLabels.js';
 import { clear, h } from './dom.js';
+import { createLightList, createSkyControl } from './lightEditor.js';
 
 const clone = (v) => (v === undefined ? undefined : JSON.parse(JSON.stringify(v)));
 
@@ -18,8 +24,14 @@ function hint(node) {
   return parts.join(', ');
 }
 
-/** A control for one node: {el, get(), set(value)}. */
-function control(node, onChange) {
+/** A control for one node: {el, get(), set(value)}. `ctx`: the form's shared state (scene bounds, hooks). */
+function control(node, onChange, ctx = {}) {
+  if (node.path === 'scene.lights' && node.kind === 'list') {
+    const c = createLightList({ onChange, bounds: () => ctx.bounds || null, onPlace: (i) => ctx.onPlaceLight && ctx.onPlaceLight(i) });
+    ctx.lights = c;
+    return c;
+  }
+  if (node.path === 'scene.sky' && node.kind === 'tuple') return createSkyControl(onChange);
   switch (node.kind) {
     case 'integer':
     case 'number': {
@@ -47,7 +59,7 @@ function control(node, onChange) {
       return { el: select, get: () => JSON.parse(select.value), set: (v) => { select.value = JSON.stringify(v); } };
     }
     case 'tuple': {
-      const parts = node.items.map((it) => control(it, onChange));
+      const parts = node.items.map((it) => control(it, onChange, ctx));
       parts.forEach((p) => p.el.classList.add('tuple-item'));
       return {
         el: h('span.tuple', parts.map((p) => p.el)),
@@ -56,8 +68,8 @@ function control(node, onChange) {
       };
     }
     case 'nullable': {
-      const inner = control(node.inner, onChange);
-      const on = h('input', { type: 'checkbox', title: 'set this value (unchecked: none)' });
+      const inner = control(node.inner, onChange, ctx);
+      const on = h('input', { type: 'checkbox', title: 'set this value (unchecked: automatic / none)' });
       const sync = () => { inner.el.classList.toggle('disabled', !on.checked); inner.el.querySelectorAll?.('input,select,textarea').forEach((e) => { e.disabled = !on.checked; }); if (inner.el.matches?.('input,select,textarea')) inner.el.disabled = !on.checked; };
       on.addEventListener('change', () => { sync(); onChange(); });
       let lastValue = null;
@@ -82,14 +94,15 @@ function control(node, onChange) {
       }
       const list = h('div.list');
       let entries = [];
-      const addBtn = h('button.small', { type: 'button' }, `+ add ${node.item.title || 'entry'}`);
+      const noun = fieldUi(node).label.replace(/s$/, '').toLowerCase() || 'entry';  // "Cameras" -> "camera", never a class name
+      const addBtn = h('button.small', { type: 'button' }, `+ add a ${noun}`);
       const render = (values) => {
         clear(list);
         entries = values.map((v, idx) => {
-          const sub = objectFields({ ...node.item, path: `${node.path}.${idx}` }, onChange, true);
+          const sub = objectFields({ ...node.item, path: `${node.path}.${idx}` }, onChange, true, ctx);
           sub.set(v);
           const rm = h('button.small', { type: 'button', on: { click: () => { const cur = entries.map((e) => e.get()); cur.splice(idx, 1); render(cur); onChange(); } } }, 'remove');
-          list.append(h('fieldset.list-entry', { dataset: { path: `${node.path}.${idx}` } }, h('legend', `${node.item.title || 'entry'} ${idx + 1} `, rm), sub.el));
+          list.append(h('fieldset.list-entry', { dataset: { path: `${node.path}.${idx}` } }, h('legend', `${humanize(noun)} ${idx + 1} `, rm), sub.el));
           return sub;
         });
       };
@@ -97,7 +110,7 @@ function control(node, onChange) {
       return { el: h('div', list, addBtn), get: () => entries.map((e) => e.get()), set: (v) => render(v || []) };
     }
     case 'object':
-      return objectFields(node, onChange, false);
+      return objectFields(node, onChange, false, ctx);
     default: {
       const ta = h('textarea', { rows: 2, name: node.path, on: { input: onChange } });
       return {
@@ -110,16 +123,25 @@ function control(node, onChange) {
 }
 
 function row(node, ctl) {
+  const ui = fieldUi(node);
   return h('div.field', { dataset: { path: node.path } },
-    h('label.field-label', { title: node.description }, node.title || node.key),
-    h('div.field-control', ctl.el, node.description ? h('div.help', node.description) : null, h('div.field-error')));
+    h('label.field-label', { title: ui.tooltip }, ui.label, ui.unit ? h('span.unit', ` (${ui.unit})`) : null,
+      ui.refs.length ? h('span.ref', { title: ui.tooltip }, ' ⓘ') : null),
+    h('div.field-control', ctl.el, ui.help ? h('div.help', ui.help) : null, h('div.field-error')));
 }
 
-function objectFields(node, onChange, flat) {
-  const ctls = node.children.map((c) => ({ c, ctl: control(c, onChange) }));
-  const body = h('div.object', ctls.map(({ c, ctl }) => (c.kind === 'object' ? ctl.el : row(c, ctl))));
-  const el = flat ? body : h('details.section', { dataset: { path: node.path }, open: node.path === 'place' || node.path === 'scene' },
-    h('summary', node.title || node.key, node.description ? h('span.help', ` — ${node.description.split('\n')[0]}`) : null),
+function objectFields(node, onChange, flat, ctx = {}) {
+  const ctls = node.children.map((c) => ({ c, ctl: control(c, onChange, ctx) }));
+  const item = ({ c, ctl }) => (c.kind === 'object' ? ctl.el : row(c, ctl));
+  // advanced fields of a section (state/formLabels.js) fold under "Advanced"; whole advanced sections stay
+  const basic = ctls.filter(({ c }) => c.kind === 'object' || !fieldUi(c).advanced);
+  const advanced = ctls.filter((x) => !basic.includes(x));
+  const body = h('div.object', basic.map(item),
+    advanced.length ? h('details.advanced', { dataset: { path: `${node.path || 'root'}.advanced` } },
+      h('summary', `Advanced (${advanced.length})`), advanced.map(item)) : null);
+  const ui = fieldUi(node);
+  const el = flat ? body : h('details.section', { dataset: { path: node.path }, open: OPEN_SECTIONS.has(node.path) },
+    h('summary', { title: ui.tooltip }, ui.label, ui.help ? h('span.help', ` — ${ui.help}`) : null),
     h('div.field-error'), body);
   return {
     el,
@@ -138,8 +160,10 @@ export function createConfigForm(schema) {
   const paths = new Set(walkFields(tree).map((n) => n.path));
   const general = h('div.field-error.form-error');
   let form;
-  const onChange = () => { form && form.clearErrors(); };
-  const top = objectFields({ ...tree, children: tree.children }, onChange, true);
+  const listeners = [];
+  const ctx = { bounds: null, onPlaceLight: null, lights: null };
+  const onChange = () => { if (form) { form.clearErrors(); listeners.forEach((fn) => fn(form)); } };
+  const top = objectFields({ ...tree, children: tree.children }, onChange, true, ctx);
   top.set(tree.default);
   const el = h('div.config-form', general, top.el,
     h('div.form-actions', h('button.small', { type: 'button', on: { click: () => { top.set(tree.default); onChange(); } } }, 'reset to defaults')));
@@ -160,6 +184,16 @@ export function createConfigForm(schema) {
         if (holder) { holder.classList.add('has-error'); let d = holder.closest('details'); while (d) { d.open = true; d = d.parentElement.closest('details'); } }
       }
     },
+    /** Call `fn(form)` after every change a person makes. */
+    onChange(fn) { listeners.push(fn); },
+    /** The scene the form bakes ({bounds, ...} as GET /v1/scenes lists it): defaults for new lights. */
+    setScene(scene) { ctx.bounds = scene?.bounds || null; },
+    /** `fn(index)` when a light's "Place in 3D view" is clicked. */
+    onPlaceLight(fn) { ctx.onPlaceLight = fn; },
+    /** Add a light (LightConfig, radians); returns its index in scene.lights. */
+    addLight(light) { return ctx.lights.add(light); },
+    /** Move light `index` of scene.lights (metres). */
+    setLightPosition(index, p) { ctx.lights.setPosition(index, p); },
     /** Set one value by dotted path (used by tests and by "presets"). */
     set(path, value) {
       const v = top.get();
@@ -168,6 +202,7 @@ export function createConfigForm(schema) {
       for (const k of keys.slice(0, -1)) o = o[k];
       o[keys[keys.length - 1]] = value;
       top.set(v);
+      listeners.forEach((fn) => fn(form));  // the pre-bake warnings and the estimate follow
     },
   };
   return form;

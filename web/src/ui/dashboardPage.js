@@ -1,12 +1,14 @@
 /**
- * The dashboard (DESIGN "Who uses it" 3): bakes per scene in a table (status, time per stage, memory,
- * metrics when the evaluate stage recorded them), two picked bakes side by side with deltas, and a chart of
- * any value across a scene's bakes over time (uPlot).
+ * The dashboard (DESIGN "Who uses it" 3): bakes per scene in a table (scene name, status, probes, K, lights,
+ * one column per stage's time, artifact size, and the evaluate stage's metrics with units, lower is better),
+ * two picked bakes side by side with deltas, and a chart of any value across a scene's bakes over time
+ * (uPlot). Preview images open full size on click.
  */
 import uPlot from 'uplot';
 import 'uplot/dist/uPlot.min.css';
 import {
-  bakeSeconds, bakeWarnings, chartValues, compareBakes, comparePreviews, configDelta, formatBytes, formatSeconds, memoryBytes, metricColumns, stageGroups,
+  artifactBytes, bakeSeconds, bakeWarnings, chartValues, clusterCount, compareBakes, comparePreviews, configDelta, formatBytes, formatSeconds, lightCount,
+  metricColumns, metricInfo, probeCount, sceneLabel, stageGroups,
 } from '../state/stats.js';
 import { clear, formatTime, h, shortId } from './dom.js';
 import { warningBadge, warningList } from './warnings.js';
@@ -22,9 +24,15 @@ export function createDashboardPage(app) {
   const chartMetric = h('select#chart-metric');
   const chartHolder = h('div#chart');
   const msg = h('p#dash-msg.muted');
+  const metricSet = h('select#dash-metrics', { title: 'which evaluate metrics get a column' },
+    h('option', { value: 'key' }, 'key metrics (RMSE, FLIP, leak, shading time)'), h('option', { value: 'all' }, 'all metrics'), h('option', { value: 'none' }, 'no metrics'));
+  const zoomImg = h('img#image-zoom-img', { alt: '' });
+  const zoomCaption = h('p.zoom-caption');
+  const zoom = h('div#image-zoom.zoom-overlay', { hidden: true, title: 'click to close', on: { click: () => { zoom.hidden = true; } } }, zoomImg, zoomCaption);
   const el = h('section.page#page-dashboard',
+    zoom,
     h('h2', 'Bakes'),
-    h('div.row', h('label', 'Scene ', sceneSelect), refreshBtn, msg),
+    h('div.row', h('label', 'Scene ', sceneSelect), refreshBtn, h('label', 'Metrics ', metricSet), msg),
     h('div.table-wrap', table),
     h('p.muted', 'Tick two bakes to compare them.'),
     compare,
@@ -75,20 +83,28 @@ export function createDashboardPage(app) {
     const cur = sceneSelect.value;
     clear(sceneSelect);
     sceneSelect.append(h('option', { value: '' }, 'all scenes'));
-    for (const s of scenes) sceneSelect.append(h('option', { value: s.id }, `${s.filename || shortId(s.id)} · ${shortId(s.id)}`));
+    for (const s of scenes) sceneSelect.append(h('option', { value: s.id }, `${s.filename || shortId(s.id)} · ${s.triangles} tris · ${shortId(s.id)}`));
     sceneSelect.value = cur;
   }
 
   function renderTable() {
     const groups = [];
     for (const b of bakes) for (const g of Object.keys(stageGroups(b))) if (!groups.includes(g)) groups.push(g);
-    const metrics = metricColumns(bakes);
+    const metrics = metricColumns(bakes, metricSet.value);
+    const infos = metrics.map(metricInfo);
+    const scenes = store.get().scenes;
     clear(table);
-    table.append(h('thead', h('tr',
-      h('th', ''), h('th', 'bake'), h('th', 'scene'), h('th', 'created'), h('th', 'status'),
-      groups.map((g) => h('th.num', { title: `seconds in stage ${g}` }, g)),
-      h('th.num', 'total'), h('th.num', 'memory'),
-      metrics.map((m) => h('th.num.metric', m)))));
+    // two header rows: groups (stage times in seconds, metrics: lower is better), then one column each
+    table.append(h('thead',
+      h('tr.group-row', h('th', { colSpan: 8 }), groups.length ? h('th.group', { colSpan: groups.length, title: 'wall-clock seconds per stage; ⟳ = taken from the cache (time of the original run)' }, 'stage time (s)') : null,
+        h('th', { colSpan: 2 }), metrics.length ? h('th.group', { colSpan: metrics.length, title: 'evaluate stage, means over its cameras' }, 'quality and cost — lower is better ↓') : null),
+      h('tr',
+        h('th', ''), h('th', 'bake'), h('th', 'scene'), h('th', 'created'), h('th', 'status'),
+        h('th.num', { title: 'probes in the grid (nx × ny × nz)' }, 'probes'), h('th.num', { title: 'mask clusters (masks.clusters)' }, 'K'),
+        h('th.num', { title: 'lights the bake used: the file\'s and the config\'s' }, 'lights'),
+        groups.map((g) => h('th.num.stage-col', { dataset: { stage: g }, title: `seconds in stage ${g}` }, g)),
+        h('th.num', { title: 'seconds from start to finish' }, 'total (s)'), h('th.num', { title: 'bytes of the bake\'s artifacts on disk (the bundle)' }, 'artifact size'),
+        infos.map((m) => h('th.num.metric', { dataset: { metric: m.key }, title: `${m.key}: ${m.help}` }, m.header)))));
     const body = h('tbody');
     for (const b of [...bakes].reverse()) {
       const sg = stageGroups(b);
@@ -103,22 +119,29 @@ export function createDashboardPage(app) {
       body.append(h('tr', { dataset: { bake: b.id, status: b.status, warnings: String(warnings.length) } },
         h('td', box),
         h('td', b.status === 'succeeded' ? h('a', { href: `#/viewer/${b.id}` }, h('code', shortId(b.id))) : h('code', shortId(b.id))),
-        h('td', h('code', shortId(b.scene_id))),
+        h('td.scene-name', { title: `scene ${b.scene_id}` }, sceneLabel(scenes, b.scene_id)),
         h('td', formatTime(b.created)),
         h('td.status-cell', h('span.badge', { dataset: { status: b.status } }, b.status), ' ', warningBadge(warnings),
           b.error ? h('div.error.small', `${b.error.stage}: ${b.error.code}`) : null, warningList(warnings)),
+        h('td.num', probeCount(b) ?? '–'), h('td.num', clusterCount(b) ?? '–'), h('td.num', lightCount(b) ?? '–'),
         groups.map((g) => h('td.num', { title: sg[g]?.cached ? 'cached (time of the original run)' : '' }, sg[g] ? `${formatSeconds(sg[g].seconds)}${sg[g].cached ? ' ⟳' : ''}` : '–')),
         h('td.num', formatSeconds(bakeSeconds(b))),
-        h('td.num', formatBytes(memoryBytes(b))),
-        metrics.map((m) => h('td.num.metric', fmt(flat[m])))));
+        h('td.num', formatBytes(artifactBytes(b))),
+        infos.map((m) => h('td.num.metric', m.bytes ? formatBytes(flat[m.key]) : fmt(flat[m.key])))));
     }
     table.append(body);
-    if (!bakes.length) table.append(h('tbody', h('tr', h('td', { colSpan: 8 }, 'No bakes for this scene yet.'))));
+    if (!bakes.length) table.append(h('tbody', h('tr', h('td', { colSpan: 11 }, 'No bakes for this scene yet.'))));
   }
 
   /** An <img> of a PNG artifact: a plain URL, or with an API key set, fetched with the header into an object URL. */
   function artifactImage(bakeId, name, alt, token) {
-    const img = h('img.eval-img', { alt, title: alt, dataset: { artifact: name } });
+    const img = h('img.eval-img', { alt, title: `${alt} (click to enlarge)`, dataset: { artifact: name } });
+    img.addEventListener('click', () => {
+      if (!img.src) return;
+      zoomImg.src = img.src;
+      zoomCaption.textContent = alt;
+      zoom.hidden = false;
+    });
     const path = api.url(api.artifactPath(bakeId, name));
     if (!api.key) {
       img.src = path;
@@ -161,8 +184,8 @@ export function createDashboardPage(app) {
     const card = (x) => h('div.compare-card', { dataset: { bake: x.id } },
       h('h3', h('code', shortId(x.id)), ' ', h('span.badge', { dataset: { status: x.status } }, x.status), ' ', warningBadge(bakeWarnings(x))),
       warningList(bakeWarnings(x)),
-      h('p.muted', `${formatTime(x.created)} · scene ${shortId(x.scene_id)}`),
-      h('p', `bake ${formatSeconds(bakeSeconds(x))} · memory ${formatBytes(memoryBytes(x))} · ${(x.artifacts || []).length} artifacts`),
+      h('p.muted', `${formatTime(x.created)} · scene ${sceneLabel(store.get().scenes, x.scene_id)}`),
+      h('p', `bake ${formatSeconds(bakeSeconds(x))} · artifact size ${formatBytes(artifactBytes(x))} · ${(x.artifacts || []).length} artifacts · ${probeCount(x) ?? '?'} probes`),
       x.status === 'succeeded' ? h('a.button.small', { href: `#/viewer/${x.id}` }, 'view') : null);
     const rows = compareBakes(a, b);
     const cfg = configDelta(a.config, b.config);
@@ -208,9 +231,11 @@ export function createDashboardPage(app) {
   }
 
   sceneSelect.addEventListener('change', () => { picked = []; load(); });
+  metricSet.addEventListener('change', renderTable);
+  document.addEventListener('keydown', (e) => { if (e.key === 'Escape') zoom.hidden = true; });
   refreshBtn.addEventListener('click', load);
   chartMetric.addEventListener('change', renderChart);
-  store.subscribe((s, prev) => { if (s.scenes !== prev.scenes) renderScenes(); });
+  store.subscribe((s, prev) => { if (s.scenes !== prev.scenes) { renderScenes(); if (bakes.length) renderTable(); } });
 
   return {
     el,

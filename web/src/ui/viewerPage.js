@@ -1,11 +1,14 @@
 /**
  * The viewer page: the canvas, the GI mode switch (each mode lights up only when the bake has its artifacts),
  * cameras, probes, exposure, the streaming progress bar, the frame-time readout, and debug images.
+ * Lights are drawn in every mode; "Place a light" adds or moves a light of the bake form by clicking a surface
+ * (0.3 m in front of it) and dragging the gizmo.
  */
 import { Viewer } from '../view/viewer.js';
 import { drawDepthAtlas, drawIrradianceAtlas, drawMaskSlice, drawThetaSlice } from './debugImages.js';
 import { clear, h, shortId } from './dom.js';
-import { bakeWarnings } from '../state/stats.js';
+import { bakeWarnings, sceneLabel } from '../state/stats.js';
+import { defaultLight } from '../state/lighting.js';
 import { warningList } from './warnings.js';
 
 export function createViewerPage(app) {
@@ -39,6 +42,10 @@ export function createViewerPage(app) {
   const debugNote = h('p#debug-note.muted');
   const gpuInfo = h('p#gpu-info.muted');
   const warningsBanner = h('div#viewer-warnings.warnings-banner', { role: 'alert', hidden: true });
+  const lightsBox = h('input#show-lights', { type: 'checkbox', checked: true });
+  const placeBtn = h('button.small#place-light', { type: 'button', title: 'click a surface of the scene: a point light of the bake form goes 0.3 m in front of it' }, 'Place a light…');
+  const placeDone = h('button.small#place-done', { type: 'button', hidden: true }, 'Done placing');
+  const placeNote = h('p#place-note.muted');
 
   const el = h('section.page#page-viewer',
     warningsBanner,
@@ -56,6 +63,9 @@ export function createViewerPage(app) {
         h('div.row', h('label', shadowsBox, ' shadowed direct light (shadow maps)')),
         h('h3', 'Camera'),
         h('div.row', camOrbit, camFly, camLink),
+        h('h3', 'Lights'),
+        h('div.row', h('label', lightsBox, ' show lights'), placeBtn, placeDone),
+        placeNote,
         h('h3', 'Probes'),
         h('div.row', h('label', probesBox, ' show probes'), probeColor),
         h('h3', 'Debug images'),
@@ -148,7 +158,7 @@ export function createViewerPage(app) {
       const { items } = await api.listBakes({ status: 'succeeded', limit: 100 });
       clear(bakeSelect);
       bakeSelect.append(h('option', { value: '' }, '— pick a succeeded bake —'));
-      for (const b of items) bakeSelect.append(h('option', { value: b.id }, `${shortId(b.id)} · scene ${shortId(b.scene_id)} · ${new Date(b.created * 1000).toLocaleString()}`));
+      for (const b of items) bakeSelect.append(h('option', { value: b.id }, `${sceneLabel(store.get().scenes, b.scene_id)} · ${shortId(b.id)} · ${new Date(b.created * 1000).toLocaleString()}`));
       bakeSelect.value = current || '';
     } catch { /* the header shows errors elsewhere */ }
   }
@@ -166,6 +176,63 @@ export function createViewerPage(app) {
   shadowsBox.addEventListener('change', () => viewer.set({ shadows: shadowsBox.checked }));
   probesBox.addEventListener('change', () => viewer.setProbes({ visible: probesBox.checked }));
   probeColor.addEventListener('change', () => viewer.setProbes({ coloring: probeColor.value }));
+
+  // ------------------------------------------------------------------ lights: show, place by clicking, drag
+  let placing = null;  // {index: number|null}: placing the bake form's light `index` (null: a new one)
+  const formLights = () => (app.configForm ? app.configForm.values().scene.lights || [] : []);
+  const fmtP = (p) => p.map((x) => x.toFixed(2)).join(', ');
+  lightsBox.addEventListener('change', () => viewer && viewer.showLightMarkers(lightsBox.checked));
+
+  function onGizmoMove(index, p) {
+    app.configForm.setLightPosition(index, p);
+    viewer.editLights(formLights(), index, onGizmoMove);
+    placeNote.textContent = `Light ${index + 1} at (${fmtP(p)}) m. Start the bake on “Upload & bake”.`;
+  }
+
+  function startPlacing(index = null) {
+    if (!viewer) return;
+    if (!app.configForm) { placeNote.textContent = 'The bake form is not loaded yet.'; return; }
+    if (!viewer.root) { placeNote.textContent = 'No scene geometry is loaded to click on.'; return; }
+    placing = { index };
+    canvas.dataset.placing = '1';
+    placeDone.hidden = false;
+    lightsBox.checked = true;
+    viewer.showLightMarkers(true);
+    viewer.editLights(formLights(), index, onGizmoMove);
+    placeNote.textContent = index == null
+      ? 'Click a surface: a point light goes 0.3 m in front of it (then drag the gizmo to adjust).'
+      : `Click a surface to move light ${index + 1} there (0.3 m in front of it), or drag the gizmo.`;
+  }
+
+  function stopPlacing() {
+    placing = null;
+    delete canvas.dataset.placing;
+    placeDone.hidden = true;
+    if (viewer) viewer.editLights(null);
+  }
+  placeBtn.addEventListener('click', () => startPlacing(null));
+  placeDone.addEventListener('click', () => { stopPlacing(); placeNote.textContent = ''; });
+
+  let down = null;
+  canvas.addEventListener('pointerdown', (e) => { down = { x: e.clientX, y: e.clientY, gizmo: !!viewer?.editGizmo?.axis }; });
+  canvas.addEventListener('pointerup', (e) => {
+    const d = down;
+    down = null;
+    if (!placing || !d || d.gizmo || viewer.gizmoDragging || Math.hypot(e.clientX - d.x, e.clientY - d.y) > 4) return;  // a drag, not a click
+    const hit = viewer.pick(e.clientX, e.clientY);
+    if (!hit) { placeNote.textContent = 'Nothing there: click a surface of the scene.'; return; }
+    let index = placing.index;
+    if (index == null) {
+      index = app.configForm.addLight({ ...defaultLight('point'), position: hit.position.map((x) => Math.round(x * 1000) / 1000) });
+      placing.index = index;
+    } else {
+      app.configForm.setLightPosition(index, hit.position);
+    }
+    viewer.lastPick = hit;
+    viewer.editLights(formLights(), index, onGizmoMove);
+    placeNote.textContent = `Light ${index + 1} placed at (${fmtP(hit.position)}) m, 0.3 m off the surface. Drag the gizmo to adjust, `
+      + 'click again to move it, or “Done placing”. Start the bake on “Upload & bake”.';
+  });
 
   /**
    * A slice view of RGBA8 (Z, Y, X, 4) volumes: axis, a selector (θ corner / mask channel) and a slider;
@@ -295,9 +362,15 @@ export function createViewerPage(app) {
       debugHolder.hidden = true;
       clear(debugControls);
       renderBakeSelect(id);
+      stopPlacing();
+      placeNote.textContent = '';
       let bake = null;
       clear(header);
       renderWarnings(null);
+      // #/viewer?scene=<id>&place=<light index|new>: a scene not baked yet (the file of this session, else the
+      // geometry of its latest bake), to place the bake form's lights on
+      const sceneParam = id ? null : q.get('scene');
+      const place = q.get('place');
       if (id) {
         try {
           bake = await api.getBake(id);
@@ -305,23 +378,37 @@ export function createViewerPage(app) {
         } catch (e) {
           header.append(h('p.error', `Could not open bake ${shortId(id)}: ${e.message}`));
         }
+      } else if (sceneParam && !app.sessionFiles.has(sceneParam)) {
+        try {
+          const { items } = await api.listBakes({ sceneId: sceneParam, status: 'succeeded', limit: 1 });
+          if (items[0]) bake = await api.getBake(items[0].id);
+        } catch { /* no geometry then: said below */ }
       }
+      const sceneName = (sid) => sceneLabel(store.get().scenes, sid);
       if (bake) {
         renderWarnings(bake);
-        header.append(h('h2', 'Bake ', h('code', shortId(bake.id))), h('p.muted', `scene ${shortId(bake.scene_id)} · ${bake.status}`));
+        header.append(h('h2', 'Bake ', h('code', shortId(bake.id))),
+          h('p.muted', { title: `scene ${bake.scene_id}` }, h('span.scene-name', sceneName(bake.scene_id)), ` · ${bake.status}`));
         if (bake.status !== 'succeeded') header.append(h('p.note', `This bake is ${bake.status}: only the artifacts of finished stages can be shown.`));
+      } else if (sceneParam) {
+        header.append(h('h2', 'Scene ', h('span.scene-name', sceneName(sceneParam))),
+          h('p.muted', app.sessionFiles.has(sceneParam) ? 'Not baked yet: place lights, then start the bake on “Upload & bake”.'
+            : 'This scene has no succeeded bake and its file is not in this browser session: upload it again to place lights on it.'));
       } else if (!id) {
         header.append(h('p.muted', 'Pick a bake to view (or upload and bake a scene first).'));
       }
       const cam = (q.get('cam') || '').split(',').map(Number);
       const camera = cam.length === 6 && cam.every(Number.isFinite) ? { position: cam.slice(0, 3), target: cam.slice(3) } : undefined;
-      probesBox.checked = !(bake && app.sessionFiles.has(bake.scene_id));
       progress.value = 0;
       progressLabel.textContent = '';
-      await v.open({ bake, sceneFile: bake ? app.sessionFiles.get(bake.scene_id) || null : null, camera, mode: q.get('mode') || undefined });
+      const sceneId = bake ? bake.scene_id : sceneParam;
+      await v.open({ bake, sceneFile: sceneId ? app.sessionFiles.get(sceneId) || null : null, camera, mode: q.get('mode') || undefined });
+      probesBox.checked = !v.root;  // probes alone over an empty scene; over the geometry on demand
       if (probesBox.checked !== v.state.probes) v.setProbes({ visible: probesBox.checked });
+      v.showLightMarkers(lightsBox.checked);
       renderModes();
       updateDebugOptions();
+      if (place !== null) startPlacing(place === '' || place === 'new' ? null : Number(place));
     },
   };
 }

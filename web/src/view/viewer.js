@@ -3,19 +3,20 @@
  * file when this session uploaded it), streams the artifacts the GI modes need with progress, switches
  * modes, drives the cameras and renders on demand. The renderer is the only GL code; the UI only listens.
  */
-import { Mesh, MeshBasicMaterial, Object3D, PerspectiveCamera, SphereGeometry, Vector3 } from 'three';
+import { Box3, Mesh, MeshBasicMaterial, Object3D, PerspectiveCamera, SphereGeometry, Vector3 } from 'three';
 import { TransformControls } from 'three/addons/controls/TransformControls.js';
 import { ArtifactLoader, loadArtifacts } from '../loader/artifacts.js';
-import { loadSceneFile } from '../loader/scene.js';
+import { loadSceneBytes, loadSceneFile } from '../loader/scene.js';
 import { GIRenderer } from '../renderer/renderer.js';
 import { hasShader } from '../renderer/shaders.js';
 import { probeDataTexture, stackedVolumeTexture, textureFromKTX2 } from '../renderer/textures.js';
 import { parseNpy } from '../loader/npy.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
 import { PRT_MAX_GROUPS } from '../renderer/renderer.js';
-import { GI_MODES, modeArtifacts, modeAvailability, modeById, modeTextures } from '../state/modes.js';
+import { GI_MODES, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
 import { autoCamera } from './autocamera.js';
 import { createControls } from './cameras.js';
+import { buildLightMarkers, disposeMarkers, pickSurface } from './lightMarkers.js';
 
 /** The grid of a bake, from its place stage's stats (the manifest's `grid`). */
 export function bakeGrid(bake) {
@@ -176,16 +177,36 @@ export class Viewer {
     this.shownMode = 'direct';
     let root = null;
     let note = '';
+    let sceneSource = null;  // 'file' (uploaded in this session) | 'server' (the bake's `scene` artifact) | null
     if (sceneFile) {
       try {
         root = await loadSceneFile(sceneFile);
+        sceneSource = 'file';
       } catch (e) {
         note = `could not load ${sceneFile.name} in the browser: ${e.message}`;
       }
-    } else if (bake) {
-      note = 'The original scene file is only kept in the browser session that uploaded it: showing the probes over an empty scene.';
+    }
+    if (!root && bake && this.artifactInfo('scene')) {
+      try {
+        // the GLB the ingest stage wrote; progress stays below 1 ("volumes loaded" is for the GI volumes)
+        const info = this.artifactInfo('scene');
+        const bytes = await this.loader.bytes(bake.id, info, (got, total) => {
+          if (!stale()) this.status({ loading: Math.min(0.99, got / (total || info.bytes || 1)), loadingLabel: 'scene' });
+        });
+        root = await loadSceneBytes(bytes);
+        sceneSource = 'server';
+        note = '';
+      } catch (e) {
+        note = `could not load the baked scene: ${e.message}`;
+      }
+    } else if (!root && bake && !note) {
+      note = 'This bake has no scene artifact (baked before bundles carried the scene) and the file is not in this browser session: showing the probes over an empty scene.';
     }
     if (stale()) return;
+    this.sceneSource = sceneSource;
+    this.canvas.dataset.scene = sceneSource || 'none';
+    this.editLightList = null;
+    if (this.editGizmo) { this.editGizmo.enabled = false; this.editGizmo.getHelper().visible = false; }
     this.renderer.setScene(root);
     this.root = root;
     const grid = bakeGrid(bake);
@@ -205,6 +226,7 @@ export class Viewer {
     // direct light at once: the scene's own lights now, the bake's resolved lights (+ config lights, sky) soon
     this.bakeLights = gltfLights(root);
     this.renderer.setLights(this.bakeLights);
+    this.setLightMarkers(this.bakeLights);
     this.renderer.setSky([0, 0, 0]);
     this.renderer.setMaterialOptions((bake && bake.config && bake.config.scene) || {});
     this.prt = null;
@@ -217,6 +239,7 @@ export class Viewer {
       if (stale()) return;
       this.bakeLights = lights.lights.lights || [];
       if (!this.prtLightsOn) this.renderer.setLights(this.bakeLights);
+      if (!this.editLightList) this.setLightMarkers(this.bakeLights);
       this.renderer.setSky(lights.lights.sky || [0, 0, 0]);
       if (!this.userExposure) {
         const ev = autoExposureEV(bake, lights.lights.lights || []);
@@ -226,9 +249,10 @@ export class Viewer {
       this.invalidate();
     }
     // stream the probe data and every available mode's volumes in the background, with progress
-    const wanted = ['probe_positions_relocated', 'probe_states', 'clusters'];  // clusters: MD anneal (colouring)
+    // clusters: MD anneal (colouring); sh_l1_*: the probe spheres' SH colouring (L1, whatever the modes use)
+    const wanted = ['probe_positions_relocated', 'probe_states', 'clusters', 'sh_l1_r', 'sh_l1_g', 'sh_l1_b'];
     const names = (bake.artifacts || []).map((a) => a.name);
-    for (const m of this.modes()) if (m.available) wanted.push(...modeArtifacts(m, names, this.artifacts));
+    for (const m of this.modes()) if (m.available) wanted.push(...modeArtifacts(m, names, this.artifacts, this.shCaps()));
     const stream = this.fetch(wanted.filter((n) => this.artifactInfo(n)))
       .then(() => { if (!stale()) this.buildProbes(); })
       .catch((e) => this.onError(e));
@@ -264,7 +288,7 @@ export class Viewer {
     const radius = 0.12 * Math.min(...grid.spacing);
     const clusters = this.artifacts.clusters ? this.artifacts.clusters.data : null;
     this.renderer.setProbes({ positions: pos.data, stride: pos.components, states, clusters, counts: grid.counts, radius });
-    if (this.artifacts.sh_l1_r) this.bindModeTextures(modeById('leaking'));
+    if (this.artifacts.sh_l1_r) this.bindTextures(PROBE_SH_TEXTURES);
     this.renderer.setProbeDisplay({ visible: this.state.probes, coloring: this.state.probeColoring });
     this.invalidate();
   }
@@ -273,12 +297,31 @@ export class Viewer {
     return (this.bake?.artifacts || []).map((a) => a.name);
   }
 
+  /**
+   * What decides a mode's SH order besides the artifact names (state/modes.js shOrder): the device's largest 3D
+   * texture and the grid's nz (the L2 cluster stack is 7·K·(nz + 2) deep).
+   */
+  shCaps() {
+    const grid = bakeGrid(this.bake);
+    return { max3D: this.renderer.max3DTextureSize, nz: grid ? Number(grid.counts[2]) : 0 };
+  }
+
   /** Upload and bind a mode's textures (as workers/render/shading.py prepare_mode) and set its uniforms. */
   bindModeTextures(mode) {
     const names = this.artifactNames();
+    if (!this.bindTextures(modeTextures(mode, names, this.artifacts, this.shCaps()))) return false;
+    if (mode.uniforms) {
+      const grid = bakeGrid(this.bake);
+      this.renderer.setModeUniforms(mode.uniforms({ grid, names, bake: this.bake, info: (n) => this.artifactInfo(n), artifacts: this.artifacts }));
+    }
+    return true;
+  }
+
+  /** Upload and bind {uniform: [artifact name | names, kind]} (false while an artifact is not loaded yet). */
+  bindTextures(map) {
     const textures = {};
     const options = { floatLinear: this.renderer.floatLinear };
-    for (const [uniform, [src, kind]] of Object.entries(modeTextures(mode, names, this.artifacts))) {
+    for (const [uniform, [src, kind]] of Object.entries(map)) {
       const list = Array.isArray(src) ? src : [src];
       if (list.some((n) => !this.artifacts[n])) return false;
       const key = `${kind}:${list.join(',')}`;
@@ -291,10 +334,6 @@ export class Viewer {
       textures[uniform] = tex;
     }
     this.renderer.setTextures(textures);
-    if (mode.uniforms) {
-      const grid = bakeGrid(this.bake);
-      this.renderer.setModeUniforms(mode.uniforms({ grid, names, bake: this.bake, info: (n) => this.artifactInfo(n), artifacts: this.artifacts }));
-    }
     return true;
   }
 
@@ -394,7 +433,7 @@ export class Viewer {
     if (mode.prerequisites) await this.fetch(mode.prerequisites.filter((n) => this.artifactInfo(n)));
     if (this.mode !== id) return false;
     const optional = new Set(mode.prerequisites || []);
-    await this.fetch(modeArtifacts(mode, this.artifactNames(), this.artifacts).filter((n) => !optional.has(n) || this.artifactInfo(n)));
+    await this.fetch(modeArtifacts(mode, this.artifactNames(), this.artifacts, this.shCaps()).filter((n) => !optional.has(n) || this.artifactInfo(n)));
     if (this.mode !== id) return false;  // the user moved on meanwhile
     if (id === 'prt') {
       try {
@@ -410,7 +449,8 @@ export class Viewer {
     else if (this.prtLightsOn) this.renderer.setLights(this.bakeLights || []);
     this.prtLightsOn = id === 'prt';
     this.showGizmo(id === 'prt');
-    this.renderer.setModeShader(mode.shader);
+    // KILN_SH_L2 where the bake has the L2 volumes (the default evaluation, docs/architecture.md)
+    this.renderer.setModeShader(mode.shader, modeDefines(mode, this.artifactNames(), this.artifacts, this.shCaps()));
     this.shownMode = id;
     this.renderer.compile(this.camera);
     this.invalidate();
@@ -443,6 +483,65 @@ export class Viewer {
 
   cameraState() {
     return { position: this.camera.position.toArray(), target: this.controls.orbit.target.toArray() };
+  }
+
+  // ------------------------------------------------------------------ lights on screen, placing lights
+  /** Draw markers for `lights` (every mode; the overlay casts no shadows). */
+  setLightMarkers(lights) {
+    if (this.lightMarkers) { this.renderer.overlay.remove(this.lightMarkers); disposeMarkers(this.lightMarkers); }
+    this.lightMarkers = buildLightMarkers(lights || [], bakeBounds(this.bake) || this.sceneBounds());
+    this.lightMarkers.visible = this.state.lightMarkers !== false;
+    this.renderer.overlay.add(this.lightMarkers);
+    this.canvas.dataset.lightMarkers = String((lights || []).length);
+    this.invalidate();
+  }
+
+  /** Show or hide the light markers. */
+  showLightMarkers(on) {
+    this.state.lightMarkers = !!on;
+    if (this.lightMarkers) this.lightMarkers.visible = !!on;
+    this.invalidate();
+  }
+
+  /** [[min], [max]] of the loaded scene's geometry (when no bake says it). */
+  sceneBounds() {
+    if (!this.root) return null;
+    const b = new Box3().setFromObject(this.root);
+    return b.isEmpty() ? null : [b.min.toArray(), b.max.toArray()];
+  }
+
+  /** The surface under a canvas pixel and the light position PLACE_OFFSET in front of it (lightMarkers.js). */
+  pick(clientX, clientY) {
+    return pickSurface(this.root, this.camera, this.canvas, clientX, clientY);
+  }
+
+  /**
+   * Lights being edited (the bake form's): drawn instead of the bake's, with a drag gizmo on light `active`
+   * (null: none). `onMove(index, position)` while it is dragged. `editLights(null)` goes back to the bake's lights.
+   */
+  editLights(lights, active = null, onMove = null) {
+    this.editLightList = lights;
+    this.setLightMarkers(lights || this.bakeLights || []);
+    if (!this.editGizmo) {
+      const target = new Object3D();
+      const tc = new TransformControls(this.camera, this.canvas);
+      tc.attach(target);
+      tc.addEventListener('dragging-changed', (e) => { this.controls.orbit.enabled = !e.value && this.controls.mode === 'orbit'; this.gizmoDragging = e.value; });
+      tc.addEventListener('objectChange', () => { if (this.onEditMove) this.onEditMove(this.editIndex, target.position.toArray()); });
+      tc.addEventListener('change', () => this.invalidate());
+      this.renderer.overlay.add(target);
+      this.renderer.overlay.add(tc.getHelper());
+      this.editGizmo = tc;
+      this.editTarget = target;
+    }
+    const l = lights && active != null ? lights[active] : null;
+    const on = !!(l && l.position);
+    this.editIndex = active;
+    this.onEditMove = onMove;
+    if (on) this.editTarget.position.fromArray(l.position);
+    this.editGizmo.enabled = on;
+    this.editGizmo.getHelper().visible = on;
+    this.invalidate();
   }
 
   dispose() {
