@@ -1,13 +1,19 @@
 """Fidelity benchmark (outside check of materials and default bakes): run by hand, not part of the test command.
 
-    .venv/bin/python tests/bench/bench_fidelity.py [--scenes two-rooms-vc,metal-room] [--json OUT.json]
+    .venv/bin/python tests/bench/bench_fidelity.py [--scenes two-rooms-vc,metal-room,living-room] [--json OUT.json]
         [--store DIR]
 
 Compares Kiln's baked light with Blender Cycles (tests/data/fidelity/*.cycles.json, made by
-tests/data/fidelity/make_references.py with ../shared/oracle; Blender is not needed here). Per scene:
+tests/data/fidelity/make_references.py with ../shared/oracle; Blender is not needed here). By default every scene
+with a points file in tests/data/fidelity (:data:`DEFAULT_SCENES`). Per scene:
 
-1. bakes the procedural scene (``workers.procedural.make_scene``) in this process with the real pipeline and the
-   **default config** (``BakeConfig()``: the scenes carry their own lights and emitters; sky 0), timing each stage;
+1. bakes the scene in this process with the real pipeline and the **default config**, timing each stage: a
+   procedural scene (``workers.procedural.make_scene``) with ``BakeConfig()`` (the scenes carry their own lights and
+   emitters; sky 0); a real scene (its points file names a ``source`` under ``../shared/scenes``, read there, never
+   copied into the project; ``KILN_SHARED_SCENES`` sets the folder; skipped with a message when absent) with the
+   default config plus the points file's ``config`` — only added lights (``scene.lights``) and a sky (``scene.sky``):
+   ``living-room`` is godot-living-room's living_room.glb (no lights of its own) with two point lights and a sky
+   through its courtyard. The automatic grid's reason (``grid.auto.reason``) is printed with the bake time;
 2. at every check point of ``<scene>.points.json`` and each of the 6 axis normals, reconstructs the indirect
    irradiance of each GI mode from the baked volumes with the Python references of the runtime shaders:
    ``leaking``, ``visibility_weighted``, ``mask``, ``mask_normalized`` (:func:`workers.kernels.samplers.irradiance`,
@@ -38,13 +44,21 @@ tests/data/fidelity/make_references.py with ../shared/oracle; Blender is not nee
 model of a diffuse-only probe bake) and ``importer`` (Blender's Principled BSDF with glossy bounces; Blender 3.4
 adds its specular lobe on top of an undimmed diffuse, so closed bright rooms read ~20-27% above a diffuse model:
 an upper bracket, not a target).
+
+Sanity (the issue's "no NaN, no negative irradiance"): per scene the number of receivers where a mode (or Kiln's path
+tracer, or a compared stored probe) gives a non-finite or a negative value in any channel, and the non-finite values
+and negative texels in the bake's irradiance volumes themselves; printed as ``sanity: ...`` (``FLAG`` when any).
+The Python references do not clamp: the GLSL modes clamp their result at 0, so a negative here is the value before
+that clamp.
 """
 from __future__ import annotations
 
 import argparse
+import copy
 import hashlib
 import json
 import math
+import os
 import sys
 import tempfile
 import time
@@ -74,14 +88,35 @@ PROBE_MODES = ("probe_oct", "probe_sh")
 PT_BOUNCES, PT_RR_DEPTH = 64, 3
 MAX_PROBE_SHIFT = 0.02  # metres: a probe relocated further than this is not compared at its grid position
 ZERO = 1e-3             # a region whose Cycles mean is below ZERO x the scene's largest region mean counts as dark
-DEFAULT_SCENES = "two-rooms-vc,metal-room"
+DEFAULT_SCENES = ",".join(sorted(p.name[:-len(".points.json")] for p in DATA.glob("*.points.json")))
+SHARED_SCENES = Path(os.environ.get("KILN_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
 
 
-def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None):
-    """Bake procedural scene ``name`` with ``config`` (default: the default config, ``BakeConfig()``):
-    (scene, {stage: LazyArtifacts}, config, seconds per stage)."""
-    glb = work / f"{name}.glb"
-    glb.write_bytes(make_scene(name))
+def deep_merge(a: dict, b: dict) -> dict:
+    out = copy.deepcopy(a)
+    for k, v in b.items():
+        out[k] = deep_merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else copy.deepcopy(v)
+    return out
+
+
+def source_of(pdoc: dict) -> Path | None:
+    """The file a real scene's points file names (None for a procedural scene)."""
+    return SHARED_SCENES / pdoc["source"] if pdoc.get("source") else None
+
+
+def scene_bytes(name: str, pdoc: dict) -> bytes:
+    src = source_of(pdoc)
+    return src.read_bytes() if src else make_scene(name)
+
+
+def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None, source: Path | None = None):
+    """Bake scene ``name`` (procedural, or the real scene at ``source``, read in place) with ``config`` (default:
+    the default config, ``BakeConfig()``): (scene, {stage: LazyArtifacts}, config, seconds per stage)."""
+    if source is not None:
+        glb = source
+    else:
+        glb = work / f"{name}.glb"
+        glb.write_bytes(make_scene(name))
     store = Store(store_dir or (work / "store"))
     t0 = time.perf_counter()
     scene = ingest_file(glb)
@@ -183,21 +218,71 @@ def compare(kiln: np.ndarray, ref: np.ndarray, idx: list[int]) -> dict:
             "receivers": int(k.shape[0])}
 
 
-def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384) -> dict:
+def sanity(modes: dict[str, np.ndarray], probes: dict[str, np.ndarray], probe_idx: list[int], recs: dict,
+           cfg: BakeConfig) -> dict:
+    """Non-finite and negative irradiance: per mode at the receivers (probe_oct / probe_sh: at the compared probes
+    only), and in the bake's irradiance volumes (octahedral atlas texels of non-OFF probes; every float volume of
+    the light and compress stages for non-finite values)."""
+    out = {"receivers": {}, "volumes": {}}
+    for m, v in {**modes, **probes}.items():
+        if m in probes:
+            v = v[probe_idx]
+            v = v[np.isfinite(v).all(axis=(-1, -2))]         # not compared: NaN rows by construction
+        v = np.asarray(v, np.float64).reshape(-1, 3)
+        bad = ~np.isfinite(v).all(axis=-1)
+        neg = (np.where(np.isfinite(v), v, 0.0) < 0).any(axis=-1)
+        out["receivers"][m] = {"n": int(v.shape[0]), "nonfinite": int(bad.sum()), "negative": int(neg.sum()),
+                               "min": float(np.nanmin(v)) if v.size and np.isfinite(v).any() else None}
+    for st in ("light", "compress"):
+        if st not in recs:
+            continue
+        for n in recs[st].names():
+            try:
+                a = np.asarray(recs[st][n])
+            except Exception:  # noqa: BLE001  (not an array artifact)
+                continue
+            if a.dtype.kind != "f":
+                continue
+            nf = int((~np.isfinite(a)).sum())
+            rec = {"size": int(a.size), "nonfinite": nf}
+            if n == "irradiance":
+                counts = recs["place"].stats["counts"]
+                irr = unpack_atlas(a, counts, cfg.light.irradiance_texels + 2)[..., :3]
+                states = np.asarray(recs["trace"]["probe_states"]).reshape(-1)
+                on = irr[states != OFF]
+                rec["negative_texels"] = int((np.where(np.isfinite(on), on, 0.0) < 0).any(axis=-1).sum())
+                rec["min"] = float(np.nanmin(on)) if on.size else None
+            out["volumes"][f"{st}/{n}"] = rec
+    out["flag"] = any(r["nonfinite"] or r["negative"] for r in out["receivers"].values()) or any(
+        r["nonfinite"] or r.get("negative_texels") for r in out["volumes"].values())
+    return out
+
+
+def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384) -> dict | None:
+    """The comparison of scene ``name``; None (with a message) for a real scene whose source is not there."""
     pdoc = json.loads((DATA / f"{name}.points.json").read_text())
+    source = source_of(pdoc)
+    if source is not None and not source.is_file():
+        print(f"skipping {name}: its source {source} is not there (a real scene, read from {SHARED_SCENES}, never "
+              f"copied into the project; KILN_SHARED_SCENES sets the folder)", flush=True)
+        return None
+    scene_config = pdoc.get("config") or {}
     refs = {}
     for path in sorted(DATA.glob(f"{name}.*.cycles.json")):
         ref = json.loads(path.read_text())
         refs[ref["material"]] = ref
     if not refs:
         raise SystemExit(f"no Cycles reference for {name} in {DATA}: run tests/data/fidelity/make_references.py")
-    sha = hashlib.sha256(make_scene(name)).hexdigest()
+    sha = hashlib.sha256(scene_bytes(name, pdoc)).hexdigest()
     notes = []
+    if pdoc["glb_sha256"] != sha:
+        notes.append(f"{name}.points.json was made for another version of the scene: regenerate the points and "
+                     "references")
     for m, ref in refs.items():
-        if ref["glb_sha256"] != sha or ref["points"] != pdoc["points"]:
-            notes.append(f"reference {m} was made for another version of the scene or points: regenerate it")
+        if ref["glb_sha256"] != sha or ref["points"] != pdoc["points"] or (ref.get("config") or {}) != scene_config:
+            notes.append(f"reference {m} was made for another version of the scene, points or lights: regenerate it")
     t0 = time.perf_counter()
-    scene, recs, cfg, times = bake(name, work, store_dir)
+    scene, recs, cfg, times = bake(name, work, store_dir, scene_config, source)
     bake_seconds = time.perf_counter() - t0
     points = np.asarray(pdoc["points"], np.float64)
     dirs = np.asarray(next(iter(refs.values()))["dirs"], np.float64)
@@ -231,7 +316,7 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
             # the default grid does not hold these points: bake the points file's grid to read its stored probes
             g = {"place": {"counts": pdoc["probe_grid"]["counts"]}}
             t1 = time.perf_counter()
-            _, recs2, cfg2, _ = bake(name, work, store_dir, g)
+            _, recs2, cfg2, _ = bake(name, work, store_dir, deep_merge(scene_config, g), source)
             probe_bake = {"config": g, "seconds": time.perf_counter() - t1}
             pv, probe_info = probe_values(recs2, cfg2, points[probe_idx], dirs)
         for m, v in pv.items():
@@ -239,7 +324,12 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
             full[probe_idx] = v
             probes[m] = full
     place = recs["place"].stats
-    out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times, "config": "default (BakeConfig())",
+    lit = recs["ingest"]["lights"]
+    out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times,
+           "config": "default (BakeConfig())" + (f" + {json.dumps(scene_config)}" if scene_config else ""),
+           "source": pdoc.get("source"), "triangles": int(np.asarray(scene.triangles).shape[0]),
+           "lights": len(lit["lights"]), "sky": list(lit["sky"]),
+           "sanity": sanity(modes, probes, probe_idx, recs, cfg),
            "kiln_pt": {"spp": pt_spp, "bounces": PT_BOUNCES, "rr_depth": PT_RR_DEPTH, "seconds": pt_seconds},
            "grid": {k: place[k] for k in ("counts", "origin", "spacing")},
            "grid_auto": place.get("auto"),
@@ -268,8 +358,11 @@ def table(res: dict) -> list[str]:
     for mat, r in res["references"].items():
         regs = r["regions"]
         top = max((abs(v["cycles_mean"]) for v in regs.values()), default=0.0)
+        sky = r["settings"].get("sky") or [0, 0, 0]
         lines.append(f"== {res['scene']} vs Cycles {mat} ({r['settings']['samples']} spp x {len(r['seeds'])} seeds, "
-                     f"{r['settings']['bounces']} bounces): mean(kiln)/mean(cycles) of the indirect irradiance")
+                     f"{r['settings']['bounces']} bounces{f', sky {sky}' if max(sky) > 0 else ''}): "
+                     "mean(kiln)/mean(cycles) of the indirect irradiance"
+                     + (" (+ the sky seen directly)" if max(sky) > 0 else ""))
         lines.append(f"{'region':<13}{'cycles W/m2':>12}" + "".join(f"{c:>11}" for c in
                      ("kiln_pt", "pt_diffuse", "leaking", "vis_wtd", "ddgi", "mask", "mask_norm", "probe_oct", "probe_sh")) + f"{'ref sem':>9}")
         spr = (r.get("spread") or {}).get("region_rel_sem", {})
@@ -289,8 +382,20 @@ def table(res: dict) -> list[str]:
                          + (f"{100 * s:>8.1f}%" if s is not None else f"{'':>9}"))
     st = res["stage_seconds"]
     slow = sorted(((v, k) for k, v in st.items()), reverse=True)[:4]
-    lines.append(f"bake {res['bake_seconds']:.1f} s (default config, grid {res['grid']['counts']}; slowest: "
-                 + ", ".join(f"{k} {v:.1f}" for v, k in slow) + ")")
+    lines.append(f"bake {res['bake_seconds']:.1f} s ({res['config']}; {res['triangles']} triangles, "
+                 f"{res['lights']} lights; grid {res['grid']['counts']} = {int(np.prod(res['grid']['counts']))} probes; "
+                 "slowest: " + ", ".join(f"{k} {v:.1f}" for v, k in slow) + ")")
+    auto = res.get("grid_auto") or {}
+    lines.append(f"grid.auto.reason: {auto.get('reason', '- (explicit grid)')}")
+    san = res["sanity"]
+    bad = [f"{m}: {v['nonfinite']} non-finite, {v['negative']} negative of {v['n']} (min {v['min']:.3g})"
+           for m, v in san["receivers"].items() if v["nonfinite"] or v["negative"]]
+    bad += [f"{n}: {v['nonfinite']} non-finite" + (f", {v.get('negative_texels')} negative texels (min "
+                                                   f"{v['min']:.3g})" if v.get("negative_texels") else "")
+            for n, v in san["volumes"].items() if v["nonfinite"] or v.get("negative_texels")]
+    lines.append("sanity: " + ("FLAG " + "; ".join(bad) if bad else
+                               f"no NaN, no negative irradiance ({len(san['receivers'])} modes at the receivers, "
+                               f"{len(san['volumes'])} volumes)"))
     n_cmp = sum(1 for p in res["probes"] if p.get("compared"))
     lines.append(f"light stage: {res['light']['bounces']} bounces, converged {res['light']['converged']}; "
                  f"{res['probes_off']} of {int(np.prod(res['grid']['counts']))} probes OFF")
@@ -309,7 +414,8 @@ def table(res: dict) -> list[str]:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scenes", default=DEFAULT_SCENES, help="comma list of procedural scenes with references")
+    ap.add_argument("--scenes", default=DEFAULT_SCENES, help="comma list of scenes with points and references "
+                    f"(default: all, {DEFAULT_SCENES})")
     ap.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
     ap.add_argument("--store", type=Path, default=None, help="stage store to reuse (default: a fresh temp store)")
     ap.add_argument("--pt-spp", type=int, default=16384, help="paths per receiver of Kiln's path tracer (0: skip)")
@@ -319,6 +425,8 @@ def main() -> int:
         for name in [s for s in args.scenes.split(",") if s]:
             print(f"baking {name} ...", flush=True)
             res = run_scene(name, Path(tmp), args.store, args.pt_spp)
+            if res is None:
+                continue
             results[name] = res
             print("\n".join(table(res)), flush=True)
     if args.json:
