@@ -149,6 +149,18 @@ class Catalog:
         with self._read() as c:
             return c.execute("SELECT 1 FROM scenes WHERE id=? LIMIT 1", (scene_id,)).fetchone() is not None
 
+    def set_scene_cameras(self, team: str, scene_id: str, cameras: list[dict] | None) -> bool:
+        """Store a scene's review cameras (``summary.review_cameras``; ``None`` removes them); False when the team
+        has no such scene. The evaluate stage of the scene's later bakes uses them (server/api/routes/review.py)."""
+        with self._conn() as c:
+            if cameras is None:
+                cur = c.execute("UPDATE scenes SET summary=json_remove(summary, '$.review_cameras') "
+                                "WHERE team=? AND id=?", (team, scene_id))
+            else:
+                cur = c.execute("UPDATE scenes SET summary=json_set(summary, '$.review_cameras', json(?)) "
+                                "WHERE team=? AND id=?", (json.dumps(cameras), team, scene_id))
+            return cur.rowcount == 1
+
     # ------------------------------------------------------------------ bakes
     def create_bake(self, team: str, scene_id: str, config: dict, stages: list[tuple[str, str]]) -> str:
         """Create a queued bake with its planned stages ``[(name, cache_key), ...]``; returns its id."""
@@ -200,18 +212,42 @@ class Catalog:
             rows = c.execute(f"SELECT * FROM bakes WHERE status IN ({q}) ORDER BY created", statuses).fetchall()
         return [_bake(r) for r in rows]
 
-    def count_bakes_by_status(self) -> dict[str, int]:
+    def count_bakes_by_status(self, team: str | None = None) -> dict[str, int]:
+        """Bakes per status, of one team or (``None``) of all."""
         with self._read() as c:
-            rows = c.execute("SELECT status, COUNT(*) FROM bakes GROUP BY status").fetchall()
+            if team is None:
+                rows = c.execute("SELECT status, COUNT(*) FROM bakes GROUP BY status").fetchall()
+            else:
+                rows = c.execute("SELECT status, COUNT(*) FROM bakes WHERE team=? GROUP BY status",
+                                 (team,)).fetchall()
         out = {s: 0 for s in BAKE_STATUSES}
         out.update({r[0]: r[1] for r in rows})
         return out
 
-    def stage_durations(self) -> list[tuple[str, float]]:
+    def stage_durations(self, team: str | None = None) -> list[tuple[str, float]]:
+        """(stage, seconds) of the stages that ran (not cached), of one team's bakes or (``None``) all."""
+        q = ("SELECT s.stage, s.seconds FROM stage_runs s JOIN bakes b ON b.id = s.bake_id WHERE s.status='succeeded' "
+             "AND s.cached=0 AND s.seconds IS NOT NULL")
         with self._read() as c:
-            rows = c.execute("SELECT stage, seconds FROM stage_runs WHERE status='succeeded' AND cached=0 "
-                             "AND seconds IS NOT NULL").fetchall()
+            rows = (c.execute(q).fetchall() if team is None else
+                    c.execute(q + " AND b.team=?", (team,)).fetchall())
         return [(r[0], r[1]) for r in rows]
+
+    def team_usage(self, team: str) -> dict[str, int]:
+        """What a team holds, for its quotas: ``scenes``, ``scene_bytes`` (the normalized scenes' sizes;
+        scenes stored before sizes were recorded count 0 and are listed in ``unsized``), ``artifact_bytes`` (the
+        bundles of its succeeded bakes) and ``active_bakes`` (queued or running)."""
+        with self._read() as c:
+            n, nbytes = c.execute("SELECT COUNT(*), COALESCE(SUM(json_extract(summary, '$.bytes')), 0) FROM scenes "
+                                  "WHERE team=?", (team,)).fetchone()
+            unsized = [r[0] for r in c.execute("SELECT id FROM scenes WHERE team=? AND "
+                                               "json_extract(summary, '$.bytes') IS NULL", (team,)).fetchall()]
+            art = c.execute("SELECT COALESCE(SUM(m.value), 0) FROM metrics m JOIN bakes b ON b.id = m.bake_id "
+                            "WHERE b.team=? AND m.name='artifact_bytes'", (team,)).fetchone()[0]
+            active = c.execute("SELECT COUNT(*) FROM bakes WHERE team=? AND status IN ('queued', 'running')",
+                               (team,)).fetchone()[0]
+        return {"scenes": int(n), "scene_bytes": int(nbytes), "unsized": unsized, "artifact_bytes": int(art),
+                "active_bakes": int(active)}
 
     def set_bake_status(self, bake_id: str, status: str, *, only_from: tuple[str, ...] | None = None,
                         error: dict | None = None, manifest: dict | None = None) -> bool:

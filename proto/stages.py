@@ -33,6 +33,10 @@ class StageDef:
     parent: str | None = None
 
 
+REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "preview_spp", "bounces",
+                    "surface_points", "sampling", "points", "previews")
+"""The ``evaluate`` fields the ``reference`` stage reads (its cache key): not the modes, repeats or FLIP."""
+
 STAGES: tuple[StageDef, ...] = (
     # 2: stats["warnings"] (unlit_scene, light_outside_scene); 3: the `scene` artifact (GLB)
     StageDef("ingest", 3, ("scene",), (), timeout=600),
@@ -48,9 +52,13 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
-    StageDef("evaluate", 1, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
-             ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt"),
+    # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py)
+    StageDef("reference", 1, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
+    # 2: metrics at the reference's points (with standard errors), previews on its G-buffers
+    StageDef("evaluate", 2, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+             ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
+              "reference"), timeout=7200),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 

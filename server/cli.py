@@ -11,6 +11,7 @@ Exit codes (stable, for build tools):
 | 4 | the bake failed or was cancelled |
 | 5 | the server could not be reached or answered unexpectedly |
 | 6 | ``kiln bake --strict`` only: the bake succeeded (bundle written) but carries warnings |
+| 7 | ``kiln bake --fail-on`` only: the bake succeeded (bundle written) but a quality gate failed (server/gates.py) |
 
 ``kiln bake`` prints each warning of the bake (the manifest's ``warnings``) to stderr as
 ``kiln: warning [code] message``, with or without ``--json``.
@@ -25,6 +26,7 @@ import time
 from pathlib import Path
 
 EXIT_OK, EXIT_INTERNAL, EXIT_USAGE, EXIT_INPUT, EXIT_BAKE, EXIT_SERVER, EXIT_WARNINGS = 0, 1, 2, 3, 4, 5, 6
+EXIT_GATES = 7
 
 
 class CliError(Exception):
@@ -106,6 +108,7 @@ def bake_local(args) -> int:
     from workers.pipeline import bake_local as run
     from workers.stages.base import StageError
 
+    gates = _parse_gates(args)
     config = load_config(args.config)
     if not Path(args.scene).is_file():
         raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
@@ -124,7 +127,7 @@ def bake_local(args) -> int:
     export_bundle(store, manifest, args.out)
     data = manifest.model_dump(mode="json")
     _print_result(args, data)
-    return _report_warnings(args, data["warnings"])
+    return _apply_gates(args, data, gates, _report_warnings(args, data["warnings"]))
 
 
 def _print_result(args, manifest: dict) -> None:
@@ -150,6 +153,7 @@ def _report_warnings(args, warnings: list[dict]) -> int:
 def bake_remote(args) -> int:
     import httpx
 
+    gates = _parse_gates(args)
     config = load_config(args.config)
     scene = Path(args.scene)
     if not scene.is_file():
@@ -192,7 +196,40 @@ def bake_remote(args) -> int:
     _print_result(args, manifest)
     # the bundle's manifest carries them; a server from before warnings has them on the bake at most
     warnings = manifest.get("warnings") if "warnings" in manifest else final.get("warnings") or []
-    return _report_warnings(args, warnings)
+    return _apply_gates(args, manifest, gates, _report_warnings(args, warnings))
+
+
+def _parse_gates(args) -> list:
+    """The ``--fail-on`` gates, parsed before anything runs (a bad one is a usage error)."""
+    from server.gates import GateError, parse_gates
+
+    try:
+        return parse_gates(getattr(args, "fail_on", None))
+    except GateError as e:
+        raise CliError(EXIT_USAGE, str(e))
+
+
+def _apply_gates(args, manifest: dict, gates: list, code: int) -> int:
+    """Check the gates against the manifest's metrics, write ``--junit``; EXIT_GATES when one failed (before
+    ``--strict``'s EXIT_WARNINGS), else ``code``."""
+    from server.gates import check, junit_xml, manifest_metrics
+
+    if not gates and not getattr(args, "junit", None):
+        return code
+    metrics = manifest_metrics(manifest)
+    failed = check(gates, metrics)
+    for g in gates:
+        print(f"kiln: gate {'FAILED' if g.failed else 'passed'}: {g.describe()}", file=sys.stderr)
+    if getattr(args, "junit", None):
+        try:
+            Path(args.junit).write_bytes(junit_xml(gates, manifest, metrics))
+        except OSError as e:
+            raise CliError(EXIT_INPUT, f"cannot write --junit {args.junit}: {e.strerror}")
+    if failed:
+        print(f"kiln: {len(failed)} of {len(gates)} gate{'s' if len(gates) != 1 else ''} failed "
+              f"(bundle written to {args.out})", file=sys.stderr)
+        return EXIT_GATES
+    return code
 
 
 def _check(r, code: int) -> dict:
@@ -262,12 +299,25 @@ def _refuse_open_public(host: str, is_loopback) -> None:
     try:
         settings = get_settings()
     except Exception as e:
-        raise CliError(EXIT_USAGE, f"bad settings: {e}")
+        raise CliError(EXIT_USAGE, f"bad settings: {_settings_error(e)}")
     if settings.open:
         print("kiln: WARNING: no API keys configured (KILN_API_KEYS): the server is open", file=sys.stderr)
         if not is_loopback(host):
             raise CliError(EXIT_USAGE, f"refusing to bind {host} with no API keys; set KILN_API_KEYS=team:key,... "
                                        "or bind 127.0.0.1")
+
+
+def _settings_error(e: Exception) -> str:
+    """A settings error in one line, naming the variable (a ValidationError's own text spans lines)."""
+    errs = getattr(e, "errors", None)
+    if callable(errs):
+        parts = []
+        for err in errs():
+            loc = ".".join(str(x) for x in err.get("loc", ()))
+            msg = str(err.get("msg", "invalid")).removeprefix("Value error, ")
+            parts.append(msg if not loc or msg.startswith("KILN_") else f"KILN_{loc.upper()}: {msg}")
+        return "; ".join(parts)
+    return str(e)
 
 
 def cmd_api(args) -> int:
@@ -315,10 +365,8 @@ def cmd_worker(args) -> int:
     _lower_priority(args.nice)   # first, before the imports: the worker never runs a job at full priority
     import socket
 
-    from rq import Queue, Worker
-
-    import workers.jobs  # noqa: F401  (imported before forking, so work-horses start warm)
-    from server.queue import QUEUE_NAME, connect
+    import workers.jobs  # (imported before forking, so work-horses start warm)
+    from server.queue import LEGACY_QUEUE, LONG_QUEUE, SHORT_QUEUE, connect
 
     url = os.environ.get("REDIS_URL")
     if not url:
@@ -327,9 +375,15 @@ def cmd_worker(args) -> int:
         os.environ["KILN_DATA"] = str(Path(args.data).resolve())
     if not os.environ.get("KILN_DATA"):
         raise CliError(EXIT_USAGE, "kiln worker needs --data or KILN_DATA")
+    names = {"short": SHORT_QUEUE, "long": LONG_QUEUE}
+    wanted = [q.strip() for q in (args.queues or "short,long").split(",") if q.strip()]
+    if not wanted or any(q not in names for q in wanted):
+        raise CliError(EXIT_USAGE, f"--queues takes short, long or short,long; got {args.queues!r}")
+    queues = [names[q] for q in wanted]
+    if LONG_QUEUE in queues:
+        queues.append(LEGACY_QUEUE)   # jobs left by an earlier version's single queue
     conn = connect(url)
-    w = Worker([Queue(QUEUE_NAME, connection=conn)], connection=conn,
-               name=f"kiln-{socket.gethostname()}-{os.getpid()}")
+    w = workers.jobs.make_worker(queues, conn, name=f"kiln-{socket.gethostname()}-{os.getpid()}")
     w.work(burst=args.burst, logging_level="WARNING")
     return EXIT_OK
 
@@ -383,6 +437,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("worker", help="run one RQ worker (needs REDIS_URL)")
     s.add_argument("--data", default=None, help="data directory (or KILN_DATA)")
     s.add_argument("--burst", action="store_true", help="exit when the queue is empty")
+    s.add_argument("--queues", default=None,
+                   help="queues to take jobs from, in order: short,long (default), short, or long "
+                        "(kiln-short: most stages; kiln-long: evaluate, prt and stages estimated long)")
     s.add_argument("--nice", type=int, default=None,
                    help=f"niceness 0..19 of the worker and its work-horses (default {WORKER_NICE}, or "
                         "KILN_WORKER_NICE): bakes yield the CPU to the API on a shared machine")
@@ -399,6 +456,11 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--quiet", action="store_true", help="no progress bar")
     s.add_argument("--strict", action="store_true",
                    help=f"exit {EXIT_WARNINGS} when the bake has any warning (the bundle is still written)")
+    s.add_argument("--fail-on", action="append", default=[], metavar="GATE",
+                   help=f"exit {EXIT_GATES} when this holds for the bake's metrics, e.g. 'mask_normalized.leak > 0.05' "
+                        "(METRIC OP NUMBER, OP one of > >= < <= == !=, '*' matches any text; repeatable; a gate "
+                        "naming no metric fails too)")
+    s.add_argument("--junit", metavar="FILE", help="write JUnit XML: a test case per gate and per GI mode")
     s.set_defaults(fn=lambda a: bake_remote(a) if a.server else bake_local(a))
 
     s = sub.add_parser("scenes", help="procedural test scenes")

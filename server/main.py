@@ -16,7 +16,9 @@ from proto.stages import KILN_VERSION
 from proto.store import Store
 from server import queue
 from server.api import errors
-from server.api.routes import bakes, compare, ops, relight, scenes
+from server.api.guard import Guard
+from server.api.jsonbody import FiniteJSONResponse
+from server.api.routes import bakes, compare, ops, relight, review, scenes
 from server.config import Settings, get_settings
 from server.ingest_pool import IngestPool
 
@@ -37,7 +39,8 @@ async def _recover_loop(app: FastAPI) -> None:
         try:
             await asyncio.to_thread(queue.drain_ready, st.redis)
             if time.monotonic() - last_recover >= st.settings.recover_interval_s:
-                await asyncio.to_thread(queue.recover, st.redis, st.catalog, 0.0 if first else 10.0)
+                await asyncio.to_thread(queue.recover, st.redis, st.catalog, 0.0 if first else 10.0,
+                                        st.settings.bake_memory_bytes)
                 first, last_recover = False, time.monotonic()
         except Exception as e:  # Redis unreachable (it comes back later) or a bug: say so, keep serving
             log.warning("recovery skipped: %s", e)
@@ -56,7 +59,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         if not settings.redis_url:
             raise RuntimeError("REDIS_URL is not set (kiln serve starts an embedded Redis and sets it)")
         app.state.redis = queue.connect(settings.redis_url)
-        app.state.ingest_pool = IngestPool()
+        app.state.ingest_pool = IngestPool(settings.ingest_processes, timeout_s=settings.ingest_timeout_s,
+                                           per_team=settings.max_uploads_per_team,
+                                           tmp_root=settings.data / "ingest-tmp")
         if settings.open:
             log.warning("no API keys configured (KILN_API_KEYS): the server is open to anyone who can reach it")
         task = asyncio.create_task(_recover_loop(app))
@@ -66,14 +71,16 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             task.cancel()
             app.state.ingest_pool.shutdown()
 
-    app = FastAPI(title="Kiln", version=KILN_VERSION, lifespan=lifespan,
+    app = FastAPI(title="Kiln", version=KILN_VERSION, lifespan=lifespan, default_response_class=FiniteJSONResponse,
                   description="Bake service for leak-free, relightable probe global illumination.")
     errors.install(app)
+    app.add_middleware(Guard)     # the key check and the JSON body cap, before any body byte is read
     app.include_router(ops.router)
     app.include_router(scenes.router)
     app.include_router(bakes.router)
     app.include_router(relight.router)
     app.include_router(compare.router)
+    app.include_router(review.router)
 
     # The built viewer (web/dist, `npm run build`) at / with its assets (relative URLs: ./assets/...); the
     # minimal page in server/static when it has not been built. Both are looked up per request, so building

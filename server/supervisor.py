@@ -95,21 +95,41 @@ class EmbeddedRedis:
             shutil.rmtree(self._tmp, ignore_errors=True)
 
 
+def short_workers(n: int, env: dict[str, str] | None = None) -> int:
+    """How many of ``n`` workers take only the short queue: ``KILN_SHORT_WORKERS`` (default 1), always
+    leaving at least one worker for the long queue (so with one worker, none is dedicated)."""
+    raw = (env or os.environ).get("KILN_SHORT_WORKERS", "1")
+    try:
+        k = int(raw)
+    except ValueError:
+        raise ValueError(f"KILN_SHORT_WORKERS must be an integer, got {raw!r}") from None
+    return max(0, min(k, n - 1))
+
+
 class WorkerPool:
-    """N ``kiln worker`` processes, restarted when they die."""
+    """N ``kiln worker`` processes, restarted when they die.
+
+    The first :func:`short_workers` of them take only the short queue (``--queues short``), the others
+    both queues, short first: a bake's long stages (evaluate, prt, big light or visibility) can occupy at
+    most the others, and every bake's short stages still run.
+    """
 
     def __init__(self, n: int, env: dict[str, str]):
         self.n, self.env = n, env
+        self.n_short = short_workers(n, env)
         self.procs: list[subprocess.Popen] = []
         self._stopping = threading.Event()
         self._thread: threading.Thread | None = None
 
-    def _spawn(self) -> subprocess.Popen:
-        return subprocess.Popen([sys.executable, "-m", "server.cli", "worker"], env=self.env,
-                                start_new_session=True, preexec_fn=_die_with_parent)
+    def queues(self, i: int) -> str:
+        return "short" if i < self.n_short else "short,long"
+
+    def _spawn(self, i: int) -> subprocess.Popen:
+        return subprocess.Popen([sys.executable, "-m", "server.cli", "worker", "--queues", self.queues(i)],
+                                env=self.env, start_new_session=True, preexec_fn=_die_with_parent)
 
     def start(self) -> None:
-        self.procs = [self._spawn() for _ in range(self.n)]
+        self.procs = [self._spawn(i) for i in range(self.n)]
         self._thread = threading.Thread(target=self._watch, name="kiln-worker-watch", daemon=True)
         self._thread.start()
 
@@ -118,7 +138,7 @@ class WorkerPool:
             for i, p in enumerate(self.procs):
                 if p.poll() is not None and not self._stopping.is_set():
                     log.warning("worker %d exited with %s; restarting it", p.pid, p.returncode)
-                    self.procs[i] = self._spawn()
+                    self.procs[i] = self._spawn(i)
 
     def stop(self) -> None:
         self._stopping.set()

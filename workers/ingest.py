@@ -53,6 +53,7 @@ import posixpath
 import re
 import struct
 import tempfile
+import unicodedata
 import urllib.parse
 import warnings as _pywarnings
 import zipfile
@@ -65,6 +66,7 @@ import numpy as np
 from PIL import Image
 
 from workers import gltf_compression as _gc
+from workers.gltf_cameras import build_cameras
 from workers.scene import NormalizedScene
 
 __all__ = ["IngestError", "IngestLimits", "ingest_file"]
@@ -88,10 +90,29 @@ class IngestError(Exception):
     """
 
     def __init__(self, code: str, message: str, status: int = 422):
+        message = _scrub(message)
         super().__init__(f"{code}: {message}")
         self.code = code
         self.message = message
         self.status = status
+
+
+_OBJECT_REPR = re.compile(r"<[^<>]*? at 0x[0-9a-fA-F]+>")
+_TEMP_MEMBER = re.compile(r"""(?:[A-Za-z]:)?[^\s'"<>]*kiln-ingest-[^\s'"<>/\\]+[/\\]member-\d+""")
+
+
+def _scrub(message: str, paths: tuple[str, ...] = ()) -> str:
+    """A message without temporary paths or object addresses (they say nothing to the user, and leak the
+    server's layout): ``<_io.BytesIO object at 0x7f...>`` -> ``the data``, a path under the temp directory
+    (where zip members are extracted, where the API stages uploads) -> ``a file in the upload``."""
+    message = _OBJECT_REPR.sub("the data", message)
+    message = _TEMP_MEMBER.sub("a file in the upload", message)
+    for p in sorted({p for p in paths if p and p != os.sep}, key=len, reverse=True):
+        message = message.replace(p, "the upload")
+    for root in {tempfile.gettempdir(), os.path.realpath(tempfile.gettempdir())}:
+        if root and root != os.sep and root in message:
+            message = re.sub(re.escape(root) + r"""[^\s'"<>]*""", "a file in the upload", message)
+    return message
 
 
 #: Every code :func:`ingest_file` raises, with its HTTP status.
@@ -108,6 +129,13 @@ ERROR_CODES: dict[str, int] = {
     "invalid_gltf": 422,  # structural errors: bad indices, ranges, accessor types
     "invalid_image": 422,  # an image PIL cannot decode, or not PNG/JPEG/WebP
     "non_finite": 422,  # NaN/inf positions or UVs after transforms
+    "absurd_magnitude": 422,  # |world position| > MAX_COORD, emissive x strength > MAX_EMISSIVE, light intensity
+    # > MAX_LIGHT_INTENSITY or colour > MAX_LIGHT_COLOR (a scale of 1e20, an emissive of 1e60: garbage, not a scene)
+    "negative_emissive": 422,  # an emissiveFactor component or emissiveStrength below 0 (negative light)
+    "negative_light": 422,  # a KHR_lights_punctual light with a negative colour component or intensity
+    "zero_extent": 422,  # every triangle in one point (the bounds' diagonal below MIN_EXTENT)
+    "degenerate_triangles": 422,  # every triangle has zero area (all on lines or points)
+    "text_buffer": 422,  # a buffer holding text, not binary numbers (a Git LFS pointer committed in its place)
     "no_triangles": 422,  # nothing to bake
     "unsupported": 422,  # a feature refused with a reason (glTF 1.0, minVersion 2.1, encrypted zip)
     "unsupported_extension": 422,  # extensionsRequired we cannot honour
@@ -157,6 +185,9 @@ class IngestLimits:
     max_decoded_bytes : int or None
         Draco and meshopt data: bytes after decoding, summed over the file (``decoded_too_large``, 413);
         None means 16 x ``max_bytes``.
+    max_total_image_pixels : int or None
+        Width x height summed over every image the scene keeps, from their headers before each is decoded
+        (``image_too_large``, 413): four 8192² PNGs in a 350 KB file decode to 1 GB. None: no total limit.
     """
 
     max_bytes: int = 512 * 2**20
@@ -167,9 +198,28 @@ class IngestLimits:
     max_image_pixels: int = 64 * 2**20
     max_json_depth: int = 64
     max_decoded_bytes: int | None = None
+    max_total_image_pixels: int | None = None
 
 
 # ---------------------------------------------------------------------------------------------- constants
+
+MAX_COORD = 1e7
+"""Largest world-space coordinate, metres (10,000 km), after node transforms: beyond it a scene is garbage (a
+scale of 1e20, text read as floats ~1e31), and float32 cannot place probes in it (``absurd_magnitude``)."""
+MAX_EMISSIVE = 1e6
+"""Largest emissive factor x KHR_materials_emissive_strength (``absurd_magnitude``)."""
+MAX_LIGHT_INTENSITY = 1e12
+"""Largest KHR_lights_punctual intensity, candela or lux (the sun is ~1e5 lux) (``absurd_magnitude``)."""
+MAX_LIGHT_COLOR = 1e6
+"""Largest KHR_lights_punctual colour component (``absurd_magnitude``)."""
+MIN_EXTENT = 1e-6
+"""Smallest diagonal of the scene's bounds, metres (``zero_extent``)."""
+DEGENERATE_SINE = 1e-6
+"""A triangle is degenerate when twice its area is below this times its longest edge squared (``|e1 x e2| <
+1e-6 * l_max^2``: an angle under ~1e-6 rad, float32 rounding of collinear corners included)."""
+_LFS_POINTER = b"version https://git-lfs"
+_TEXT_BYTES = bytes(range(0x20, 0x7F)) + b"\t\n\r"
+_TEXT_MIN_BYTES = 64  # shorter buffers are not judged (a few random floats can be printable bytes)
 
 _GLB_MAGIC = b"glTF"
 _ZIP_MAGICS = (b"PK\x03\x04", b"PK\x05\x06")  # local file header; end of central directory (empty zip)
@@ -256,17 +306,21 @@ def ingest_file(
     """
     limits = limits if limits is not None else IngestLimits()
     label = filename or os.path.basename(os.fspath(path))
+    where = (os.path.abspath(path), os.path.dirname(os.path.abspath(path)))  # scrubbed from messages
     try:
         with np.errstate(all="ignore"):  # NaN/inf are checked explicitly where they matter
             return _ingest(Path(path), limits, label)
-    except IngestError:
+    except IngestError as exc:
+        exc.message = _scrub(exc.message, where)  # the upload's own path never reaches the user
+        exc.args = (f"{exc.code}: {exc.message}",)
         raise
     except MemoryError as exc:
         raise _err("too_large", f"'{label}' needs more memory than this service allows") from exc
     except RecursionError as exc:
         raise _err("json_too_deep", f"'{label}' is nested too deeply to read") from exc
     except Exception as exc:  # a numpy/PIL/zipfile surprise on a bad upload is still a 4xx, never a 500
-        raise _invalid(f"'{label}' could not be read as glTF 2.0 ({type(exc).__name__}: {exc})") from exc
+        message = f"'{label}' could not be read as glTF 2.0 ({type(exc).__name__}: {exc})"
+        raise _invalid(_scrub(message, where)) from exc
 
 
 # ---------------------------------------------------------------------------------------------- entry
@@ -298,6 +352,9 @@ def _ingest(path: Path, limits: IngestLimits, label: str) -> NormalizedScene:
                 archive.close()
     if kind in ("glb", "gltf"):
         return _load_model(path, kind, _NoFiles(), limits, label)
+    if head.startswith(_LFS_POINTER):
+        raise _err("not_gltf", f"'{label}' is a Git LFS pointer (a small text file), not the model: fetch the "
+                               "real file (git lfs pull) and upload that")
     raise _err(
         "not_gltf",
         f"'{label}' is not glTF 2.0: expected a .glb (starting with 'glTF'), a .gltf (a JSON object) "
@@ -396,6 +453,19 @@ def _reject_constant(name: str):
     raise _err("broken_json", f"the JSON contains {name}, which JSON does not allow")
 
 
+def _parse_float(text: str) -> float | int:
+    """A JSON number with a fraction or exponent; an integral one (``3.0``, ``1e2``) is read as an int.
+
+    glTF's schema types indices, counts and offsets as JSON Schema ``integer``, which "matches any number
+    with a zero fractional part" (JSON Schema 2020-12, 6.1.1: ``1.0`` is an integer), so ``"count": 3.0`` is
+    valid glTF. Every float the reader uses goes through ``float()``, so nothing else changes.
+    """
+    x = float(text)
+    if x.is_integer() and abs(x) < 2.0**53:
+        return int(x)
+    return x
+
+
 def _parse_json(data: bytes, limits: IngestLimits, label: str) -> dict:
     """Parse glTF JSON bytes (UTF-8, optional BOM) after a non-recursive depth check."""
     if data.startswith(_UTF8_BOM):
@@ -408,7 +478,7 @@ def _parse_json(data: bytes, limits: IngestLimits, label: str) -> dict:
     except UnicodeDecodeError as exc:
         raise _err("broken_json", f"'{label}' JSON is not valid UTF-8 (byte {exc.start})") from exc
     try:
-        doc = json.loads(text, parse_constant=_reject_constant)
+        doc = json.loads(text, parse_constant=_reject_constant, parse_float=_parse_float)
     except json.JSONDecodeError as exc:
         raise _err(
             "broken_json", f"'{label}' JSON is broken at line {exc.lineno} column {exc.colno}: {exc.msg}"
@@ -424,8 +494,10 @@ def _parse_json(data: bytes, limits: IngestLimits, label: str) -> dict:
 def _split_uri(uri, what: str) -> tuple[str, str]:
     """Classify a glTF URI: ``("data", uri)`` or ``("file", relative path, percent-decoded, '/'-separated)``.
 
-    Raises ``external_uri`` for schemes (http:, file:, C:), absolute paths and UNC paths, and
-    ``path_traversal`` for ``..`` segments, checked on the raw and the percent-decoded URI.
+    Raises ``external_uri`` for schemes (http:, file:, C:), absolute paths and UNC paths, checked on the raw
+    and the percent-decoded URI. ``..`` segments are kept: where the URI lands is the resolver's to judge
+    (:class:`_ZipFiles`: anywhere inside the zip is fine, ``path_traversal`` above its root; a loose file
+    has nothing beside it).
     """
     if not isinstance(uri, str) or not uri:
         raise _invalid(f"{what} has a URI that is not a non-empty string")
@@ -441,9 +513,13 @@ def _split_uri(uri, what: str) -> tuple[str, str]:
             )
     if "\x00" in decoded:
         raise _invalid(f"{what} URI contains a NUL byte")
-    if ".." in re.split(r"[\\/]", decoded):
-        raise _err("path_traversal", f"{what} URI '{uri}' climbs out of the upload with '..'")
     return "file", decoded.replace("\\", "/")
+
+
+def _climbs_out(rel: str) -> bool:
+    """Whether a '/'-separated relative path leaves its root (``../a``, ``a/../../b``); ``a/../b`` does not."""
+    target = posixpath.normpath(rel)
+    return target == ".." or target.startswith("../")
 
 
 def _decode_data_uri(uri: str, what: str) -> bytes:
@@ -479,9 +555,12 @@ class _NoFiles(_Files):
         )
 
     def locate(self, rel: str, what: str) -> None:
+        if _climbs_out(rel):
+            raise _err("path_traversal", f"{what} URI '{rel}' climbs out of the upload with '..'")
         raise self._missing(rel, what)
 
     def path(self, rel: str, what: str) -> Path:
+        self.locate(rel, what)  # always raises
         raise self._missing(rel, what)
 
 
@@ -509,14 +588,15 @@ class _ZipUpload:
         total_u = total_c = 0
         try:
             for info in infos:
-                name = info.filename.replace("\\", "/")
+                name = _member_name(info)
                 if name.startswith("/") or re.match(r"^[A-Za-z]:", name):
                     raise _err("path_traversal", f"'{label}' has an absolute member name '{info.filename}'")
-                if ".." in name.split("/"):
+                if _climbs_out(name):
                     raise _err(
                         "path_traversal", f"'{label}' has a member name that climbs out with '..': '{info.filename}'"
                     )
-                if info.is_dir():
+                name = posixpath.normpath(name)  # 'textures/../a.png' is 'a.png': '..' inside the zip is fine
+                if info.is_dir() or name in (".", ""):
                     continue
                 if name.startswith("__MACOSX/") or posixpath.basename(name).startswith("._"):
                     continue  # macOS resource forks
@@ -547,7 +627,10 @@ class _ZipUpload:
         except IngestError:
             self.zf.close()
             raise
-        self._lower = Counter(n.lower() for n in self.members)
+        # Unicode normalization: a URI written in NFC finds a member stored NFD (macOS) and vice versa
+        nfc = Counter(_nfc(n) for n in self.members)
+        self._by_nfc = {_nfc(n): n for n in self.members if nfc[_nfc(n)] == 1}
+        self._nfc_lower = Counter(_nfc(n).lower() for n in self.members)
 
     def close(self) -> None:
         self.zf.close()
@@ -586,8 +669,9 @@ class _ZipUpload:
             raise _err(
                 "unsupported", f"'{name}' in '{self.label}' uses a compression method this service cannot read"
             ) from exc
-        except RuntimeError as exc:  # encrypted member
-            raise _err("unsupported", f"'{name}' in '{self.label}' is encrypted: {exc}") from exc
+        except RuntimeError as exc:  # encrypted member (its message holds a ZipInfo repr: not shown)
+            raise _err("unsupported", f"'{name}' in '{self.label}' is encrypted (password-protected); "
+                                      "upload it unencrypted") from exc
         except (zipfile.BadZipFile, zlib.error, EOFError, OSError, ValueError) as exc:
             raise _err("broken_zip", f"'{name}' in '{self.label}' is damaged ({exc})") from exc
         self.expanded += written
@@ -596,6 +680,25 @@ class _ZipUpload:
 
     def files(self, base: str) -> _ZipFiles:
         return _ZipFiles(self, base)
+
+
+def _nfc(name: str) -> str:
+    return unicodedata.normalize("NFC", name)
+
+
+def _member_name(info: zipfile.ZipInfo) -> str:
+    """A zip member's name, '/'-separated; UTF-8 even when the archiver did not set the UTF-8 flag.
+
+    Without flag bit 11 the zip format says cp437 (zipfile decodes so), but most archivers write UTF-8
+    regardless: such a name that is valid UTF-8 is read as UTF-8.
+    """
+    name = info.filename
+    if not info.flag_bits & 0x800 and not name.isascii():
+        try:
+            name = name.encode("cp437").decode("utf-8")
+        except (UnicodeEncodeError, UnicodeDecodeError):
+            pass
+    return name.replace("\\", "/")
 
 
 class _ZipFiles(_Files):
@@ -612,10 +715,12 @@ class _ZipFiles(_Files):
             raise _err("path_traversal", f"{what} '{rel}' climbs out of the upload")
         if target in self.archive.members:
             return target
-        lower = target.lower()
-        if self.archive._lower.get(lower) == 1:
+        if _nfc(target) in self.archive._by_nfc:  # the same name in another Unicode normalization form
+            return self.archive._by_nfc[_nfc(target)]
+        lower = _nfc(target).lower()
+        if self.archive._nfc_lower.get(lower) == 1:
             for name in self.archive.members:
-                if name.lower() == lower:
+                if _nfc(name).lower() == lower:
                     self.case_fixed.append(f"{rel} -> {name}")
                     return name
         raise _err("missing_resource", f"{what} '{rel}' is not in the zip '{self.archive.label}'")
@@ -759,6 +864,7 @@ class _GltfReader:
         self._meshopt_views: dict[int, np.ndarray] = {}  # bufferView -> decoded bytes
         self._draco: dict[int, _gc.DracoGeometry] = {}  # Draco bufferView -> decoded mesh
         self._decoded_bytes = 0  # Draco + meshopt output so far (IngestLimits.max_decoded_bytes)
+        self._image_pixels = 0  # decoded image pixels so far (IngestLimits.max_total_image_pixels)
 
     # ------------------------------------------------------------------ JSON access
     def _list(self, key: str, owner: dict | None = None) -> list:
@@ -853,6 +959,12 @@ class _GltfReader:
                     "meshopt-compressed bufferViews may refer to it)"
                 )
             raise _invalid(f"buffers[{idx}] has no uri and is not the GLB binary chunk")
+        head = bytes(data[: min(4096, length)])  # text read as floats is ~1e31 garbage: refuse it by name
+        if (len(head) >= _TEXT_MIN_BYTES or head.startswith(_LFS_POINTER)) and not head.translate(None, _TEXT_BYTES):
+            name = f" ('{urllib.parse.unquote(b['uri'])}')" if "uri" in b and not b["uri"].startswith("data:") else ""
+            why = (" It is a Git LFS pointer: fetch the real file (git lfs pull) and upload that."
+                   if head.startswith(_LFS_POINTER) else "")
+            raise _err("text_buffer", f"buffers[{idx}]{name} holds text, not binary vertex data.{why}")
         if data.size < length:
             raise _invalid(f"buffers[{idx}] declares {length} bytes but holds {data.size}")
         data = data[:length]
@@ -1132,6 +1244,14 @@ class _GltfReader:
                             "image_too_large",
                             f"{name} is {w}x{h} pixels; the limit is {self.limits.max_image_pixels} pixels",
                         )
+                    cap = self.limits.max_total_image_pixels
+                    if cap is not None and self._image_pixels + w * h > cap:
+                        raise _err(
+                            "image_too_large",
+                            f"the images decode to more than {cap} pixels in all ({name} is {w}x{h}); "
+                            "use smaller textures",
+                        )
+                    self._image_pixels += w * h
                     im.seek(0)
                     im.load()
                     if im.mode in ("I;16", "I;16B", "I;16L", "I"):
@@ -1146,7 +1266,10 @@ class _GltfReader:
             raise
         except Image.DecompressionBombError as exc:
             raise _err("image_too_large", f"{name} is too large to decode ({exc})") from exc
-        except Exception as exc:  # UnidentifiedImageError, truncated data, unsupported modes
+        except Image.UnidentifiedImageError as exc:  # its message names the file object or temp path: not shown
+            lfs = " (it is a Git LFS pointer: fetch the real file with git lfs pull)" if _is_lfs(src) else ""
+            raise _err("invalid_image", f"{name} is not a PNG, JPEG or WebP image{lfs}") from exc
+        except Exception as exc:  # truncated data, unsupported modes
             raise _err(
                 "invalid_image", f"{name} is not a readable PNG, JPEG or WebP image ({type(exc).__name__}: {exc})"
             ) from exc
@@ -1252,8 +1375,12 @@ class _GltfReader:
                 1.0,
                 f"{what} emissiveStrength",
             )
-            if strength < 0:
-                raise _invalid(f"{what} emissiveStrength must not be negative")
+            if strength < 0 or min(emissive) < 0:
+                raise _err("negative_emissive", f"{what} has a negative emissive "
+                           f"{'strength' if strength < 0 else 'factor'}: emitted light cannot be negative")
+            if max(emissive) * strength > MAX_EMISSIVE:
+                raise _err("absurd_magnitude", f"{what} emits {max(emissive) * strength:.3g} (emissiveFactor x "
+                           f"emissiveStrength); the limit is {MAX_EMISSIVE:g}")
             emissive_ref = self._texref(m.get("emissiveTexture"), f"{what}.emissiveTexture")
             double_sided = m.get("doubleSided", False)
             if not isinstance(double_sided, bool):
@@ -1694,11 +1821,13 @@ class _GltfReader:
             raise _err(
                 "no_triangles", f"'{self.label}' has no triangles in its scene to bake" + (f" ({why})" if why else "")
             )
+        self._check_extent(tri_out[:cursor])
         if any_uv1 and not all_uv1:
             # ``uv1`` stays None (it promises every triangle); the coordinates live on in uv1_partial
             self.warnings.append("TEXCOORD_1 dropped: not every primitive has it")
 
         lights = self.build_lights(order, world)
+        cameras = build_cameras(self.g, order, world)   # the glTF's own cameras (workers.gltf_cameras)
         if self._list("animations"):
             n = len(self._list("animations"))
             self.warnings.append(f"{n} animation{'s' * (n != 1)} ignored (static pose baked)")
@@ -1723,9 +1852,30 @@ class _GltfReader:
             uv1_partial=None if all_uv1 else trim(uv1_out),
             uv1_chart=trim(chart_out),
             colors=trim(color_out),
+            cameras=cameras,
         )
 
     _BLOCK = 1 << 19  # corners per processing block: bounds the float64 temporaries (~40 MB each)
+
+    def _check_extent(self, tris: np.ndarray) -> None:
+        """Refuse a scene with nothing to bake in it: all triangles in one point (``zero_extent``), or every
+        triangle of zero area, on lines or points (``degenerate_triangles``). Probe spacing follows the extent,
+        so such a scene bakes garbage (spacing 0) rather than failing."""
+        pts = tris.reshape(-1, 3)
+        lo, hi = pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
+        diag = float(np.linalg.norm(hi - lo))
+        if diag < MIN_EXTENT:
+            raise _err("zero_extent", f"'{self.label}': all {_plural(tris.shape[0], 'triangle(s)')} lie in one "
+                       f"point (the bounds' diagonal is {diag:.3g} m; at least {MIN_EXTENT:g} m is needed)")
+        for t0 in range(0, tris.shape[0], self._BLOCK // 3):
+            t = tris[t0 : t0 + self._BLOCK // 3].astype(np.float64)
+            e1, e2, e3 = t[:, 1] - t[:, 0], t[:, 2] - t[:, 0], t[:, 2] - t[:, 1]
+            twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
+            longest2 = np.maximum(np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1)), (e3 * e3).sum(1))
+            if np.any(twice_area > DEGENERATE_SINE * longest2):
+                return
+        raise _err("degenerate_triangles", f"'{self.label}': every one of its "
+                   f"{_plural(tris.shape[0], 'triangle(s)')} has zero area (its corners lie on a line or in a point)")
 
     def _emit(
         self,
@@ -1799,6 +1949,11 @@ class _GltfReader:
                 p32 = p.astype(np.float32)  # overflow -> inf, reported just below
                 if not np.isfinite(p32).all():
                     raise _err("non_finite", f"{what} has NaN or infinite world-space positions")
+                reach = float(np.abs(p).max(initial=0.0))
+                if reach > MAX_COORD:
+                    raise _err("absurd_magnitude", f"{what} has world-space positions {reach:.3g} m from the "
+                               f"origin; the limit is {MAX_COORD:g} m (check its node transforms' scale and its "
+                               "POSITION data)")
                 geo, geo_ok = _normalize_rows(np.cross(p[..., 1, :] - p[..., 0, :], p[..., 2, :] - p[..., 0, :]))
                 geo[~geo_ok] = (0.0, 1.0, 0.0)  # zero-area triangle: any unit normal will do
                 normals = np.broadcast_to(geo[..., None, :], p.shape)
@@ -1863,8 +2018,14 @@ class _GltfReader:
             intensity = _num(d.get("intensity"), 1.0, f"{what}.intensity")
             rng = d.get("range")
             rng = None if rng is None else _num(rng, None, f"{what}.range")
-            if intensity < 0 or (rng is not None and rng <= 0):
-                raise _invalid(f"{what} needs intensity >= 0 and range > 0")
+            if intensity < 0 or min(color) < 0:
+                raise _err("negative_light", f"{what} has a negative {'intensity' if intensity < 0 else 'color'}: "
+                                             "emitted light cannot be negative")
+            if intensity > MAX_LIGHT_INTENSITY or max(color) > MAX_LIGHT_COLOR:
+                raise _err("absurd_magnitude", f"{what} has intensity {intensity:.3g} and color up to "
+                           f"{max(color):.3g}; the limits are {MAX_LIGHT_INTENSITY:g} and {MAX_LIGHT_COLOR:g}")
+            if rng is not None and rng <= 0:
+                raise _invalid(f"{what} needs range > 0")
             inner = outer = None
             if kind == "spot":
                 spot = d.get("spot", {})
@@ -1886,6 +2047,9 @@ class _GltfReader:
                 direction is not None and not all(map(math.isfinite, direction))
             ):
                 raise _err("non_finite", f"nodes[{ni}] puts light {li} at a NaN or infinite place")
+            if position is not None and max(map(abs, position)) > MAX_COORD:
+                raise _err("absurd_magnitude", f"nodes[{ni}] puts light {li} {max(map(abs, position)):.3g} m from "
+                           f"the origin; the limit is {MAX_COORD:g} m")
             name = d.get("name") if isinstance(d.get("name"), str) else nodes[ni].get("name")
             lights.append(
                 {
@@ -1901,6 +2065,17 @@ class _GltfReader:
                 }
             )
         return lights
+
+
+def _is_lfs(src: io.BytesIO | Path) -> bool:
+    """Whether an image source starts like a Git LFS pointer file."""
+    try:
+        if isinstance(src, Path):
+            with open(src, "rb") as f:
+                return f.read(len(_LFS_POINTER)) == _LFS_POINTER
+        return src.getvalue()[: len(_LFS_POINTER)] == _LFS_POINTER
+    except OSError:
+        return False
 
 
 def _plural(n: int, text: str) -> str:

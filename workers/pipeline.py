@@ -30,6 +30,7 @@ from workers.stages.masks import run_masks
 from workers.stages.light import run_light
 from workers.stages.place import run_place
 from workers.stages.prt import run_prt
+from workers.stages.reference import run_reference
 from workers.stages.relocate import run_relocate
 from workers.stages.trace import run_trace
 from workers.stages.visibility import run_visibility, run_visibility_slab
@@ -45,6 +46,7 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "masks": run_masks,
     "compress": run_compress,
     "prt": run_prt,
+    "reference": run_reference,
     "evaluate": run_evaluate,
 }
 SHARD_RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {"visibility": run_visibility_slab}
@@ -66,13 +68,15 @@ def _lazy(store: Store, record: dict) -> LazyArtifacts:
 
 
 def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
-                  report: Callable[[float], None] = lambda f: None) -> tuple[dict, bool]:
+                  report: Callable[[float], None] = lambda f: None,
+                  namespace: str | None = None) -> tuple[dict, bool]:
     """Run one stage (or take it from the store). Returns ``(stage record, cached)``.
 
     Upstream stages must already be in the store. The record is
-    ``{"stage", "cache_key", "seconds", "stats", "artifacts": [ArtifactInfo dicts]}``.
+    ``{"stage", "cache_key", "seconds", "stats", "artifacts": [ArtifactInfo dicts]}``. ``namespace``: the
+    cache namespace (the bake's team on the server, :func:`proto.stages.plan`).
     """
-    planned = plan(scene_id, config)
+    planned = plan(scene_id, config, namespace)
     keys = {st.name: key for st, key in planned}
     st = next(s for s, _ in planned if s.name == stage)
     key = keys[stage]

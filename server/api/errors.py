@@ -44,6 +44,11 @@ def install(app: FastAPI) -> None:
             msg = e.get("msg", "invalid")
             if e.get("type") == "extra_forbidden":
                 msg = "unknown field"
+            if e.get("type") == "json_invalid":  # loc is ("body", character offset), not a field
+                pos = (e.get("loc") or (None, None))[-1]
+                why = (e.get("ctx") or {}).get("error") or "JSON decode error"
+                msgs.append(f"the body is not valid JSON: {why} at character {pos}")
+                continue
             msgs.append(f"{_field_path(tuple(e.get('loc', ())))}: {msg}")
         first = tuple(errs[0].get("loc", ())) if errs else ()
         code = "invalid_config" if "config" in first else "invalid_request"
@@ -51,7 +56,7 @@ def install(app: FastAPI) -> None:
 
     @app.exception_handler(StarletteHTTPException)
     async def _http(request: Request, exc: StarletteHTTPException):
-        code = _HTTP_CODES.get(exc.status_code, "error")
+        code = getattr(exc, "code", None) or _HTTP_CODES.get(exc.status_code, "error")  # jsonbody.BodyError
         return JSONResponse(error_body(code, str(exc.detail)), status_code=exc.status_code,
                             headers=getattr(exc, "headers", None))
 

@@ -9,13 +9,27 @@ hand-built context at 512x384: the whole deferred shading pass (direct light wit
 mode, median wall time of `repeats` (render + ctx.finish(); on this machine Mesa llvmpipe, a CPU rasterizer,
 so absolute times are not comparable to the paper's RTX 3070 — the ratios are the point), the GI texture
 fetches per pixel, texture bytes, and on two-rooms the quality (RMSE MD §4.2 on tone-mapped LDR, FLIP, leak).
-Prints a table next to MD Table 1 and the targets; the last line is the same numbers as JSON.
+Prints a table next to MD Table 1 and the targets; the last line is the same numbers as JSON. (The reference
+stage runs first, by hand; `--spp` is its paths per surface point; previews for every camera.)
+
+    .venv/bin/python tests/bench/bench_evaluate.py --cost [--skip-zdm2] [--skip-two-rooms] [--cycles-spp 2048]
+        [--evaluate '{"previews": 3}']
+
+The evaluate cost (issue 13): each scene baked with the default config (zdm2 with the sun and sky above) in this
+process, every stage timed, then re-baked in the same store with another probe config (the automatic grid's
+budget halved below the probes the first bake used). Prints evaluate's share (reference + evaluate stages) of
+each bake's wall time against the targets (first bake <= 25%, re-bake <= 5%), whether the re-bake reused the
+reference, whether both bakes had the same cameras and direct-mode point metrics, and the largest relative
+standard errors. `--cycles-spp N`: also the reference at the check points of tests/data/fidelity/two-rooms-vc
+(N paths each) against Blender Cycles, per region. `--evaluate JSON`: overrides of the evaluate section.
 """
 from __future__ import annotations
 
 import argparse
 import json
 import sys
+
+import numpy as np
 import tempfile
 import time
 from pathlib import Path
@@ -29,8 +43,9 @@ from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.ingest import ingest_file  # noqa: E402
 from workers.procedural import write_scene  # noqa: E402
-from workers.stages.base import StageContext  # noqa: E402
+from workers.stages.base import LazyArtifacts, StageContext  # noqa: E402
 from workers.stages.evaluate import run_evaluate  # noqa: E402
+from workers.stages.reference import run_reference  # noqa: E402
 
 ZDM2 = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
 SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0}
@@ -65,8 +80,11 @@ SAVE: Path | None = None
 
 
 def evaluate(scene, s, c, ev: dict) -> dict:
-    sec = EvaluateSection.model_validate({**ev, "enabled": True})    # the stage is opt-in
-    ctx = StageContext(config=_Cfg(c, sec), scene_loader=lambda: scene, inputs=s, report=lambda f: None)
+    sec = EvaluateSection.model_validate({**ev, "enabled": True})
+    cfg = _Cfg(c, sec)
+    ref = run_reference(StageContext(config=cfg, scene_loader=lambda: scene, inputs=s, report=lambda f: None))
+    s = {**s, "reference": LazyArtifacts(ref.stats, {a.name: (lambda a=a: a.data) for a in ref.artifacts})}
+    ctx = StageContext(config=cfg, scene_loader=lambda: scene, inputs=s, report=lambda f: None)
     t0 = time.perf_counter()
     out = run_evaluate(ctx)
     if SAVE is not None:                              # --save: the contact sheet and every preview as PNG
@@ -101,6 +119,133 @@ def table(name: str, m: dict) -> list[str]:
     return rows
 
 
+# ------------------------------------------------------------------------------------------ cost (issue 13)
+def _bake_timed(store, sid, c, report=None) -> tuple[dict, dict, dict]:
+    """Every stage of a bake in this process: ({stage: seconds}, {stage: cached}, {stage: record})."""
+    secs, cached, recs = {}, {}, {}
+    for st, _ in plan(sid, c):
+        t0 = time.perf_counter()
+        rec, cached[st.name] = pipeline.execute_stage(store, sid, c, st.name,
+                                                      report or (lambda f: None))
+        secs[st.name] = time.perf_counter() - t0
+        recs[st.name] = rec
+    return secs, cached, recs
+
+
+def _point_keys(m: dict, prefix: str) -> dict:
+    """The metrics from the reference's points (not the previews' timings and image metrics)."""
+    image = ("pass_ms", "pass_ms_min", "image_rmse", "image_leak", "flip", "pass_fetches_per_pixel")
+    return {k: v for k, v in m.items() if k.startswith(prefix) and k.split(".")[-1] not in image}
+
+
+def _fraction(secs: dict) -> dict:
+    total = sum(secs.values())
+    ev = secs.get("reference", 0.0) + secs.get("evaluate", 0.0)
+    return {"total_s": total, "evaluate_s": ev, "reference_s": secs.get("reference", 0.0),
+            "evaluate_stage_s": secs.get("evaluate", 0.0), "fraction": ev / total if total else None}
+
+
+def cost(name: str, path: Path, extra: dict, work: Path, evaluate: dict) -> dict:
+    """The first bake of a scene with the default config (evaluate on), then a re-bake with another probe config
+    (the automatic grid's budget halved below what the first used): evaluate's share of each bake's time."""
+    store = Store(work / "store")
+    scene = ingest_file(path)
+    sid = store.put_bytes(scene.to_bytes())
+    cfg = {**extra, "evaluate": {"enabled": True, **evaluate}}
+    c1 = BakeConfig.model_validate(cfg)
+    reports = []
+    s1, _, r1 = _bake_timed(store, sid, c1, report=lambda f: reports.append((time.perf_counter(), f)))
+    probes = r1["place"]["stats"]["probes"]
+    c2 = BakeConfig.model_validate({**cfg, "place": {**cfg.get("place", {}), "budget": max(8, probes // 2)}})
+    s2, cached2, r2 = _bake_timed(store, sid, c2)
+    ev1, ev2 = r1["evaluate"]["stats"], r2["evaluate"]["stats"]
+    m1, m2 = ev1["metrics"], ev2["metrics"]
+    rel = {k: m1[f"{k}_stderr"] / abs(m1[k]) for k in m1 if f"{k}_stderr" in m1 and m1[k]}
+    return {"scene": name, "first": {**_fraction(s1), "stages": s1, "probes": probes},
+            "rebake": {**_fraction(s2), "stages": s2, "probes": r2["place"]["stats"]["probes"],
+                       "reference_cached": cached2["reference"]},
+            "reference": {k: r1["reference"]["stats"].get(k) for k in ("timings", "surface_points", "spp", "bounces",
+                                                                        "camera_source", "sampling", "preview_spp")},
+            "evaluate_timings": {"first": ev1.get("timings"), "rebake": ev2.get("timings")},
+            "same_cameras": ev1["cameras"] == ev2["cameras"],
+            "same_direct_metrics": _point_keys(m1, "direct.") == _point_keys(m2, "direct."),
+            "relative_stderr": {k: v for k, v in sorted(rel.items()) if k.split(".")[-1] in
+                                ("rmse", "leak", "mean_ratio", "indirect_relative_rmse")},
+            "metrics": {k: v for k, v in m1.items() if not k.endswith("_stderr")}}
+
+
+def cycles_check(spp: int, work: Path) -> dict:
+    """The reference at the check points of tests/data/fidelity/two-rooms-vc against Blender Cycles (region means
+    of the RGB mean over each region's points and 6 normals; Cycles: E_probe, the indirect light)."""
+    from workers.procedural import make_scene
+
+    data = ROOT / "tests" / "data" / "fidelity"
+    pdoc = json.loads((data / "two-rooms-vc.points.json").read_text())
+    cyc = json.loads((data / "two-rooms-vc.lambert.cycles.json").read_text())
+    glb = work / "two-rooms-vc.glb"
+    glb.write_bytes(make_scene("two-rooms-vc"))
+    regions = {k: v for k, v in pdoc["regions"].items()}
+    cfg = BakeConfig.model_validate({"evaluate": {"enabled": True, "spp": spp, "surface_points": 0, "previews": 0,
+                                                  "cameras": 0, "points": {"points": pdoc["points"],
+                                                                           "regions": regions}}})
+    store = Store(work / "cyc")
+    scene = ingest_file(glb)
+    sid = store.put_bytes(scene.to_bytes())
+    t0 = time.perf_counter()
+    for st in ("ingest", "reference"):
+        rec, _ = pipeline.execute_stage(store, sid, cfg, st)
+    seconds = time.perf_counter() - t0
+    doc = pipeline._lazy(store, rec)["reference_check_points"]
+    kiln = np.asarray(doc["reference_indirect"], np.float64)          # (P, 6, 3)
+    err = np.asarray(doc["reference_stderr"], np.float64)
+    ref = np.asarray(cyc["E_probe_rgb"], np.float64)
+    out = {}
+    for name, idx in regions.items():
+        k, r, e = kiln[idx].mean(), ref[idx].mean(), np.sqrt((err[idx] ** 2).sum()) / err[idx].size
+        out[name] = {"kiln": float(k), "cycles": float(r), "ratio": float(k / r) if r > 0 else None,
+                     "kiln_stderr": float(e)}
+    return {"spp": spp, "seconds": seconds, "regions": out, "cycles_spread": cyc.get("spread")}
+
+
+def main_cost(args) -> None:
+    res = {"scenes": []}
+    ev = json.loads(args.evaluate) if args.evaluate else {}     # the default evaluate section, or these overrides
+    res["evaluate_overrides"] = ev
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        if not args.skip_two_rooms:
+            write_scene("two-rooms", tmp / "two-rooms.glb")
+            res["scenes"].append(cost("two-rooms", tmp / "two-rooms.glb", {}, tmp / "a", ev))
+            print(json.dumps(res["scenes"][-1], default=float), flush=True)
+        if not args.skip_zdm2 and ZDM2.exists():
+            extra = {"scene": {"lights": [SUN], "sky": [0.3, 0.35, 0.4]}}   # zdm2 has no lights of its own
+            res["scenes"].append(cost("zdm2-sauerbraten", ZDM2, extra, tmp / "b", ev))
+            print(json.dumps(res["scenes"][-1], default=float), flush=True)
+        if args.cycles_spp:
+            res["cycles"] = cycles_check(args.cycles_spp, tmp)
+    lines = ["== evaluate cost (default config, evaluate on): share of the bake's wall time (reference + evaluate)"]
+    for r in res["scenes"]:
+        f, b = r["first"], r["rebake"]
+        lines.append(f"{r['scene']}: first bake {f['total_s']:.1f} s, evaluate {f['evaluate_s']:.1f} s "
+                     f"(reference {f['reference_s']:.1f} + evaluate {f['evaluate_stage_s']:.1f}) = "
+                     f"{100 * f['fraction']:.1f}% (target <= 25%); re-bake with {b['probes']} probes (first "
+                     f"{f['probes']}): {b['total_s']:.1f} s, evaluate {b['evaluate_s']:.2f} s = {100 * b['fraction']:.1f}% "
+                     f"(target <= 5%; reference cached: {b['reference_cached']})")
+        lines.append(f"  same cameras: {r['same_cameras']}; same direct metrics: {r['same_direct_metrics']}; "
+                     f"reference {r['reference']}")
+        worst = max(r["relative_stderr"].items(), key=lambda kv: kv[1], default=None)
+        lines.append(f"  largest relative standard error: {worst}")
+    if "cycles" in res:
+        cy = res["cycles"]
+        lines.append(f"== reference vs Cycles at the check points of two-rooms-vc ({cy['spp']} spp, {cy['seconds']:.1f} s)")
+        for name, r in cy["regions"].items():
+            ratio = "n/a" if r["ratio"] is None else f"{r['ratio']:.3f}"
+            lines.append(f"  {name:<12} kiln {r['kiln']:.4f} ± {r['kiln_stderr']:.4f}  cycles {r['cycles']:.4f}  "
+                         f"ratio {ratio}")
+    print("\n".join(lines))
+    print(json.dumps(res, default=float))
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--width", type=int, default=512)
@@ -113,11 +258,21 @@ def main() -> None:
     ap.add_argument("--skip-two-rooms", action="store_true")
     ap.add_argument("--zdm2-cameras", type=int, default=1, help="auto-placed cameras in zdm2 (quality needs 3+)")
     ap.add_argument("--save", type=Path, default=None, help="write the PNG previews and contact sheets here")
+    ap.add_argument("--cost", action="store_true",
+                    help="the evaluate cost benchmark instead: default config, first bake and a re-bake with another "
+                         "probe config; evaluate's share of each (issue 13 targets 25%% and 5%%)")
+    ap.add_argument("--evaluate", default=None, help="with --cost: JSON overrides of the evaluate section")
+    ap.add_argument("--cycles-spp", type=int, default=0,
+                    help="with --cost: also the reference against Cycles at two-rooms-vc's check points, this spp")
     args = ap.parse_args()
+    if args.cost:
+        main_cost(args)
+        return
     global SAVE
     SAVE = args.save
     res = {}
-    ev = {"width": args.width, "height": args.height, "repeats": args.repeats, "modes": list(MODES), "cameras": 1}
+    ev = {"width": args.width, "height": args.height, "repeats": args.repeats, "modes": list(MODES), "cameras": 1,
+          "previews": 16, "flip": True}
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
         if not args.skip_two_rooms:

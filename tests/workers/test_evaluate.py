@@ -18,12 +18,14 @@ from proto.models import BakeConfig
 from workers.procedural import BAKE_BOXES
 from workers.render.context import RenderUnavailable, create_context
 from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode
-from workers.stages.base import StageContext
+from workers.stages.base import LazyArtifacts, StageContext
 from workers.stages.evaluate import available_modes, run_evaluate
+from workers.stages.reference import run_reference
 
 from tests.workers.test_probes import bake_until
 
-EVAL = {"cameras": 1, "width": 96, "height": 72, "spp": 16, "repeats": 2, "flip": True}
+EVAL = {"cameras": 1, "width": 96, "height": 72, "spp": 16, "preview_spp": 4, "surface_points": 512, "repeats": 2,
+        "flip": True}
 MD_SMALL = {"visibility": {"samples_per_cell": 4, "slabs": 1}, "masks": {"clusters": 4, "sweeps": 200}}
 TWO_ROOMS = {"place": {"counts": [9, 4, 5], "box": {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}},
              "trace": {"rays_per_probe": 128}, "light": {"bounces": 2}, **MD_SMALL}
@@ -40,8 +42,11 @@ def _gl():
 
 
 def _evaluate(scene, s, cfg, evaluate):
+    """The reference stage (cached per scene in the pipeline; run here by hand), then evaluate."""
     config = BakeConfig.model_validate({**cfg, "evaluate": {"enabled": True, **evaluate}})
-    ctx = StageContext(config=config, scene_loader=lambda: scene, inputs=s, report=lambda f: None)
+    ref = run_reference(StageContext(config=config, scene_loader=lambda: scene, inputs=s, report=lambda f: None))
+    inputs = {**s, "reference": LazyArtifacts(ref.stats, {a.name: (lambda a=a: a.data) for a in ref.artifacts})}
+    ctx = StageContext(config=config, scene_loader=lambda: scene, inputs=inputs, report=lambda f: None)
     return run_evaluate(ctx)
 
 

@@ -242,8 +242,9 @@ def to_uint8(img) -> np.ndarray:
     return np.round(np.clip(np.nan_to_num(a.astype(np.float64)), 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
-def png_bytes(img) -> bytes:
-    """PNG file bytes of an (H, W), (H, W, 3) or (H, W, 4) image in [0, 1] float or uint8 (row 0 = top)."""
+def png_bytes(img, compress_level: int = 1) -> bytes:
+    """PNG file bytes of an (H, W), (H, W, 3) or (H, W, 4) image in [0, 1] float or uint8 (row 0 = top).
+    ``compress_level`` (zlib, 0-9): 1 by default, 3-4x faster than PIL's 6 for previews a few % larger."""
     from PIL import Image
 
     a = to_uint8(img)
@@ -252,7 +253,7 @@ def png_bytes(img) -> bytes:
     if a.ndim == 3 and a.shape[2] == 1:
         a = a[:, :, 0]
     buf = io.BytesIO()
-    Image.fromarray(np.ascontiguousarray(a)).save(buf, format="PNG", optimize=False)
+    Image.fromarray(np.ascontiguousarray(a)).save(buf, format="PNG", optimize=False, compress_level=int(compress_level))
     return buf.getvalue()
 
 

@@ -154,11 +154,12 @@ def trilinear(volume, uvw) -> np.ndarray:
     Texel space: ``t = uvw·size − 0.5``, ``i0 = floor(t)``, ``f = t − i0``; both taps ``i0`` and
     ``i0 + 1`` clamped to ``[0, size − 1]`` (so past the border centre the edge texel is returned).
     """
-    v = _as_float(volume)
+    v = np.asarray(volume)          # taps converted one by one (below): the same numbers as _as_float(volume)
     if v.ndim == 3:
         v = v[..., None]
     if v.ndim != 4:
         raise ValueError(f"volume must be (D, H, W[, C]), got {np.shape(volume)}")
+    unorm = v.dtype == np.uint8
     uvw = _points(uvw, "uvw")
     size = np.array([v.shape[2], v.shape[1], v.shape[0]], np.int64)  # (W, H, D) = (x, y, z)
     t = uvw * size - 0.5
@@ -176,7 +177,8 @@ def trilinear(volume, uvw) -> np.ndarray:
         x = hi[:, 0] if bx else lo[:, 0]
         y = hi[:, 1] if by else lo[:, 1]
         z = hi[:, 2] if bz else lo[:, 2]
-        out += (wx * wy * wz)[:, None] * v[z, y, x]
+        tap = v[z, y, x].astype(np.float64)
+        out += (wx * wy * wz)[:, None] * (tap / 255.0 if unorm else tap)   # UNORM8: byte / 255
     return out
 
 

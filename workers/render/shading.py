@@ -457,12 +457,13 @@ class ShadingRenderer:
             times.append(time.perf_counter() - t0)
         return {"median_s": statistics.median(times), "min_s": min(times), "repeats": len(times)}
 
-    def time_passes(self, modes, eye=(0.0, 0.0, 0.0), repeats: int = 5) -> dict:
-        """:meth:`time_pass` of several modes measured side by side: one warm-up each, then ``repeats`` rounds
-        that time every mode once in turn, so load from other processes on this shared machine falls on all
-        modes alike and their ratios hold. Returns ``{mode: {median_s, min_s, repeats}}``."""
+    def time_passes(self, modes, eye=(0.0, 0.0, 0.0), repeats: int = 5, warmup: bool = True) -> dict:
+        """:meth:`time_pass` of several modes measured side by side: one warm-up each (``warmup``; skip it when
+        the same modes were just drawn, e.g. for another camera), then ``repeats`` rounds that time every mode once
+        in turn, so load from other processes on this shared machine falls on all modes alike and their ratios
+        hold. Returns ``{mode: {median_s, min_s, repeats}}``."""
         modes = list(modes)
-        for m in modes:
+        for m in modes if warmup else ():
             self.draw(m, 0, eye)
             self.ctx.finish()
         times = {m: [] for m in modes}

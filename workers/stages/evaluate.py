@@ -1,30 +1,34 @@
-"""Stage ``evaluate``: previews and metrics of every GI mode against a path-traced reference (DESIGN stage 7).
+"""Stage ``evaluate``: every GI mode scored against the cached path-traced reference, and previews (DESIGN stage 7).
 
-Reads ``ingest`` (lights, sky, bounds), ``place`` (grid), ``relocate`` (relocated probes), ``trace`` (states,
-depth moments), ``light`` (irradiance atlas, ``sh_l1_*``, its bounce count), ``masks`` (dense masks, cluster
-volumes), ``compress`` (mask atlas + indirection) and, when present, ``prt``. Config: ``config.evaluate``
-(see :class:`Settings`; defaults apply while the section does not exist).
+Reads ``reference`` (:mod:`workers.stages.reference`: surface points, check points, review cameras, preview
+G-buffers and reference images — cached per scene and lighting, independent of the probe config) and the bake's
+data: ``ingest`` (lights), ``place`` (grid), ``relocate``, ``trace``, ``light``, ``masks``, ``compress`` and, when
+enabled, ``prt``. Config: ``config.evaluate``.
 
-Per camera (given, or auto-placed in free space looking at geometry, :func:`workers.render.cameras.auto_cameras`
-with the relocated non-OFF probes as candidates; the default outside camera when none qualifies):
+Metrics (from the points only, :mod:`workers.kernels.point_metrics`)
+--------------------------------------------------------------------
+Each mode's indirect irradiance is reconstructed at the reference's surface points on the CPU
+(:func:`workers.kernels.point_modes.mode_irradiance`, the Python twins of the GLSL modes) and compared with the
+reference there: ``<mode>.rmse`` (MD §4.2 on the tone-mapped shading result), ``<mode>.indirect_relative_rmse``,
+``<mode>.leak``, ``<mode>.indirect_excess``, ``<mode>.mean_ratio``, each with ``<mode>.<metric>_stderr``
+propagated from the reference's noise; with check-point regions ``<mode>.region.<name>.mean_ratio`` (and
+``_stderr``). Also ``<mode>.texture_bytes`` and ``<mode>.gi_fetches_per_pixel`` / ``_max`` (the per-point GI
+texture fetches of each mode's GLSL header formula, at the surface points).
 
-1. G-buffer (:class:`workers.render.gbuffer.GBufferRenderer`);
-2. reference: direct light with Embree shadow rays + path-traced indirect irradiance at the same pixels
-   (:func:`workers.kernels.pathtrace.reference_at_gbuffer`, ``spp``, bounces = the light stage's);
-3. per mode, the deferred pass of :mod:`workers.render.shading` (the proto/glsl mode shaders): radiance,
-   indirect irradiance, and the pass's wall time (render + ``ctx.finish()``, median of ``repeats``);
-4. metrics (:mod:`workers.kernels.metrics`): RMSE (MD §4.2, tone-mapped LDR, shaded pixels), FLIP mean (LDR
-   after the same tone map; exposure from the reference), leak score (indirect irradiance), relative RMSE of
-   the indirect irradiance, texture memory each mode samples (bytes as uploaded), GI texture fetches per
-   pixel (per mode the formula in its GLSL header, with the per-pixel counts — non-OFF DDGI corners,
-   clusters with m_k > 0 — measured from the baked data at the G-buffer points), pass time.
+Previews (pictures; only timing and image metrics, never the metrics above)
+---------------------------------------------------------------------------
+Per review camera with a stored preview, the deferred pass of :mod:`workers.render.shading` (the proto/glsl
+mode shaders) on the reference's G-buffer: per mode the tone-mapped image, its error heatmap (MD Fig 3 bottom
+row, ``HEATMAP_VMAX``), and the pass's wall time (``<mode>.pass_ms``, median of ``repeats``,
+``<mode>.pass_fetches_per_pixel``), plus image-space ``<mode>.image_rmse`` and ``<mode>.flip`` against the
+low-spp preview reference. Without EGL the previews are skipped with a warning (``previews_unavailable``).
 
-Artifacts (PNG when proto.bundle accepts ``format="png"``, else npy (H, W, 3) uint8 images until it does):
-``eval_<cam>_<mode>`` previews (tone-mapped; ``<mode>`` also ``reference``), ``eval_<cam>_<mode>_error``
-heatmaps (MD Fig 3 bottom row: per-pixel error E(x) of §4.2, jet ramp 0 … ``HEATMAP_VMAX``), ``eval_contact``
-(one row per camera: reference and modes, then their heatmaps), ``eval_metrics`` (json), ``eval_cameras``
-(json). Stats: ``metrics`` (flat ``<mode>.<metric>`` means over cameras, for the catalog / compare) and
-``per_camera``.
+Artifacts: ``check_points`` (json; with ``evaluate.points``: points, normals, reference_direct,
+reference_indirect, reference_stderr ([point][normal] RGB), modes {mode: [point][normal] RGB}, regions),
+``eval_metrics`` (json), ``eval_cameras`` (json), and with previews ``eval_<cam>_<mode>`` (PNG, ``<mode>`` also
+``reference``), ``eval_<cam>_<mode>_error`` heatmaps, ``eval_contact``. Stats: ``metrics`` (flat, for the catalog,
+compare and ``kiln bake --fail-on``), ``cameras`` (the review cameras: name, position, target, fov),
+``points``, ``check_points``, ``modes``.
 """
 from __future__ import annotations
 
@@ -36,34 +40,37 @@ from dataclasses import dataclass
 import numpy as np
 
 from workers.kernels import metrics as MT
+from workers.kernels import point_metrics as PM
 from workers.kernels import samplers as SM
 from workers.kernels.ddgi import cage_probes
 from workers.kernels.grid import OFF
-from workers.kernels.pathtrace import reference_at_gbuffer, scene_eps
-from workers.raycast import caster_for_scene
-from workers.render.cameras import Camera, auto_cameras, default_camera, fit_clip_planes
-from workers.render.context import RenderUnavailable, create_context, renderer_info
-from workers.render.gbuffer import GBufferRenderer
-from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode, shadow_masks
-from workers.stages.base import Artifact, StageContext, StageError, StageOutput, samples_per_cell
+from workers.kernels.point_modes import MaskArrays, mode_irradiance
+from workers.render.shading import prepare_mode
+from workers.stages.base import Artifact, StageContext, StageOutput, samples_per_cell
+from workers.stages.reference import GBUFFER_CHANNELS, point_column
 
 HEATMAP_VMAX = 0.25  # LDR error at the red end of the heatmaps
 GBUFFER_FETCHES = 4  # position, normal, albedo, emission (+1 per 4 lights: shadow mask)
+POINT_METRICS = PM.METRICS
 
 
 @dataclass
 class Settings:
-    """``config.evaluate`` (the lead adds ``EvaluateSection`` with these fields and defaults)."""
+    """``config.evaluate`` (:class:`proto.models.EvaluateSection`), as the stage reads it."""
 
-    cameras: int | list = 3               # auto-placed count, or a list of {position, target, fov_y?, name?}
-    width: int = 512
-    height: int = 384
+    cameras: int | list = 3
+    width: int = 160
+    height: int = 120
     fov_y: float = 60.0
     spp: int = 64
-    bounces: int | None = None            # None: the light stage's bounce count
+    preview_spp: int = 4
+    bounces: int | None = None
+    surface_points: int = 2048
+    sampling: str = "cameras"
+    previews: int = 1
     modes: list | None = None             # None: every mode the bake has data for
-    repeats: int = 5
-    flip: bool = True
+    repeats: int = 3
+    flip: bool = False
 
     @classmethod
     def of(cls, config) -> "Settings":
@@ -138,22 +145,6 @@ def available_modes(arrays) -> list[str]:
     return modes
 
 
-def _cameras(settings: Settings, caster, box, candidates) -> list[Camera]:
-    kw = dict(width=settings.width, height=settings.height, fov_y=settings.fov_y)
-    if isinstance(settings.cameras, (list, tuple)):
-        out = []
-        for i, c in enumerate(settings.cameras):
-            d = dict(c)
-            cam = Camera(d["position"], d["target"], fov_y=d.get("fov_y", settings.fov_y), width=settings.width,
-                         height=settings.height, name=d.get("name") or f"cam-{i}")
-            out.append(fit_clip_planes(cam, caster, box))
-        return out
-    cams = auto_cameras(caster, box, int(settings.cameras), candidates=candidates, **kw) if settings.cameras else []
-    if not cams and len(candidates):
-        cams = auto_cameras(caster, box, int(settings.cameras), **kw)
-    return cams or [default_camera(box, **kw)]
-
-
 def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarray:
     """(N,) GI texture fetches per pixel of ``mode`` at the points (the formulas of the mode GLSL headers)."""
     N = points.shape[0]
@@ -190,149 +181,260 @@ def _prt_resources(arrays, grid, lights, caster, sh_order=None):
     return prepare_mode("prt", arrays, grid, prt_model=model, prt_coefficients=u, sh_order=sh_order)
 
 
+def _reference_points(ref) -> dict:
+    table = np.asarray(ref["reference_points"], np.float64)
+    from workers.stages.reference import POINT_COLUMNS
+
+    return {k: point_column(table, k) for k in POINT_COLUMNS}
+
+
+def _unpack_gbuffer(packed: np.ndarray) -> dict:
+    out, c = {}, 0
+    for k in GBUFFER_CHANNELS:
+        w = 1 if k == "shaded" else 3
+        out[k] = np.ascontiguousarray(packed[..., c:c + w]) if w == 3 else packed[..., c] > 0.5
+        c += w
+    return out
+
+
+def _point_summary(modes, recon, pts, seed) -> tuple[dict, dict]:
+    """Flat ``<mode>.<metric>`` (and ``_stderr``) summary and the per-mode dicts, from the surface points."""
+    summary, per_mode = {}, {}
+    if len(pts["position"]) == 0:
+        return summary, per_mode
+    exposure = MT.exposure_for(PM.radiance(pts["e_direct"], pts["e_indirect"], pts["albedo"],
+                                           pts["emission"]).reshape(-1, 1, 3))
+    for m in modes:
+        r = PM.metrics_with_stderr(recon[m], pts["e_indirect"], pts["stderr"], pts["e_direct"], pts["albedo"],
+                                   pts["emission"], seed=seed, exposure=exposure)
+        per_mode[m] = r
+        for k, v in r.items():
+            if v is not None and math.isfinite(v):
+                summary[f"{m}.{k}"] = float(v)
+    lum = MT.luminance(pts["e_indirect"])
+    summary["reference.mean_indirect"] = float(lum.mean())
+    summary["reference.mean_indirect_stderr"] = float(np.sqrt(np.sum((pts["stderr"] @ MT.REC709) ** 2)) / len(lum))
+    return summary, per_mode
+
+
+def _previews(ctx, settings, ref, rdoc, modes, resources, lights, summary, arts, warnings) -> dict:
+    """The per-camera previews (module doc); adds their artifacts and timing/image metrics; returns the
+    renderer's info ({} when no preview was rendered)."""
+    from workers.render.cameras import Camera
+    from workers.render.context import RenderUnavailable, create_context, renderer_info
+    from workers.render.shading import GBufferInputs, ShadingRenderer
+
+    names = list(rdoc.get("previews") or [])
+    cams = {c["name"]: Camera.from_dict(c) for c in rdoc.get("cameras", [])}
+    names = [n for n in names if n in cams and f"reference_{n}_gbuffer" in ref]
+    if not settings.previews or not names:
+        return {}
+    try:
+        gl = create_context()
+    except RenderUnavailable as e:
+        warnings.append({"code": "previews_unavailable", "message": f"no preview images or pass timings: {e}"})
+        return {}
+    per_camera, sheet_rows = [], []
+    try:
+        shader = ShadingRenderer(gl, lights)
+        try:
+            for m in modes:
+                shader.set_mode(resources[m])
+            for ci, name in enumerate(names):
+                cam = cams[name]
+                gb = _unpack_gbuffer(np.asarray(ref[f"reference_{name}_gbuffer"], np.float32))
+                img = np.asarray(ref[f"reference_{name}_image"], np.float32)
+                sm = np.asarray(ref[f"reference_{name}_shadow"], np.uint8)
+                sel = gb["shaded"]
+                shader.set_gbuffer(GBufferInputs(gb["position"], gb["normal"], gb["albedo"], gb["emission"], sel,
+                                                 sm))
+                ref_rad, ref_ind = img[..., 6:9], img[..., 3:6]
+                k = MT.exposure_for(ref_rad, sel)
+                ref_ldr = MT.tonemap(ref_rad, k)
+                tiles = [("reference", ref_ldr)]
+                heat = [("error scale 0-%.2f" % HEATMAP_VMAX,
+                         MT.heatmap(np.linspace(0, HEATMAP_VMAX, sel.shape[1])[None].repeat(sel.shape[0], 0),
+                                    HEATMAP_VMAX))]
+                arts.append(_image_artifact(f"eval_{name}_reference", ref_ldr,
+                                            f"path-traced preview reference ({ref.stats.get('preview_spp')} spp), "
+                                            f"{name}", {"camera": name, "exposure": k}))
+                timings = shader.time_passes(modes, cam.position, settings.repeats, warmup=ci == 0)
+                cm = {"camera": name, "pixels": int(sel.sum()), "exposure": k, "modes": {}}
+                for m in modes:
+                    rad = shader.render(m, 0, cam.position)
+                    ind = shader.render(m, 1, cam.position)
+                    ldr = MT.tonemap(rad, k)
+                    err = MT.pixel_error(ldr, ref_ldr)
+                    fl = MT.flip_mean(ldr, ref_ldr, sel) if settings.flip and sel.any() else None
+                    cm["modes"][m] = {"image_rmse": MT.rmse(ldr, ref_ldr, sel), "flip": fl,
+                                      "image_leak": MT.leak_score(ind, ref_ind, sel)["leak"],
+                                      "pass_ms": timings[m]["median_s"] * 1e3, "pass_ms_min": timings[m]["min_s"] * 1e3}
+                    tiles.append((m, ldr))
+                    hm = MT.heatmap(err, HEATMAP_VMAX, sel)
+                    heat.append((f"{m} error", hm))
+                    arts.append(_image_artifact(f"eval_{name}_{m}", ldr, f"{m} GI, {name}", {"camera": name, "mode": m}))
+                    arts.append(_image_artifact(f"eval_{name}_{m}_error", hm,
+                                                f"{m} per-pixel error E(x) (MD §4.2) against the preview reference, "
+                                                f"0..{HEATMAP_VMAX}", {"camera": name, "mode": m,
+                                                                       "vmax": HEATMAP_VMAX}))
+                sheet_rows.append(tiles + heat)
+                per_camera.append(cm)
+                ctx.report(0.6 + 0.35 * (ci + 1) / len(names))
+            info = renderer_info(gl)
+        finally:
+            shader.release()
+    finally:
+        gl.release()
+    tiles = [t for row in sheet_rows for t in row]
+    arts.append(_image_artifact("eval_contact", MT.contact_sheet(tiles, columns=len(modes) + 1),
+                                "contact sheet: per camera the preview reference and each mode, then error heatmaps"))
+    for m in modes:
+        for key in ("image_rmse", "flip", "image_leak", "pass_ms", "pass_ms_min"):
+            xs = [c["modes"][m][key] for c in per_camera if c["modes"][m][key] is not None]
+            if xs:
+                summary[f"{m}.{key}"] = float(np.mean(xs))
+        if f"{m}.pass_ms" in summary and f"{m}.gi_fetches_per_pixel" in summary:
+            summary[f"{m}.pass_fetches_per_pixel"] = (summary[f"{m}.gi_fetches_per_pixel"] + GBUFFER_FETCHES
+                                                      + math.ceil(len(lights) / 4))
+    for a, b in (("mask", "leaking"), ("ddgi", "mask"), ("mask_normalized", "leaking")):
+        if f"{a}.pass_ms" in summary and summary.get(f"{b}.pass_ms"):
+            summary[f"ratio.{a}_over_{b}.pass_ms"] = summary[f"{a}.pass_ms"] / summary[f"{b}.pass_ms"]
+    info["per_camera"] = per_camera
+    return info
+
+
+def _timing(key: str) -> bool:
+    """Whether a metric is a wall time (``pass_ms``, ``pass_ms_min``, their ratios): not reproducible."""
+    return key.split(".")[-1] in ("pass_ms", "pass_ms_min")
+
+
 def run_evaluate(ctx: StageContext) -> StageOutput:
     t_start = time.perf_counter()
     sec = getattr(ctx.config, "evaluate", None)
     if sec is not None and not sec.enabled:
         return StageOutput(artifacts=[], stats={"enabled": False})
     settings = Settings.of(ctx.config)
-    scene = ctx.scene
+    ref = ctx.inputs["reference"]
+    rstats = ref.stats
     place = ctx.inputs["place"].stats
     grid = {k: place[k] for k in ("counts", "origin", "spacing")}
     lit = ctx.inputs["ingest"]["lights"]
-    lights, sky = list(lit["lights"]), lit["sky"]
+    lights = list(lit["lights"])
     arrays = _Lazy(_gather(ctx))
     have = available_modes(arrays)
     if "prt" in have and not (ctx.inputs.get("prt") and ctx.inputs["prt"].stats.get("enabled", True)):
         have.remove("prt")
     modes = [m for m in (settings.modes or have) if m in have]
-    light_stats = ctx.inputs["light"].stats if "light" in ctx.inputs else {}
-    bounces = settings.bounces or int(light_stats.get("bounces") or 1)
     B = float(ctx.config.light.self_shadow_bias)
-    caster = caster_for_scene(scene)
-    eps = scene_eps(scene)
-    box = np.array([np.asarray(grid["origin"], np.float64),
-                    np.asarray(grid["origin"]) + np.asarray(grid["spacing"]) * (np.asarray(grid["counts"]) - 1)])
-    if np.any(box[1] - box[0] <= 0):
-        box = np.asarray(scene.bounds, np.float64)
-    pos = np.asarray(arrays["probe_positions_relocated"]).reshape(-1, 3) if "probe_positions_relocated" in arrays \
-        else np.zeros((0, 3))
-    if len(pos) and "probe_states" in arrays:
-        pos = pos[np.asarray(arrays["probe_states"]).reshape(-1) != OFF]
-    cams = _cameras(settings, caster, box, pos)
-    try:
-        gl = create_context()
-    except RenderUnavailable as e:
-        raise StageError("render_unavailable", str(e)) from e
     mask_meta = None
     if "mask" in modes or "mask_normalized" in modes:
         S = samples_per_cell(ctx.config, ctx.inputs["place"].stats)
         T = int(ctx.inputs["compress"].stats["block_size"])
-        mask_meta = {"samples_per_cell": S, "block_size": T, "border_lo": int(ctx.inputs["compress"].stats.get("border_lo", T - S - 1))}
-    arts: list[Artifact] = []
-    per_camera = []
-    sheet_rows = []
-    try:
-        gbr = GBufferRenderer(scene, gl, caster=caster)
-        shader = ShadingRenderer(gl, lights)
-        resources = {}
+        mask_meta = {"samples_per_cell": S, "block_size": T,
+                     "border_lo": int(ctx.inputs["compress"].stats.get("border_lo", T - S - 1))}
+    marr = MaskArrays(arrays, mask_meta)
+    caster = None
+    prt_model = None
+    if "prt" in modes:
+        from workers.prt_relight import PrtModel
+        from workers.raycast import caster_for_scene
+
+        caster = caster_for_scene(ctx.scene)
+        prt_model = PrtModel.from_arrays(arrays)
+    warnings: list[dict] = []
+    ctx.report(0.02)
+
+    # ---- the modes at the reference's points
+    t0 = time.perf_counter()
+    pts = _reference_points(ref)
+    recon = {}
+    for i, m in enumerate(modes):
+        recon[m] = mode_irradiance(m, marr, grid, pts["position"], pts["normal"], pts["view"], self_shadow_bias=B,
+                                   lights=lights, caster=caster, prt_model=prt_model)
+        ctx.report(0.02 + 0.4 * (i + 1) / max(len(modes), 1))
+    summary, per_mode = _point_summary(modes, recon, pts, int(ctx.config.seed))
+    t_points = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    check = None
+    if "reference_check_points" in ref:
+        doc = ref["reference_check_points"]
+        cp = np.asarray(doc["points"], np.float64)
+        cn = np.asarray(doc["normals"], np.float64)                       # (P, D, 3)
+        P, D = cn.shape[:2]
+        cpts, cnrm = np.repeat(cp, D, axis=0), cn.reshape(-1, 3)
+        check = {k: doc[k] for k in ("points", "normals", "reference_direct", "reference_indirect",
+                                     "reference_stderr")}
+        check["modes"] = {}
+        cref = np.asarray(doc["reference_indirect"], np.float64)
+        cerr = np.asarray(doc["reference_stderr"], np.float64)
         for m in modes:
-            res = (_prt_resources(arrays, grid, lights, caster) if m == "prt" else
-                   prepare_mode(m, arrays, grid, self_shadow_bias=B, mask_meta=mask_meta))
-            shader.set_mode(res)
-            resources[m] = res
-        ctx.report(0.05)
-        for ci, cam in enumerate(cams):
-            cname = cam.name or f"cam-{ci}"
-            gb = gbr.render(cam)
-            sel = gb.shaded
-            t0 = time.perf_counter()
-            ref = reference_at_gbuffer(scene, gb, lights, sky=sky, caster=caster, eps=eps, spp=settings.spp,
-                                       bounces=bounces, seed=ctx.config.seed + ci)
-            t_ref = time.perf_counter() - t0
-            pts = gb.position[sel].astype(np.float64)
-            nrm = gb.normal[sel].astype(np.float64)
-            views = -gb.view_dirs()[sel].astype(np.float64)
-            sm = np.ones(gb.shape + (len(lights),), np.uint8)
-            if lights and len(pts):
-                sm[sel] = shadow_masks(pts, nrm, lights, caster, eps)
-            shader.set_gbuffer(GBufferInputs.from_gbuffer(gb, sm))
-            k = MT.exposure_for(ref["radiance"], sel)
-            ref_ldr = MT.tonemap(ref["radiance"], k)
-            tiles = [("reference", ref_ldr)]
-            heat = [("error scale 0-%.2f" % HEATMAP_VMAX, MT.heatmap(np.linspace(0, HEATMAP_VMAX, gb.shape[1])[None]
-                                                                     .repeat(gb.shape[0], 0), HEATMAP_VMAX))]
-            arts.append(_image_artifact(f"eval_{cname}_reference", ref_ldr, f"path-traced reference, {cname}",
-                                        {"camera": cname, "exposure": k}))
-            cam_metrics = {"camera": cam.to_dict(), "pixels": int(sel.sum()), "exposure": k,
-                           "reference_seconds": t_ref, "reference_stats": ref["stats"], "modes": {}}
-            timings = shader.time_passes(modes, cam.position, settings.repeats)   # interleaved: fair ratios
-            for m in modes:
-                eye = cam.position
-                rad = shader.render(m, 0, eye)
-                ind = shader.render(m, 1, eye)
-                timing = timings[m]
-                ldr = MT.tonemap(rad, k)
-                err = MT.pixel_error(ldr, ref_ldr)
-                fl = None
-                if settings.flip and sel.any():
-                    fl = MT.flip_mean(ldr, ref_ldr, sel)
-                leak = MT.leak_score(ind, ref["e_indirect"], sel)
-                fetch = gi_fetches(m, resources[m], arrays, grid, pts, nrm, views)
-                cam_metrics["modes"][m] = {
-                    "rmse": MT.rmse(ldr, ref_ldr, sel), "flip": fl, "leak": leak["leak"],
-                    "indirect_relative_rmse": MT.relative_rmse(ind, ref["e_indirect"], sel),
-                    # absolute excess indirect (lux, mean over shaded pixels): the leak where the whole view is
-                    # dark in the reference (a sealed room), where the relative leak score is 0 by definition
-                    "indirect_excess": float(np.maximum(MT.luminance(ind) - MT.luminance(ref["e_indirect"]), 0)[sel]
-                                             .mean()) if sel.any() else 0.0,
-                    "texture_bytes": resources[m].texture_bytes,
-                    "gi_fetches_per_pixel": float(fetch.mean()) if fetch.size else 0.0,
-                    "gi_fetches_max": float(fetch.max()) if fetch.size else 0.0,
-                    "pass_fetches_per_pixel": (float(fetch.mean()) if fetch.size else 0.0) + GBUFFER_FETCHES
-                    + math.ceil(len(lights) / 4),
-                    "pass_ms": timing["median_s"] * 1e3, "pass_ms_min": timing["min_s"] * 1e3,
-                }
-                tiles.append((m, ldr))
-                heat.append((f"{m} error", MT.heatmap(err, HEATMAP_VMAX, sel)))
-                arts.append(_image_artifact(f"eval_{cname}_{m}", ldr, f"{m} GI, {cname}", {"camera": cname, "mode": m}))
-                arts.append(_image_artifact(f"eval_{cname}_{m}_error", MT.heatmap(err, HEATMAP_VMAX, sel),
-                                            f"{m} per-pixel error E(x) (MD §4.2), 0..{HEATMAP_VMAX}",
-                                            {"camera": cname, "mode": m, "vmax": HEATMAP_VMAX}))
-            sheet_rows.append(tiles + heat)
-            per_camera.append(cam_metrics)
-            ctx.report(0.05 + 0.9 * (ci + 1) / len(cams))
-        info = renderer_info(gl)
-        shader.release()
-        gbr.release()
-    finally:
-        gl.release()
-    cols = len(modes) + 1
-    tiles = [t for row in sheet_rows for t in row]
-    arts.append(_image_artifact("eval_contact", MT.contact_sheet(tiles, columns=cols),
-                                "contact sheet: per camera the reference and each mode, then error heatmaps"))
-    summary = {}
+            v = mode_irradiance(m, marr, grid, cpts, cnrm, cnrm, self_shadow_bias=B, lights=lights, caster=caster,
+                                prt_model=prt_model).reshape(P, D, 3)
+            check["modes"][m] = v.tolist()
+            if doc.get("regions"):
+                for name, r in PM.region_ratios(v, cref, cerr, doc["regions"], seed=int(ctx.config.seed)).items():
+                    for k in ("mean_ratio", "mean_ratio_stderr"):
+                        if r[k] is not None and math.isfinite(r[k]):
+                            summary[f"{m}.region.{name}.{k}"] = float(r[k])
+        if doc.get("regions"):
+            check["regions"] = {name: {"points": idx, **{m: PM.region_ratios(
+                np.asarray(check["modes"][m]), cref, cerr, {name: idx}, seed=int(ctx.config.seed))[name]
+                for m in modes}} for name, idx in doc["regions"].items()}
+    t_check = time.perf_counter() - t0
+    ctx.report(0.5)
+
+    # ---- what each mode samples: textures (as uploaded) and GI fetches per point
+    resources = {}
     for m in modes:
-        vals = [c["modes"][m] for c in per_camera]
-        for key in ("rmse", "flip", "leak", "indirect_relative_rmse", "indirect_excess", "gi_fetches_per_pixel", "pass_ms",
-                    "pass_fetches_per_pixel"):
-            xs = [v[key] for v in vals if v[key] is not None]
-            if xs:
-                summary[f"{m}.{key}"] = float(np.mean(xs))
-        summary[f"{m}.texture_bytes"] = float(vals[0]["texture_bytes"]) if vals else 0.0
-    for a, b in (("mask", "leaking"), ("ddgi", "mask"), ("mask_normalized", "leaking")):
-        if f"{a}.pass_ms" in summary and summary.get(f"{b}.pass_ms"):
-            summary[f"ratio.{a}_over_{b}.pass_ms"] = summary[f"{a}.pass_ms"] / summary[f"{b}.pass_ms"]
-    metrics_json = {"modes": modes, "summary": summary, "cameras": per_camera, "renderer": info,
-                    "settings": settings.__dict__ | {"bounces": bounces}, "heatmap_vmax": HEATMAP_VMAX,
+        resources[m] = (_prt_resources(arrays, grid, lights, caster) if m == "prt" else
+                        prepare_mode(m, arrays, grid, self_shadow_bias=B, mask_meta=mask_meta))
+        summary[f"{m}.texture_bytes"] = float(resources[m].texture_bytes)
+        if len(pts["position"]):
+            f = gi_fetches(m, resources[m], marr, grid, pts["position"], pts["normal"], pts["view"])
+            summary[f"{m}.gi_fetches_per_pixel"] = float(f.mean()) if f.size else 0.0
+            summary[f"{m}.gi_fetches_max"] = float(f.max()) if f.size else 0.0
+    ctx.report(0.6)
+
+    # ---- previews
+    t0 = time.perf_counter()
+    rdoc = ref["reference_cameras"] if "reference_cameras" in ref else {"cameras": [], "previews": []}
+    arts: list[Artifact] = []
+    info = _previews(ctx, settings, ref, rdoc, modes, resources, lights, summary, arts, warnings)
+    t_previews = time.perf_counter() - t0
+
+    cameras = rstats.get("cameras") or []
+    if check is not None:
+        arts.append(Artifact("check_points", _jsonable(check), format="json",
+                             description="reference and every mode's indirect irradiance at the check points "
+                                         "([point][normal] RGB)", meta={"modes": modes, "points": len(check["points"])}))
+    # the artifact holds no wall times (they live in the stats): the same bake gives the same bytes on any worker
+    untimed = {k: v for k, v in summary.items() if not _timing(k)}
+    previews = [{**c, "modes": {m: {k: v for k, v in d.items() if not _timing(k)} for m, d in c["modes"].items()}}
+                for c in info.get("per_camera", [])]
+    metrics_json = {"modes": modes, "summary": untimed, "points": {m: per_mode.get(m) for m in modes},
+                    "surface_points": int(len(pts["position"])), "sampling": rstats.get("sampling"),
+                    "cameras": cameras, "renderer": {k: v for k, v in info.items() if k != "per_camera"},
+                    "previews": previews, "settings": settings.__dict__,
+                    "reference": {k: rstats.get(k) for k in ("spp", "bounces", "rr_depth", "preview_spp",
+                                                            "camera_source")},
+                    "heatmap_vmax": HEATMAP_VMAX,
                     "tone_map": "exposure 0.18/median reference luminance, ACES (Narkowicz), sRGB"}
     arts.append(Artifact("eval_metrics", _jsonable(metrics_json), format="json",
-                         description="evaluate metrics per camera and mode, and their means"))
-    arts.append(Artifact("eval_cameras", {"cameras": [c.to_dict() for c in cams]}, format="json",
-                         description="the evaluation cameras"))
-    stats = {"metrics": summary, "modes": modes, "cameras": len(cams), "bounces": bounces, "spp": settings.spp,
-             "renderer": info.get("renderer"), "seconds": time.perf_counter() - t_start,
-             "png": png_supported()}
+                         description="evaluate metrics per mode (at the surface points, with standard errors) and "
+                                     "per preview camera"))
+    arts.append(Artifact("eval_cameras", _jsonable({"cameras": rdoc.get("cameras", []),
+                                                    "source": rdoc.get("source")}), format="json",
+                         description="the review cameras"))
+    ctx.report(1.0)
+    stats = {"metrics": summary, "modes": modes, "cameras": cameras, "camera_source": rstats.get("camera_source"),
+             "points": int(len(pts["position"])), "sampling": rstats.get("sampling"),
+             "check_points": len(check["points"]) if check else 0, "spp": rstats.get("spp"),
+             "bounces": rstats.get("bounces"), "renderer": info.get("renderer"), "png": png_supported(),
+             "timings": {"points_s": t_points, "check_points_s": t_check, "previews_s": t_previews},
+             "seconds": time.perf_counter() - t_start}
+    if warnings:
+        stats["warnings"] = warnings
     return StageOutput(artifacts=arts, stats=_jsonable(stats))
 
 

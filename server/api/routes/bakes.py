@@ -7,15 +7,16 @@ import json
 import logging
 import math
 import tempfile
+import threading
 import time
 from typing import Literal
 
 import redis
 from fastapi import APIRouter, Depends, Query, Request, Response
-from fastapi.responses import FileResponse, StreamingResponse
+from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
 from pydantic import BaseModel, ConfigDict, Field
 
-from proto import bundle
+from proto import bundle, cost
 from proto.catalog import TERMINAL, Catalog
 from proto.models import BakeConfig, Manifest
 from proto.stages import collect_warnings, export_bundle, finalize_bake
@@ -23,11 +24,17 @@ from proto.store import Store
 from server import queue
 from server.api import deps
 from server.api.errors import ApiError
+from server.api.routes import review
+from server.api.routes.scenes import quota_error, stored_bytes
+from server.api.jsonbody import FiniteJSONRoute
+from server.api.jsonbody import dumps as finite_dumps
+from server.api.paging import Page, page
 
 log = logging.getLogger("kiln.api")
-router = APIRouter(prefix="/v1/bakes", tags=["bakes"])
+router = APIRouter(prefix="/v1/bakes", tags=["bakes"], route_class=FiniteJSONRoute)
 
-MEDIA = {"ktx2": "image/ktx2", "npy": "application/octet-stream", "json": "application/json", "png": "image/png"}
+MEDIA = {"ktx2": "image/ktx2", "npy": "application/octet-stream", "json": "application/json", "png": "image/png",
+         "glb": "model/gltf-binary"}
 SSE_POLL_S = 0.25
 SSE_HEARTBEAT_S = 15.0
 
@@ -120,6 +127,7 @@ def public(bake: dict, store: Store | None = None, scene_warnings: list[str] | N
         out["artifacts"] = [{k: a.get(k) for k in ("name", "file", "format", "shape", "dtype", "bytes", "sha256", "stage",
                                                    "meta")}
                             for a in _artifact_infos(store, bake)]
+        out["check_points"] = review.check_points_of(store, bake)     # evaluate.points: the check_points artifact
     out["links"] = links(bake["id"])
     return out
 
@@ -131,14 +139,78 @@ def _get(catalog: Catalog, team: str, bake_id: str) -> dict:
     return bake
 
 
-@router.post("", status_code=202, summary="Start a bake of a scene with a config")
+BAKE_RETRY_AFTER_MIN_S, BAKE_RETRY_AFTER_MAX_S = 5, 3600
+_admission = threading.Lock()
+"""Held from a bake's quota check to its record, so two requests of a team cannot both take the last slot."""
+
+
+def budget_of(settings) -> cost.Budget:
+    return cost.Budget(memory_bytes=settings.bake_memory_bytes, seconds=settings.max_bake_seconds,
+                       disk_bytes=settings.max_bake_disk_mb * 2**20)
+
+
+def _limits_json(b: cost.Budget) -> dict:
+    return {"peak_memory_bytes": b.memory_bytes, "seconds": b.seconds, "artifact_bytes": b.disk_bytes}
+
+
+def _bake_retry_after(catalog: Catalog, team: str) -> int:
+    """Seconds until the team's soonest active bake should finish, by the cost model (within 5 s .. 1 h)."""
+    best = float(BAKE_RETRY_AFTER_MAX_S)
+    now = time.time()
+    for b in catalog.bakes_with_status(("queued", "running")):
+        if b["team"] != team:
+            continue
+        scene = catalog.get_scene(team, b["scene_id"])
+        try:
+            est = cost.estimate(scene or {}, BakeConfig.model_validate(b["config"]))
+        except Exception:
+            continue
+        best = min(best, est.seconds - (now - (b["started"] or b["created"])))
+    return int(min(BAKE_RETRY_AFTER_MAX_S, max(BAKE_RETRY_AFTER_MIN_S, math.ceil(best))))
+
+
+@router.post("", status_code=202, summary="Start a bake of a scene with a config (or estimate it: dry_run)")
 def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.team),
-                catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
-    if catalog.get_scene(team, body.scene_id) is None:
+                catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store),
+                dry_run: bool = Query(False, description="only estimate the bake: 200 {estimate, limits, "
+                                                         "over_budget}; nothing is recorded or started")):
+    """Every bake is estimated first (``proto.cost``: probes, seconds, peak memory, artifact bytes). Over the
+    server's budget it is refused, 422 ``over_budget`` with the estimate and the limits; over the team's
+    quotas (concurrent bakes, stored bytes) 429 ``quota_exceeded`` with ``Retry-After``. ``dry_run=true``
+    answers the estimate without recording or starting anything."""
+    scene = catalog.get_scene(team, body.scene_id)
+    if scene is None:
         raise ApiError(404, "scene_not_found", f"no scene {body.scene_id}")
-    stages = queue.plan_stages(body.scene_id, body.config)
-    bake_id = catalog.create_bake(team, body.scene_id, body.config.model_dump(mode="json"), stages)
+    body.config = review.with_review_cameras(body.config, scene)   # the scene's stored review cameras
+    settings = request.app.state.settings
+    est = cost.estimate(scene, body.config)
+    budget = budget_of(settings)
+    over = cost.over_budget(est, budget)
+    if dry_run:
+        return json_response({"estimate": est.public(), "limits": _limits_json(budget), "over_budget": over})
+    if over:
+        what = "; ".join(f"{o['resource']} {o['estimate']} > {o['limit']}" for o in over)
+        return JSONResponse({"error": {
+            "code": "over_budget",
+            "message": f"the bake is estimated over the server's budget ({what}): use fewer probes, rays per probe "
+                       "or visibility samples (POST /v1/bakes?dry_run=true estimates a config)",
+            "estimate": est.public(), "limits": _limits_json(budget), "over_budget": over}}, status_code=422)
+    stages = queue.plan_stages(body.scene_id, body.config, namespace=team)
     records = [store.get_stage(key) for _, key in stages]
+    with _admission:
+        if not all(records):
+            usage = catalog.team_usage(team)
+            if usage["active_bakes"] >= settings.quota_concurrent_bakes:
+                raise ApiError(429, "quota_exceeded", (
+                    f"the team has {usage['active_bakes']} bakes queued or running, the most it may "
+                    "(KILN_QUOTA_CONCURRENT_BAKES); retry when one is done"),
+                    headers={"Retry-After": str(_bake_retry_after(catalog, team))})
+            used = stored_bytes(catalog, store, team, usage)
+            limit = settings.quota_stored_mb * 2**20
+            if used + est.bundle_bytes > limit:
+                raise quota_error("stored bytes", used + est.bundle_bytes, limit,
+                                  "delete bakes or scenes first (KILN_QUOTA_STORED_MB)")
+        bake_id = catalog.create_bake(team, body.scene_id, body.config.model_dump(mode="json"), stages)
     if all(records):  # every stage is in the store: done at once
         for (name, _), rec in zip(stages, records):
             catalog.update_stage(bake_id, name, status="succeeded", progress=1.0, seconds=rec["seconds"],
@@ -146,14 +218,15 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
         finalize_bake(catalog, store, catalog.get_bake(bake_id))
     else:
         try:
-            queue.enqueue_bake(request.app.state.redis, catalog.get_bake(bake_id))
+            queue.enqueue_bake(request.app.state.redis, catalog.get_bake(bake_id), scene,
+                               settings.bake_memory_bytes)
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as e:
             # Redis down: the bake is safe in the catalog; recovery enqueues it once Redis is back
             log.warning("could not enqueue bake %s now (%s); recovery will", bake_id, e)
         except Exception as e:
             log.exception("enqueueing bake %s failed", bake_id)
-            catalog.set_bake_status(bake_id, "failed", error={"stage": None, "code": "internal",
-                                                              "message": f"could not enqueue: {e}"})
+            msg = f"could not enqueue the bake ({type(e).__name__}); it has been logged"  # no reprs or paths
+            catalog.set_bake_status(bake_id, "failed", error={"stage": None, "code": "internal", "message": msg})
     bake = catalog.get_bake(bake_id)
     return {"id": bake_id, "status": bake["status"], "links": links(bake_id)}
 
@@ -162,7 +235,8 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
 def list_bakes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
                scene_id: str | None = None,
                status: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
-               limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0)):
+               pg: Page = Depends(page)):
+    limit, offset = pg
     items, total = catalog.list_bakes(team, scene_id, status, limit, offset)
     full = [catalog.get_bake(b["id"]) for b in items]
     scenes: dict = {}
@@ -189,9 +263,11 @@ def cancel_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
 
 
 def _cancel(request: Request, catalog: Catalog, bake: dict) -> None:
+    """Cancel in the catalog first (a running stage's progress callback and every later job see it), then stop
+    the jobs: queued ones are cancelled, a running one's work-horse is killed by its worker at once."""
     catalog.set_bake_status(bake["id"], "cancelled", only_from=("queued", "running"))
     for s in bake["stages"]:
-        if s["status"] in ("pending", "retrying"):
+        if s["status"] in ("pending", "retrying", "running"):
             catalog.update_stage(bake["id"], s["name"], status="cancelled")
     try:
         queue.cancel_jobs(request.app.state.redis, bake)
@@ -231,10 +307,10 @@ async def bake_events(bake_id: str, request: Request, team: str = Depends(deps.t
                 return
             snap = _snapshot(bake, scene_warnings)
             if snap != last:
-                yield f"event: progress\ndata: {json.dumps(snap)}\n\n"
+                yield f"event: progress\ndata: {finite_dumps(snap)}\n\n"
                 last, last_sent = snap, time.monotonic()
             if bake["status"] in TERMINAL:
-                yield f"event: status\ndata: {json.dumps(snap)}\n\n"
+                yield f"event: status\ndata: {finite_dumps(snap)}\n\n"
                 return
             if time.monotonic() - last_sent > SSE_HEARTBEAT_S:
                 yield ": keep-alive\n\n"

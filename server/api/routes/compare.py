@@ -24,8 +24,9 @@ from fastapi import APIRouter, Depends, Query
 from proto.catalog import Catalog
 from server.api.deps import catalog, team
 from server.api.errors import ApiError
+from server.api.jsonbody import FiniteJSONRoute
 
-router = APIRouter(prefix="/v1", tags=["compare"])
+router = APIRouter(prefix="/v1", tags=["compare"], route_class=FiniteJSONRoute)
 
 
 def bake_metrics(bake: dict) -> dict[str, float]:

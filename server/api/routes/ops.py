@@ -1,14 +1,16 @@
 """``/healthz``, ``/metrics`` (Prometheus text format) and ``/v1/config/schema``."""
 from __future__ import annotations
 
-from fastapi import APIRouter, Request, Response
+from fastapi import APIRouter, Depends, Request, Response
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import GaugeMetricFamily, SummaryMetricFamily
 
 from proto.models import BakeConfig
 from server import queue
+from server.api import deps
+from server.api.jsonbody import FiniteJSONRoute
 
-router = APIRouter(tags=["ops"])
+router = APIRouter(tags=["ops"], route_class=FiniteJSONRoute)
 
 
 @router.get("/healthz", summary="Liveness and dependencies")
@@ -30,35 +32,43 @@ def healthz(request: Request):
 
 
 class _Collector:
-    def __init__(self, app):
-        self.app = app
+    """``team``: with API keys, the caller's team — its own bakes and stage times only; the queue depths are
+    aggregates over every team (they name no bake). Open (no keys): everything, as team ``default``."""
+
+    def __init__(self, app, team: str | None = None):
+        self.app, self.team = app, team
 
     def collect(self):
         st = self.app.state
-        depth = GaugeMetricFamily("kiln_queue_depth", "jobs waiting in the bake queue")
+        depth = GaugeMetricFamily("kiln_queue_depth", "jobs waiting in the bake queues (all teams)")
+        by_queue = GaugeMetricFamily("kiln_queue_jobs", "jobs waiting per queue (all teams)", labels=["queue"])
         try:
-            depth.add_metric([], queue.queue_depth(st.redis))
+            depths = queue.queue_depths(st.redis)
+            depth.add_metric([], sum(depths.values()))
+            for name, n in depths.items():
+                by_queue.add_metric([name], n)
         except Exception:
             depth.add_metric([], float("nan"))
         yield depth
-        bakes = GaugeMetricFamily("kiln_bakes", "bakes in the catalog by status", labels=["status"])
-        for status, n in st.catalog.count_bakes_by_status().items():
+        yield by_queue
+        bakes = GaugeMetricFamily("kiln_bakes", "the team's bakes in the catalog by status", labels=["status"])
+        for status, n in st.catalog.count_bakes_by_status(self.team).items():
             bakes.add_metric([status], n)
         yield bakes
-        dur = SummaryMetricFamily("kiln_stage_duration_seconds", "wall time of stages that ran (not cached)",
-                                  labels=["stage"])
+        dur = SummaryMetricFamily("kiln_stage_duration_seconds", "wall time of the team's stages that ran "
+                                  "(not cached)", labels=["stage"])
         agg: dict[str, list[float]] = {}
-        for stage, sec in st.catalog.stage_durations():
+        for stage, sec in st.catalog.stage_durations(self.team):
             agg.setdefault(stage, []).append(sec)
         for stage, secs in sorted(agg.items()):
             dur.add_metric([stage], count_value=len(secs), sum_value=sum(secs))
         yield dur
 
 
-@router.get("/metrics", summary="Prometheus metrics")
-def metrics(request: Request):
+@router.get("/metrics", summary="Prometheus metrics (with API keys: needs one, and shows that team's bakes)")
+def metrics(request: Request, team: str = Depends(deps.team)):
     reg = CollectorRegistry()
-    reg.register(_Collector(request.app))
+    reg.register(_Collector(request.app, None if request.app.state.settings.open else team))
     return Response(generate_latest(reg), media_type="text/plain; version=0.0.4; charset=utf-8")
 
 

@@ -46,8 +46,8 @@ from pathlib import Path
 from typing import Literal
 
 from fastapi import APIRouter, Depends, Query
-from fastapi.responses import JSONResponse, Response
-from pydantic import BaseModel, ConfigDict, Field
+from fastapi.responses import Response
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from proto import bundle
 from proto.catalog import Catalog
@@ -56,9 +56,10 @@ from proto.stages import KILN_VERSION
 from proto.store import Store
 from server.api import deps
 from server.api.errors import ApiError
+from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
 from server.api.routes.bakes import _artifact_infos
 
-router = APIRouter(prefix="/v1/bakes", tags=["relight"])
+router = APIRouter(prefix="/v1/bakes", tags=["relight"], route_class=FiniteJSONRoute)
 
 MODEL_CACHE_SIZE = 8
 """Unpacked PRT models kept in the API process (a few MB each for a 16x32x16 grid)."""
@@ -69,7 +70,7 @@ _models_lock = threading.Lock()
 class RelightRequest(BaseModel):
     model_config = ConfigDict(extra="forbid")
     lights: list[LightConfig] = Field(..., max_length=64, description="the lights to relight with")
-    lightmap: bool = Field(True, description="also reconstruct the lightmap (when the bake has one)")
+    lightmap: StrictBool = Field(True, description="also reconstruct the lightmap (when the bake has one)")
 
 
 def _prt_model(store: Store, infos: dict[str, dict]):
@@ -171,8 +172,8 @@ def relight_bake(bake_id: str, body: RelightRequest,
         if format == "json":
             files = {"manifest.json": (folder / "manifest.json").read_bytes()}
             files |= {a.file: (folder / a.file).read_bytes() for a in arts}
-            return JSONResponse({"format": "kiln-relight/1", "manifest": json.loads(files["manifest.json"]),
-                                 "files": {n: base64.b64encode(b).decode() for n, b in files.items()}})
+            return FiniteJSONResponse({"format": "kiln-relight/1", "manifest": json.loads(files["manifest.json"]),
+                                       "files": {n: base64.b64encode(b).decode() for n, b in files.items()}})
         zpath = bundle.zip_bundle(folder, Path(tmp) / "relit.zip")
         data = zpath.read_bytes()
     return Response(content=data, media_type="application/zip",

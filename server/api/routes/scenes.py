@@ -6,16 +6,18 @@ import os
 import tempfile
 from pathlib import Path
 
-from fastapi import APIRouter, Depends, Query, Request, Response
-from fastapi.responses import JSONResponse
+from fastapi import APIRouter, Depends, Request, Response
 
 from proto.catalog import Catalog
 from proto.store import Store
 from server.api import deps
 from server.api.errors import ApiError
+from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
+from server.api.paging import Page, page
 from server.config import Settings
+from server.ingest_pool import UploadsBusy
 
-router = APIRouter(prefix="/v1/scenes", tags=["scenes"])
+router = APIRouter(prefix="/v1/scenes", tags=["scenes"], route_class=FiniteJSONRoute)
 
 _MULTIPART_SLACK = 64 * 1024
 """Bytes of multipart framing allowed beyond the upload limit in Content-Length."""
@@ -34,7 +36,20 @@ async def _save_body(request: Request, dest: Path, limit: int) -> str | None:
             raise ApiError(413, "too_large", f"the upload is {n} bytes; the limit is {limit} bytes")
     written = 0
     if ctype.startswith("multipart/form-data"):
-        form = await request.form(max_files=1, max_fields=8)
+        # the multipart parser spools the file itself: count what it receives, so a chunked body is cut off
+        # at the limit too (not only one with a Content-Length)
+        received = 0
+
+        async def bounded_receive():
+            nonlocal received
+            msg = await request.receive()
+            if msg["type"] == "http.request":
+                received += len(msg.get("body", b""))
+                if received > limit + _MULTIPART_SLACK:
+                    raise ApiError(413, "too_large", f"the upload exceeds the limit of {limit} bytes")
+            return msg
+
+        form = await Request(request.scope, bounded_receive).form(max_files=1, max_fields=8)
         try:
             files = [v for _, v in form.multi_items() if hasattr(v, "read")]
             if not files:
@@ -62,33 +77,113 @@ async def _save_body(request: Request, dest: Path, limit: int) -> str | None:
     return name
 
 
+UPLOAD_RETRY_AFTER_S = 5
+"""``Retry-After`` of a 429 for too many concurrent uploads of one team (a small upload takes about a second)."""
+QUOTA_RETRY_AFTER_S = 60
+"""``Retry-After`` of a 429 for a storage or scene-count quota: nothing frees itself; the team must delete."""
+
+
+def stored_bytes(catalog: Catalog, store: Store, team: str, usage: dict | None = None) -> int:
+    """What a team stores, for ``KILN_QUOTA_STORED_MB``: its scenes' normalized bytes (a scene stored before
+    sizes were recorded: its blob's size) and the bundles of its succeeded bakes."""
+    usage = usage or catalog.team_usage(team)
+    extra = 0
+    for sid in usage["unsized"]:
+        try:
+            extra += store.blob_path(sid).stat().st_size
+        except (OSError, ValueError):
+            pass
+    return usage["scene_bytes"] + extra + usage["artifact_bytes"]
+
+
+def quota_error(what: str, used: int | str, limit: int | str, hint: str) -> ApiError:
+    return ApiError(429, "quota_exceeded", f"the team's {what} quota is used: {used} of {limit}; {hint}",
+                    headers={"Retry-After": str(QUOTA_RETRY_AFTER_S)})
+
+
+def _check_upload_quota(settings: Settings, catalog: Catalog, store: Store, team: str, adding: int = 0,
+                        new_scene: bool = True) -> None:
+    usage = catalog.team_usage(team)
+    if new_scene and usage["scenes"] >= settings.quota_scenes:
+        raise quota_error("scenes", usage["scenes"], settings.quota_scenes, "delete scenes first (KILN_QUOTA_SCENES)")
+    used = stored_bytes(catalog, store, team, usage)
+    limit = settings.quota_stored_mb * 2**20
+    if used + adding > limit or (adding == 0 and used >= limit):
+        raise quota_error("stored bytes", used + adding, limit,
+                          "delete scenes or bakes first (KILN_QUOTA_STORED_MB)")
+
+
 @router.post("", status_code=201, summary="Upload a scene (.glb, .gltf with data URIs, or .zip)")
 async def upload_scene(request: Request, team: str = Depends(deps.team)):
+    """Admission first, before any body byte is read: the team's concurrent uploads (429 with Retry-After,
+    ``KILN_MAX_UPLOADS_PER_TEAM``) and its quotas (429 ``quota_exceeded``). The body streams to disk within
+    ``KILN_MAX_UPLOAD_MB`` and ``KILN_INGEST_TIMEOUT_S``; a parser child reads it (killed past the timeout or when
+    the client goes away); the normalized scene must stay within ``KILN_MAX_SCENE_MB`` and the quota."""
     settings: Settings = request.app.state.settings
     catalog: Catalog = request.app.state.catalog
     store: Store = request.app.state.store
+    pool = request.app.state.ingest_pool
+    await asyncio.to_thread(_check_upload_quota, settings, catalog, store, team)
+    try:
+        admitted = pool.admit(team)
+        admitted.__enter__()
+    except UploadsBusy as e:
+        raise ApiError(429, "too_many_uploads", f"the team has {e.limit} uploads in progress, the most it may "
+                                                "(KILN_MAX_UPLOADS_PER_TEAM); retry when one is done",
+                       headers={"Retry-After": str(UPLOAD_RETRY_AFTER_S)}) from None
+    try:
+        result, filename = await _receive_and_parse(request, settings, store, pool, team)
+    finally:
+        admitted.__exit__(None, None, None)
+    if "error" in result:
+        e = result["error"]
+        raise ApiError(e["status"], e["code"], e["message"])
+    summary = result["summary"]
+    if await asyncio.to_thread(catalog.get_scene, team, result["scene_id"]) is None:
+        try:
+            await asyncio.to_thread(_check_upload_quota, settings, catalog, store, team, int(summary.get("bytes") or 0))
+        except ApiError:
+            if not await asyncio.to_thread(catalog.scene_referenced, result["scene_id"]):
+                store.blob_path(result["scene_id"]).unlink(missing_ok=True)
+            raise
+    created = await asyncio.to_thread(catalog.add_scene, team, result["scene_id"], summary, filename)
+    body = await asyncio.to_thread(catalog.get_scene, team, result["scene_id"])
+    return FiniteJSONResponse(body, status_code=201 if created else 200)
+
+
+async def _receive_and_parse(request: Request, settings: Settings, store: Store, pool, team: str
+                             ) -> tuple[dict, str | None]:
     updir = settings.data / "uploads"
     updir.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(dir=updir, suffix=".upload")
     os.close(fd)
     try:
-        filename = await _save_body(request, Path(tmp), settings.max_upload_bytes)
-        limits = {"max_bytes": settings.max_upload_bytes, "max_triangles": settings.max_triangles}
-        result = await request.app.state.ingest_pool.run(tmp, filename or "upload", str(store.root), limits)
+        try:
+            filename = await asyncio.wait_for(_save_body(request, Path(tmp), settings.max_upload_bytes),
+                                              settings.ingest_timeout_s)
+        except asyncio.TimeoutError:
+            raise ApiError(408, "upload_timeout", f"the upload did not arrive within {settings.ingest_timeout_s:g} s "
+                                                  "(KILN_INGEST_TIMEOUT_S)") from None
+        limits = {"max_bytes": settings.max_upload_bytes, "max_triangles": settings.max_triangles,
+                  "max_scene_bytes": settings.max_scene_bytes}
+        limits.update(_expanded_limits(settings))
+        result = await pool.run(tmp, filename or "upload", str(store.root), limits, team=team,
+                                disconnected=request.is_disconnected)
     finally:
         Path(tmp).unlink(missing_ok=True)
-    if "error" in result:
-        e = result["error"]
-        raise ApiError(e["status"], e["code"], e["message"])
-    summary = result["summary"]
-    created = await asyncio.to_thread(catalog.add_scene, team, result["scene_id"], summary, filename)
-    body = await asyncio.to_thread(catalog.get_scene, team, result["scene_id"])
-    return JSONResponse(body, status_code=201 if created else 200)
+    return result, filename
+
+
+def _expanded_limits(settings: Settings) -> dict:
+    """IngestLimits fields bounding the decoded size of an upload (not only its file): the images' total pixels,
+    so four 8192² PNGs in a small file are refused before they are decoded (4 bytes a pixel, RGBA)."""
+    return {"max_total_image_pixels": settings.max_scene_bytes // 4}
 
 
 @router.get("", summary="List the team's scenes")
 def list_scenes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
-                limit: int = Query(50, ge=1, le=500), offset: int = Query(0, ge=0)):
+                pg: Page = Depends(page)):
+    limit, offset = pg
     items, total = catalog.list_scenes(team, limit, offset)
     return {"items": items, "total": total, "limit": limit, "offset": offset}
 

@@ -1,0 +1,357 @@
+"""The cost model: what a bake will take — peak memory, disk, seconds — before it is accepted.
+
+One model for every side: the API refuses a bake over the server's budget (422 ``over_budget``,
+``KILN_MAX_BAKE_MEMORY_MB``, ``KILN_MAX_BAKE_SECONDS``, ``KILN_MAX_BAKE_DISK_MB``), ``POST
+/v1/bakes?dry_run=true`` returns the estimate (the artist UI shows it), the queue takes each stage's
+timeout and queue (long or short) from it. Pure functions of the scene summary (``triangles``,
+``bounds``, and ``bytes`` of the stored normalized scene when known) and the :class:`BakeConfig`;
+no I/O, no numpy.
+
+What drives each stage (P probes, R rays per probe, N = P·R probe rays, T triangles, F visibility-field
+samples = cells × S³, K clusters, C PRT configurations, M measurement points):
+
+========== ============================================= ===============================================
+stage      seconds                                       memory (beyond the worker's own footprint)
+========== ============================================= ===============================================
+ingest     scene load                                    the scene (its stored bytes ~ 4 x T x 100 B)
+place      planning rays (automatic grid) + BVH build    the scene + BVH
+relocate   iterations × N rays                           N rays (origins, directions, hits)
+trace      N rays + depth moments                        N rays, hits kept (20 B a ray)
+light      N (shading, 8 occlusion rays a hit) × bounces N hits and per-bounce radiance
+visibility F × 8 corner rays × visibility.rays            F × 8 (θ) per shard; the join F × 9
+anneal     sweeps × P + F (edge loss)                    F × 9
+masks      F × K                                         F × K floats
+compress   F × K                                         F × K
+prt        C × (M + N bounces) + lightmap texels         a batch × N + C × (P × SH + lightmap texels)
+reference  (points × spp + preview px × preview_spp) × ~3  the preview G-buffers and reference images
+           path vertices (path tracer, Russian roulette)
+evaluate   points × modes + preview px × modes × repeats  W × H per mode of the previews
+========== ============================================= ===============================================
+
+The automatic grid (``place.counts`` and ``place.spacing`` both None) is estimated at its upper bound:
+``place.budget`` probes, and the visibility samples per cell it may choose (at most 16 and at most the field
+budget of 12 M samples, :mod:`workers.kernels.autogrid`), since neither is known before the place stage
+has cast its planning rays. Light bounces until converged are estimated at :data:`EXPECTED_BOUNCES`
+(capped by ``light.max_bounces`` or set by ``light.bounces``).
+
+Calibration (``tests/bench/bench_cost.py``, each stage in a forked work-horse): see :data:`CALIBRATION`.
+The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of every
+measured stage (by at most a third) and the time estimate of every measured bake (by 1x - 3.7x).
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+from proto.models import BakeConfig
+
+# --------------------------------------------------------------------------------------------- constants
+
+MB = 2**20
+
+FIELD_BUDGET = 12_000_000
+"""The automatic grid's cap on probes × S³ (workers.kernels.autogrid.FIELD_BUDGET)."""
+
+AUTO_MAX_S = 16
+AUTO_MIN_S = 4
+EXPECTED_BOUNCES = 26
+"""Bounces assumed for a light stage that runs until converged (measured: 3 on zdm2, 8-26 on the procedural
+scenes; a bright closed room needs more, up to light.max_bounces)."""
+
+WORKER_FOOTPRINT = 100 * MB
+"""RSS of a work-horse before its stage allocates anything (forked from a worker that imported workers.jobs;
+measured 76-90 MB). Part of ``peak_memory_bytes``."""
+
+LONG_STAGE_SECONDS = 30.0
+"""Stages estimated above this go to the long queue (``kiln-long``); prt always does. Since the reference is its own
+stage, cached per scene (issue 13), evaluate and reference go by their estimates like the others."""
+
+# -- memory, bytes (fitted, see CALIBRATION) ----------------------------------------------------------------
+LIB_RAYS = 135 * MB            # Embree, its threads and the numba kernels, loaded by every ray-casting stage
+LIB_NUMBA = 118 * MB           # numba kernels of anneal and masks
+LIB_SMALL = 12 * MB            # stages that only load and write arrays
+LIB_EVAL = 250 * MB            # moderngl on EGL (Mesa llvmpipe) + the path tracer
+SCENE_BYTES_PER_TRIANGLE = 112 # the stored normalized scene without textures (triangles, normals, uv0, material)
+SCENE_MEM_PER_TRIANGLE = 300   # the loaded scene, its Embree BVH and material tables
+SCENE_MEM_PER_BYTE = 1.5       # textures and other stored arrays, loaded (+ derived)
+RAY_MEM = {"relocate": 75, "trace": 125, "light": 360}   # per probe ray at the stage's peak
+VIS_CHUNK_SAMPLES = (1 << 21) // 8                       # workers.kernels.visibility.CHUNK_RAYS / 8 corners
+VIS_CHUNK_MEM = 130 * MB       # a full chunk of visibility rays (bounded by CHUNK_RAYS)
+VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
+FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 7}
+FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 10, "compress": 2.5}
+PRT_FIXED_MEM = 40 * MB       # the measurement points, the lightmap's atlas (xatlas)
+PRT_MEM_PER_CONFIG_RAY = 88    # the batched bounce loop: a batch's configurations' radiance on every probe ray
+PRT_MEM_PER_CONFIG_TEXEL = 48  # every configuration's lightmap texels, and their fit (float64)
+PRT_MEM_PER_RAY = 256          # the DDGI sampler as a sparse matrix, a row per probe-ray hit
+PRT_BATCH_BYTES = 256 << 20    # workers.stages.prt.BATCH_BYTES: per-ray radiance of one batch of configurations
+EVAL_MEM_PER_PIXEL = 4600      # G-buffer, reference accumulators, every mode's image and FLIP, per pixel
+
+# -- seconds on this 2-core machine (fitted, see CALIBRATION) -------------------------------------------------
+RAY_STAGE_OVERHEAD_S = 0.5     # loading Embree and the numba kernels, reading inputs, writing artifacts
+STAGE_OVERHEAD_S = 0.15
+PLANNING_SECONDS = 1.0         # the automatic grid's ~200 k planning rays (x the scene's ray-cost scale)
+RELOCATE_SECONDS_PER_RAY = 0.25e-6         # per probe ray and iteration (x ray-cost scale)
+TRACE_SECONDS_PER_RAY = 1.0e-6             # per probe ray, depth moments included (x ray-cost scale)
+LIGHT_SECONDS_PER_HIT = 1.25e-6            # direct light and the cage-probe occlusion rays, once (x ray-cost scale)
+LIGHT_SECONDS_PER_HIT_BOUNCE = 0.6e-6      # one bounce of shading and gathering, per probe ray
+VIS_SECONDS_PER_RAY = 0.35e-6              # visibility: per occlusion ray (8 per sample and visibility.rays)
+FIELD_SECONDS_PER_SAMPLE = {"visibility": 0.15e-6, "anneal": 0.15e-6, "masks": 1.0e-6, "compress": 0.12e-6}
+ANNEAL_SECONDS_PER_PROBE_SWEEP = 0.1e-6
+PRT_SECONDS_PER_CONFIG_RAY_BOUNCE = 0.11e-6
+PRT_SECONDS_PER_CONFIG_TEXEL = 2.3e-6
+PRT_SECONDS_PER_CONFIG_POINT = 9e-5        # direct light (shadow rays) per configuration and measurement sample
+EVAL_FIXED_SECONDS = 6.0                   # EGL context, shader compiles, camera placement
+EVAL_SECONDS_PER_PATH_BOUNCE = 1.5e-6      # the path-traced reference, per sample and bounce (x ray-cost scale)
+EVAL_SECONDS_PER_PIXEL_PASS = 1e-6         # each mode's shading pass, per repeat
+EVAL_FLIP_SECONDS_PER_PIXEL = 5e-6         # FLIP, per mode
+EVAL_PATH_VERTICES = 3.0                   # mean vertices of a reference path (64 bounces, roulette from vertex 3)
+EVAL_SECONDS_PER_POINT_MODE = 2e-5         # a mode reconstructed at a point, with the metrics' bootstrap
+
+CALIBRATION = """
+Measured with ``tests/bench/bench_cost.py`` (each stage forked from a warm process, as RQ runs a work-horse, on
+this project's shared 2-core machine with other jobs running) on 13 bakes: the procedural cornell (1,036
+triangles) and two-rooms (352) at 64 - 4,608 probes, 64 - 1,024 rays per probe, S = 2 - 12, one and four slabs,
+PRT with 64 - 128 configurations and lightmaps of 0 - 256², evaluate at 64x48 and 256x192; and
+zdm2-sauerbraten (58,772 triangles) at 12,800 probes (spacing 2.5 m) and on its automatic grid (budget 3,000:
+2,850 probes, S = 16, 9.3 M field samples).
+
+Estimate / measured (``bench_cost.py --check FILE...`` prints every stage):
+
+- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.34x
+  (median 1.07x); per stage (133 stages that ran) 1.00x - 1.34x, median 1.12x: the model is an upper bound of
+  every measured stage, by at most a third.
+- seconds of a bake: 1.0x - 3.7x (median 1.45x). The largest over-estimates come from the light bounces
+  (26 assumed until converged; zdm2 converged in 3, cornell in 8), which the evaluate reference also uses.
+  Per stage 0.6x - 25x: sub-second stages are dominated by loading, and 24 of 133 stages ran longer than
+  estimated (by at most 1/0.6), none of them long.
+
+Large configurations are extrapolated: the memory terms are linear in what they hold (probe rays, field
+samples, PRT configurations x probe rays), which the largest calibrated bakes confirm (light: 260 - 350 B per
+probe ray; PRT: 88 B per configuration of a batch and probe ray). Times on a busier or faster machine differ: stage
+timeouts are 4x the estimate + 60 s, at least 2 minutes (:func:`stage_timeout`).
+"""
+
+
+# --------------------------------------------------------------------------------------------- results
+
+
+@dataclass(frozen=True)
+class StageCost:
+    name: str
+    seconds: float
+    memory_bytes: int          # the stage's own peak (beyond the worker's footprint)
+    artifact_bytes: int        # what it writes to the store (internal artifacts too)
+    bundle_bytes: int          # of which in the bundle
+    long: bool                 # runs on the long queue
+
+
+@dataclass(frozen=True)
+class Estimate:
+    probes: int
+    probes_exact: bool          # False: the automatic grid's upper bound (place.budget)
+    samples_per_cell: int
+    field_samples: int
+    seconds: float              # all stages one after another (shards too)
+    peak_memory_bytes: int      # the largest stage + the worker's footprint
+    artifact_bytes: int         # disk: every artifact of the bake, internal ones too
+    bundle_bytes: int = 0       # of which in the bundle (what a team's stored-bytes quota counts)
+    stages: list[StageCost] = field(default_factory=list)
+
+    def public(self) -> dict:
+        """The JSON the API returns (``POST /v1/bakes?dry_run=true``: ``{"estimate": ...}``)."""
+        return {"probes": self.probes, "probes_exact": self.probes_exact, "seconds": round(self.seconds, 1),
+                "peak_memory_bytes": int(self.peak_memory_bytes), "artifact_bytes": int(self.artifact_bytes),
+                "bundle_bytes": int(self.bundle_bytes),
+                "samples_per_cell": self.samples_per_cell, "field_samples": self.field_samples,
+                "stages": [{"name": s.name, "seconds": round(s.seconds, 2), "memory_bytes": int(s.memory_bytes),
+                            "artifact_bytes": int(s.artifact_bytes), "queue": "long" if s.long else "short"}
+                           for s in self.stages]}
+
+    def stage(self, name: str) -> StageCost | None:
+        return next((s for s in self.stages if s.name == name), None)
+
+
+# --------------------------------------------------------------------------------------------- the grid
+
+
+def _box(summary: dict, config: BakeConfig) -> tuple[list[float], list[float]]:
+    sec = config.place
+    if sec.box is not None:
+        lo, hi = list(sec.box.min), list(sec.box.max)
+    else:
+        b = summary.get("bounds") or [[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]]
+        lo, hi = [float(x) for x in b[0]], [float(x) for x in b[1]]
+    pad = [(h - l) * sec.padding for l, h in zip(lo, hi)]
+    return [l - p for l, p in zip(lo, pad)], [h + p for h, p in zip(hi, pad)]
+
+
+def grid_counts(summary: dict, config: BakeConfig) -> tuple[tuple[int, int, int], bool]:
+    """Probe counts per axis and whether they are exact (False: the automatic grid's bound, a cube of
+    ``place.budget`` probes)."""
+    sec = config.place
+    if sec.counts is not None:
+        return tuple(int(c) for c in sec.counts), True
+    if sec.spacing is not None:
+        lo, hi = _box(summary, config)
+        s = float(sec.spacing)
+        counts = []
+        for l, h in zip(lo, hi):
+            e = h - l
+            n = math.ceil(e / s - 1e-9) + 1 if e > 0 else 1
+            counts.append(int(min(max(n, 1), 1 << 31)))
+        return tuple(counts), True
+    n = max(2, int(sec.budget ** (1 / 3)))
+    return (n, n, max(1, math.ceil(sec.budget / (n * n)))), False
+
+
+def samples_per_cell(config: BakeConfig, probes: int) -> int:
+    """S of the visibility field: the config's, else the most the automatic grid may choose."""
+    if config.visibility.samples_per_cell is not None:
+        return int(config.visibility.samples_per_cell)
+    if config.place.counts is not None or config.place.spacing is not None:
+        return 8                      # an explicit grid without an automatic choice: the stage's default
+    return int(min(AUTO_MAX_S, max(AUTO_MIN_S, int((FIELD_BUDGET / max(probes, 1)) ** (1 / 3)))))
+
+
+# --------------------------------------------------------------------------------------------- the model
+
+
+def estimate(summary: dict, config: BakeConfig) -> Estimate:
+    """The estimate of one bake of the scene ``summary`` (``triangles``, ``bounds``, optional ``bytes``)."""
+    T = max(int(summary.get("triangles") or 0), 1)
+    scene_bytes = int(summary.get("bytes") or T * SCENE_BYTES_PER_TRIANGLE)
+    extra_bytes = max(scene_bytes - T * SCENE_BYTES_PER_TRIANGLE, 0)      # textures, colours, uv1
+    scene_mem = T * SCENE_MEM_PER_TRIANGLE + extra_bytes * SCENE_MEM_PER_BYTE
+    rays_scale = math.log2(T + 2) / 10.0     # a ray's cost grows with the BVH's depth
+
+    counts, exact = grid_counts(summary, config)
+    nx, ny, nz = counts
+    P = nx * ny * nz if exact else config.place.budget      # the automatic grid: at most its budget
+    R = config.trace.rays_per_probe
+    N = P * R
+    S = samples_per_cell(config, P)
+    cells = max(nx - 1, 1) * max(ny - 1, 1) * max(nz - 1, 1)
+    F = cells * S**3
+    K = config.masks.clusters
+    B = config.light.bounces or min(config.light.max_bounces, EXPECTED_BOUNCES)
+    slabs = config.visibility.slabs
+    shards = min(slabs, max(nz - 1, 1))      # slabs beyond the cell layers are empty
+    sh_k = 9 if config.light.sh_order == 2 else 4
+
+    st: list[StageCost] = []
+
+    def add(name: str, seconds: float, memory: float, artifacts: float, internal: float = 0.0,
+            long: bool | None = None, rays: bool = True):
+        seconds += RAY_STAGE_OVERHEAD_S if rays else STAGE_OVERHEAD_S
+        st.append(StageCost(name, float(seconds), int(memory), int(artifacts + internal), int(artifacts),
+                            bool(seconds > LONG_STAGE_SECONDS if long is None else long)))
+
+    add("ingest", scene_bytes / (200 * MB), LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE, 2048, rays=False)
+    if exact:
+        add("place", 0.0, LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE + P * 24, P * 12, rays=False)
+    else:
+        add("place", PLANNING_SECONDS * rays_scale, LIB_RAYS + scene_mem + 40 * MB + P * 24, P * 12)
+    add("relocate", config.trace.relocate_iterations * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
+        LIB_RAYS + scene_mem + N * RAY_MEM["relocate"], P * 24)
+    dt = config.trace.depth_texels + 2
+    add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale, LIB_RAYS + scene_mem + N * RAY_MEM["trace"],
+        P * (1 + dt * dt * 8), internal=N * 20 + R * 12)
+    it = config.light.irradiance_texels + 2
+    add("light", N * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE),
+        LIB_RAYS + scene_mem + N * RAY_MEM["light"], P * (it * it * 16 + sh_k * 12 + 48))
+    n_shard = F / shards
+    chunk = VIS_CHUNK_SAMPLES / config.visibility.rays
+    for i in range(slabs):
+        if i < shards:
+            add(f"visibility.{i}", n_shard * 8 * config.visibility.rays * VIS_SECONDS_PER_RAY,
+                LIB_RAYS + scene_mem + VIS_CHUNK_MEM * min(1.0, n_shard / chunk) + n_shard * VIS_MEM_PER_SAMPLE,
+                0, internal=n_shard * 9)
+        else:
+            add(f"visibility.{i}", 0.0, LIB_SMALL, 0, internal=256, rays=False)
+    add("visibility", F * FIELD_SECONDS_PER_SAMPLE["visibility"], LIB_SMALL + F * FIELD_MEM_PER_SAMPLE["visibility"],
+        F * 9, rays=False)
+    add("anneal", F * FIELD_SECONDS_PER_SAMPLE["anneal"] + config.masks.sweeps * P * ANNEAL_SECONDS_PER_PROBE_SWEEP,
+        LIB_NUMBA + F * FIELD_MEM_PER_SAMPLE["anneal"] + P * 64, P * 8)
+    add("masks", F * FIELD_SECONDS_PER_SAMPLE["masks"] * max(1.0, K / 4) ** 0.5,
+        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"]) + N * 4,
+        F * K + K * P * (sh_k * 12 + 4))
+    add("compress", F * FIELD_SECONDS_PER_SAMPLE["compress"],
+        LIB_SMALL + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]), F * K,
+        rays=False)
+    prt = config.prt
+    if prt.enabled:
+        C, M = prt.configurations, prt.measurement_points * prt.supersampling * prt.scenario.count
+        L2 = prt.lightmap ** 2
+        seconds = (C * N * B * PRT_SECONDS_PER_CONFIG_RAY_BOUNCE + C * L2 * PRT_SECONDS_PER_CONFIG_TEXEL
+                   + C * M * PRT_SECONDS_PER_CONFIG_POINT * rays_scale / 0.5)
+        # configurations are solved in batches of at most 256 MB of per-ray radiance (workers/stages/prt.py)
+        batch = min(C, max(1, min(64, PRT_BATCH_BYTES // max(N * 12, 1))))
+        memory = (LIB_RAYS + PRT_FIXED_MEM + scene_mem + batch * N * PRT_MEM_PER_CONFIG_RAY
+                  + C * L2 * PRT_MEM_PER_CONFIG_TEXEL + C * P * sh_k * 12 + N * PRT_MEM_PER_RAY)
+        add("prt", seconds, memory, prt.basis * (P * sh_k * 12 + L2 * 16) + C * prt.basis * 4 + T * 24, long=True)
+    else:   # disabled: the stage runs and returns at once
+        add("prt", 0.0, LIB_SMALL, 0, rays=False, long=False)
+    ev = config.evaluate
+    if ev.enabled:   # the reference (cached per scene: reads no probe stage) and the metrics at its points
+        cams = ev.cameras if isinstance(ev.cameras, int) else len(ev.cameras)
+        pv = min(int(ev.previews), cams)                        # cameras with preview images
+        px = pv * ev.width * ev.height
+        pts = ev.surface_points + (len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0)
+        vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
+        modes = len(ev.modes) if ev.modes else 6
+        add("reference", EVAL_FIXED_SECONDS + (pts * ev.spp + px * ev.preview_spp) * vertices
+            * EVAL_SECONDS_PER_PATH_BOUNCE * rays_scale,
+            LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * ev.spp * 64, 0, internal=pts * 108 + px * 120)
+        seconds = 0.5 * EVAL_FIXED_SECONDS + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
+            ev.repeats * EVAL_SECONDS_PER_PIXEL_PASS + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
+        add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * 64 + F * 9,
+            px * 4 * (2 * modes + 2) + pts * modes * 24)
+    else:
+        add("reference", 0.0, LIB_SMALL, 0, rays=False, long=False)
+        add("evaluate", 0.0, LIB_SMALL, 0, rays=False, long=False)
+
+    total_s = sum(s.seconds for s in st)
+    peak = WORKER_FOOTPRINT + max(s.memory_bytes for s in st)
+    disk = sum(s.artifact_bytes for s in st)
+    bundle_bytes = sum(s.bundle_bytes for s in st)
+    return Estimate(probes=P, probes_exact=exact, samples_per_cell=S, field_samples=F, seconds=total_s,
+                    peak_memory_bytes=int(peak), artifact_bytes=int(disk), bundle_bytes=int(bundle_bytes),
+                    stages=st)
+
+
+# --------------------------------------------------------------------------------------------- budget
+
+
+@dataclass(frozen=True)
+class Budget:
+    """The server's limits on one bake (``None``: no limit)."""
+
+    memory_bytes: int | None = None
+    seconds: float | None = None
+    disk_bytes: int | None = None
+
+
+def over_budget(est: Estimate, budget: Budget) -> list[dict]:
+    """What of the estimate is over the budget: ``[{"resource", "estimate", "limit"}]`` (empty: within)."""
+    out = []
+    if budget.memory_bytes is not None and est.peak_memory_bytes > budget.memory_bytes:
+        out.append({"resource": "peak_memory_bytes", "estimate": est.peak_memory_bytes, "limit": budget.memory_bytes})
+    if budget.seconds is not None and est.seconds > budget.seconds:
+        out.append({"resource": "seconds", "estimate": round(est.seconds, 1), "limit": budget.seconds})
+    if budget.disk_bytes is not None and est.artifact_bytes > budget.disk_bytes:
+        out.append({"resource": "artifact_bytes", "estimate": est.artifact_bytes, "limit": budget.disk_bytes})
+    return out
+
+
+def stage_timeout(stage: StageCost | None, *, factor: float = 4.0, minimum: float = 120.0,
+                  maximum: float = 6 * 3600.0) -> int:
+    """The RQ job timeout of a stage: ``factor`` × its estimate, at least ``minimum`` (loading, a busy
+    machine), at most ``maximum``."""
+    if stage is None:
+        return int(minimum)
+    return int(min(maximum, max(minimum, factor * stage.seconds + 60.0)))
+
+
+def as_dict(est: Estimate) -> dict:
+    return asdict(est)

@@ -1,0 +1,218 @@
+"""Calibration of the cost model (proto/cost.py): measured peak memory and seconds of each stage.
+
+    .venv/bin/python tests/bench/bench_cost.py [--cases small,medium,zdm2] [--out cost.json]
+
+Each stage of each case runs in a process forked from this warm one (as RQ forks a work-horse from a
+worker that imported ``workers.jobs``), after the stages before it have run and are in the store. The
+child reports its seconds, its RSS growth (``VmHWM`` at the end minus ``VmRSS`` at the start: what the stage
+itself allocated, the worker's own footprint excluded) and its address-space growth (``VmPeak`` - ``VmSize``,
+what ``RLIMIT_AS`` counts). Next to each measurement it prints the model's estimate for that stage and the
+ratio. Prints a table and writes the measurements as JSON (``--out``).
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[2]
+sys.path.insert(0, str(ROOT))
+
+import workers.jobs  # noqa: E402,F401  (the worker's imports, before forking)
+from proto import cost  # noqa: E402
+from proto.models import BakeConfig  # noqa: E402
+from proto.stages import plan  # noqa: E402
+from proto.store import Store  # noqa: E402
+from workers import pipeline  # noqa: E402
+from workers.ingest import ingest_file  # noqa: E402
+from workers.procedural import write_scene  # noqa: E402
+
+ZDM2 = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
+
+SMALL = {"trace": {"rays_per_probe": 64}, "visibility": {"samples_per_cell": 4, "slabs": 1},
+         "masks": {"sweeps": 50}}
+CASES = {
+    # name: (scene, config)
+    "tiny": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL}),
+    "small": ("two-rooms", {"place": {"counts": [12, 6, 8]}, **SMALL}),
+    "rays": ("two-rooms", {"place": {"counts": [12, 6, 8]}, "trace": {"rays_per_probe": 1024},
+                           "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 50}}),
+    "medium": ("two-rooms", {"place": {"counts": [24, 12, 16]}, "trace": {"rays_per_probe": 256},
+                             "visibility": {"samples_per_cell": 6, "slabs": 1}, "masks": {"sweeps": 50}}),
+    "field": ("cornell", {"place": {"counts": [10, 10, 10]}, "trace": {"rays_per_probe": 64},
+                          "visibility": {"samples_per_cell": 12, "slabs": 1}, "masks": {"sweeps": 20}}),
+    "prt": ("cornell", {"place": {"counts": [6, 6, 6]}, **SMALL,
+                        "prt": {"enabled": True, "configurations": 64, "measurement_points": 256, "basis": 16,
+                                "lightmap": 64}}),
+    "zdm2": ("zdm2", {"place": {"spacing": 2.5}, "trace": {"rays_per_probe": 128},
+                      "visibility": {"samples_per_cell": 4, "slabs": 1}, "masks": {"sweeps": 50}}),
+    "zdm2_auto": ("zdm2", {"place": {"budget": 3000}, "trace": {"rays_per_probe": 128},
+                           "visibility": {"slabs": 1}, "masks": {"sweeps": 50}}),
+    "eval": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL,
+                         "evaluate": {"enabled": True, "cameras": 1, "width": 64, "height": 48, "spp": 4,
+                                      "repeats": 1, "flip": False}}),
+    "defaults": ("two-rooms", {"place": {"counts": [16, 8, 12]}}),
+    "prt_default": ("cornell", {"place": {"counts": [8, 8, 8]}, **SMALL, "prt": {"enabled": True}}),
+    "prt_rays": ("two-rooms", {"place": {"counts": [12, 6, 8]}, "trace": {"rays_per_probe": 512},
+                               "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 20},
+                               "prt": {"enabled": True, "configurations": 64, "measurement_points": 64,
+                                       "lightmap": 0}}),
+    "eval_medium": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL,
+                                "evaluate": {"enabled": True, "cameras": 1, "width": 256, "height": 192, "spp": 16,
+                                             "repeats": 1}}),
+}
+
+
+def _status() -> dict[str, int]:
+    out = {}
+    for line in open("/proc/self/status"):
+        k, _, v = line.partition(":")
+        if k in ("VmRSS", "VmHWM", "VmSize", "VmPeak"):
+            out[k] = int(v.split()[0]) * 1024
+    return out
+
+
+def run_forked(store: Store, scene_id: str, config: BakeConfig, stage: str) -> dict:
+    r, w = os.pipe()
+    pid = os.fork()
+    if pid == 0:
+        os.close(r)
+        try:
+            s0 = _status()
+            t0 = time.perf_counter()
+            rec, cached = pipeline.execute_stage(store, scene_id, config, stage)
+            sec = time.perf_counter() - t0
+            s1 = _status()
+            out = {"seconds": sec, "rss": s1["VmHWM"] - s0["VmRSS"], "vm": s1["VmPeak"] - s0["VmSize"],
+                   "base_rss": s0["VmRSS"], "cached": cached, "stats": {k: v for k, v in rec["stats"].items()
+                                                                          if k in ("probes", "samples_per_cell",
+                                                                                   "bounces", "counts")}}
+        except BaseException as e:  # noqa: BLE001
+            out = {"error": f"{type(e).__name__}: {e}"}
+        os.write(w, json.dumps(out).encode())
+        os.close(w)
+        os._exit(0)
+    os.close(w)
+    data = b""
+    while chunk := os.read(r, 65536):
+        data += chunk
+    os.close(r)
+    os.waitpid(pid, 0)
+    return json.loads(data)
+
+
+def _summary(store: Store, tmp: str, scene_name: str) -> tuple[str, dict] | None:
+    if scene_name == "zdm2":
+        if not ZDM2.exists():
+            return None
+        path = ZDM2
+    else:
+        path = Path(tmp) / f"{scene_name}.glb"
+        write_scene(scene_name, path)
+    scene = ingest_file(path)
+    sid = store.put_bytes(scene.to_bytes())
+    summary = scene.summary(sid)
+    summary["bytes"] = store.blob_path(sid).stat().st_size
+    return sid, summary
+
+
+def check(files: list[str]) -> int:
+    """Compare stored measurements (``--out`` files) with the model as it is now: per stage and per bake."""
+    rows = [r for f in files for r in json.loads(Path(f).read_text())]
+    summaries: dict[str, dict] = {}
+    ratios_s, ratios_m, per_bake = [], [], {}
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Store(Path(tmp) / "store")
+        print(f"{'case':11s} {'stage':13s} {'seconds':>8s} {'est':>8s} {'ratio':>6s}   {'MB':>7s} {'est':>7s} "
+              f"{'ratio':>6s}")
+        for r in rows:
+            scene_name, cfg = CASES[r["case"]]
+            if scene_name not in summaries:
+                got = _summary(store, tmp, scene_name)
+                if got is None:
+                    continue
+                summaries[scene_name] = got[1]
+            est = cost.estimate(summaries[scene_name], BakeConfig.model_validate(cfg))
+            e = est.stage(r["stage"])
+            if e is None or r.get("cached"):
+                continue
+            mem = r["rss"] + r["base_rss"]
+            est_mem = e.memory_bytes + cost.WORKER_FOOTPRINT
+            rs, rm = e.seconds / max(r["seconds"], 1e-3), est_mem / mem
+            ratios_s.append(rs)
+            ratios_m.append(rm)
+            b = per_bake.setdefault(r["case"], {"s": 0.0, "m": 0, "es": est.seconds, "em": est.peak_memory_bytes})
+            b["s"] += r["seconds"]
+            b["m"] = max(b["m"], mem)
+            print(f"{r['case']:11s} {r['stage']:13s} {r['seconds']:8.2f} {e.seconds:8.2f} {rs:6.2f}   "
+                  f"{mem / 2**20:7.0f} {est_mem / 2**20:7.0f} {rm:6.2f}")
+    print()
+    for name, b in per_bake.items():
+        print(f"bake {name:11s} seconds {b['s']:7.1f} est {b['es']:7.1f} ({b['es'] / b['s']:4.2f}x)   "
+              f"peak {b['m'] / 2**20:6.0f} MB est {b['em'] / 2**20:6.0f} MB ({b['em'] / b['m']:4.2f}x)")
+    import statistics as st
+
+    for label, xs in (("seconds", ratios_s), ("memory", ratios_m)):
+        xs = sorted(xs)
+        under = sum(x < 1 for x in xs)
+        print(f"stage {label}: estimate/measured median {st.median(xs):.2f}, min {xs[0]:.2f}, max {xs[-1]:.2f}, "
+              f"under-estimated {under} of {len(xs)}")
+    return 0
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--out", default=None)
+    ap.add_argument("--check", nargs="*", default=None, help="compare stored measurements with the model")
+    args = ap.parse_args()
+    if args.check:
+        return check(args.check)
+    rows, results = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Store(Path(tmp) / "store")
+        for name in args.cases.split(","):
+            scene_name, cfg = CASES[name]
+            if scene_name == "zdm2":
+                if not ZDM2.exists():
+                    print(f"skip {name}: {ZDM2} absent", file=sys.stderr)
+                    continue
+                path = ZDM2
+            else:
+                path = Path(tmp) / f"{scene_name}.glb"
+                write_scene(scene_name, path)
+            scene = ingest_file(path)
+            sid = store.put_bytes(scene.to_bytes())
+            summary = scene.summary(sid)
+            summary["bytes"] = store.blob_path(sid).stat().st_size
+            config = BakeConfig.model_validate(cfg)
+            est = cost.estimate(summary, config)
+            by_stage = {s.name: s for s in est.stages}
+            t_case = time.perf_counter()
+            for st, _ in plan(sid, config):
+                m = run_forked(store, sid, config, st.name)
+                if "error" in m:
+                    print(f"{name} {st.name}: {m['error']}", file=sys.stderr)
+                    break
+                e = by_stage.get(st.name)
+                row = {"case": name, "stage": st.name, "triangles": summary["triangles"], **m,
+                       "est_seconds": e.seconds if e else None, "est_memory": e.memory_bytes if e else None}
+                results.append(row)
+                rows.append(row)
+                print(f"{name:10s} {st.name:13s} {m['seconds']:8.2f}s est {row['est_seconds'] or 0:8.2f}s  "
+                      f"rss {m['rss'] / 2**20:8.1f} MB est {(row['est_memory'] or 0) / 2**20:8.1f} MB  "
+                      f"vm {m['vm'] / 2**20:8.1f} MB  base {m['base_rss'] / 2**20:6.0f} MB  {m['stats']}",
+                      flush=True)
+            print(f"{name}: {time.perf_counter() - t_case:.1f} s in all; estimate {est.seconds:.1f} s, "
+                  f"{est.peak_memory_bytes / 2**20:.0f} MB, {est.probes} probes", flush=True)
+    if args.out:
+        Path(args.out).write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

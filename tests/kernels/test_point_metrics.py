@@ -1,0 +1,47 @@
+"""Point metrics (workers/kernels/point_metrics.py): the image metrics' definitions at points, and standard errors
+that follow the reference's noise."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from workers.kernels import metrics as MT
+from workers.kernels import point_metrics as PM
+
+
+def _data(n=400, seed=0):
+    rng = np.random.default_rng(seed)
+    ref = rng.gamma(2.0, 1.0, (n, 1)) * np.array([1.0, 0.9, 0.8])
+    ref[: n // 10] *= 0.01                                              # some dark points
+    test = ref * rng.uniform(0.7, 1.4, (n, 1))
+    return test, ref, rng.uniform(0, 3, (n, 3)), np.full((n, 3), 0.5), np.zeros((n, 3))
+
+
+def test_metrics_match_the_image_metrics():
+    test, ref, d, a, e = _data()
+    img = lambda x: x.reshape(-1, 1, 3)  # noqa: E731
+    k = MT.exposure_for(img(PM.radiance(d, ref, a, e)))
+    m = PM.point_metrics(test, ref, d, a, e, k)
+    lt, lr = MT.tonemap(img(PM.radiance(d, test, a, e)), k), MT.tonemap(img(PM.radiance(d, ref, a, e)), k)
+    assert m["rmse"] == pytest.approx(MT.rmse(lt, lr), rel=1e-5)
+    assert m["indirect_relative_rmse"] == pytest.approx(MT.relative_rmse(img(test), img(ref)), rel=1e-9)
+    assert m["leak"] == pytest.approx(MT.leak_score(img(test), img(ref))["leak"], rel=1e-9)
+    assert m["mean_ratio"] == pytest.approx(MT.luminance(test).mean() / MT.luminance(ref).mean())
+    same = PM.point_metrics(ref, ref, d, a, e, k)
+    assert same["rmse"] == 0 and same["leak"] == 0 and same["mean_ratio"] == pytest.approx(1.0)
+
+
+def test_standard_errors_follow_the_reference_noise():
+    test, ref, d, a, e = _data()
+    none = PM.metrics_with_stderr(test, ref, np.zeros_like(ref), d, a, e)
+    assert all(none[f"{k}_stderr"] < 1e-12 for k in PM.METRICS if none[k] is not None)
+    lo = PM.metrics_with_stderr(test, ref, 0.01 * ref, d, a, e, seed=1)
+    hi = PM.metrics_with_stderr(test, ref, 0.05 * ref, d, a, e, seed=1)
+    for k in ("rmse", "indirect_relative_rmse", "mean_ratio"):
+        assert 0 < lo[f"{k}_stderr"] < hi[f"{k}_stderr"], k
+    # the mean ratio's error: about its value x the relative error of the reference's mean (independent points)
+    rel = np.sqrt(np.sum((0.05 * MT.luminance(ref)) ** 2)) / MT.luminance(ref).sum()
+    assert hi["mean_ratio_stderr"] == pytest.approx(hi["mean_ratio"] * rel, rel=0.35)
+    r = PM.region_ratios(test.reshape(-1, 4, 3), ref.reshape(-1, 4, 3), 0.05 * ref.reshape(-1, 4, 3),
+                         {"a": [0, 1, 2], "b": list(range(10, 60))})
+    assert r["a"]["mean_ratio_stderr"] > r["b"]["mean_ratio_stderr"] > 0

@@ -1,0 +1,144 @@
+"""Metrics of a GI mode at the reference's points, each with its standard error from the reference's noise.
+
+Inputs per point i (N points; :mod:`workers.stages.reference`): the reference's direct irradiance ``D_i``,
+path-traced indirect irradiance ``R_i`` with its standard error ``s_i`` (RGB, from the point's own paths),
+the surface's albedo ``a_i`` and emission ``e_i``, and the mode's indirect irradiance ``T_i``. Luminance Y is
+Rec. 709 (:func:`workers.kernels.metrics.luminance`).
+
+Metrics (:func:`point_metrics`)
+-------------------------------
+``rmse``
+    MD §4.2 on the shading result: the exitant radiance ``L = e + a/π (D + E)`` with E = T (test) or R
+    (reference), tone mapped with the exposure of the reference's points (:func:`workers.kernels.metrics.tonemap`,
+    the previews' tone map), ``sqrt(mean_i mean_RGB (C_i − C'_i)²)``.
+``indirect_relative_rmse``
+    ``sqrt(mean_i |T_i − R_i|²) / mean_i |R_i|`` (RGB vectors).
+``leak``
+    The leak score of :func:`workers.kernels.metrics.leak_score` over the points: in the dark points (reference
+    luminance ≤ 5% of the mean) the mean |T − R| as a fraction of the mean reference.
+``indirect_excess``
+    ``mean_i max(0, Y(T_i) − Y(R_i))``, lux: the leak where the whole set is dark in the reference.
+``mean_ratio``
+    ``mean_i Y(T_i) / mean_i Y(R_i)`` (1 = the right amount of light on average; None where the reference is 0).
+
+Standard errors (:func:`metrics_with_stderr`)
+--------------------------------------------
+The reference is a Monte Carlo estimate, so each metric carries the noise of its ``R_i``. It is propagated by a
+parametric bootstrap: ``replicas`` references ``R*_i = max(0, R_i + s_i z_i)`` with independent standard normal
+``z_i`` per point (one per point for all three channels: a point's channels come from the same paths), the metric
+recomputed on each, its standard deviation reported as ``<metric>_stderr``. Deterministic (seeded). The exposure
+of the tone map stays that of the reference (a display constant). This is the error of the metric as an
+estimate of its value against the exact reference at the same points; which points were drawn is not part of
+it (they are fixed per scene).
+
+Regions (:func:`region_ratios`): for named groups of check points, the ratio of the group's mean luminance to
+the reference's, with its bootstrap standard error the same way.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from workers.kernels import metrics as MT
+
+__all__ = ["point_metrics", "metrics_with_stderr", "region_ratios", "radiance", "METRICS", "REPLICAS"]
+
+METRICS = ("rmse", "indirect_relative_rmse", "leak", "indirect_excess", "mean_ratio")
+REPLICAS = 64
+
+
+def radiance(e_direct, e_indirect, albedo, emission) -> np.ndarray:
+    """(N, 3) exitant radiance ``emission + albedo/π (E_direct + E_indirect)`` (Lambertian surfaces)."""
+    return np.asarray(emission) + np.asarray(albedo) / math.pi * (np.asarray(e_direct) + np.asarray(e_indirect))
+
+
+def _metrics_batch(test, refs, e_direct, albedo, emission, exposure: float) -> dict[str, np.ndarray]:
+    """The metrics (module doc) of one test against K references ``refs`` (K, N, 3) at once: {name: (K,)}, NaN where
+    undefined (mean_ratio of a black reference)."""
+    t = np.asarray(test, np.float64)
+    r = np.asarray(refs, np.float64)
+    d, a, e = (np.asarray(x, np.float64) for x in (e_direct, albedo, emission))
+    lt = MT.tonemap(radiance(d, t, a, e), exposure).astype(np.float64)             # (N, 3)
+    lr = MT.tonemap(radiance(d[None], r, a[None], e[None]), exposure).astype(np.float64)   # (K, N, 3)
+    rmse = np.sqrt(np.mean((lt[None] - lr) ** 2, axis=(1, 2)))
+    num = np.sqrt(np.mean(np.sum((t[None] - r) ** 2, axis=-1), axis=1))
+    den = np.mean(np.linalg.norm(r, axis=-1), axis=1)
+    rel = np.where(den > 0, num / np.where(den > 0, den, 1.0), np.where(num == 0, 0.0, np.inf))
+    yt = MT.luminance(t)                                                              # (N,)
+    yr = MT.luminance(r)                                                              # (K, N)
+    mean_r = yr.mean(axis=1)
+    dark = yr <= MT.LEAK_TAU * mean_r[:, None]
+    n_dark = dark.sum(axis=1)
+    dev = (np.abs(yt[None] - yr) * dark).sum(axis=1) / np.maximum(n_dark, 1)
+    leak = np.where((mean_r > 0) & (n_dark > 0), dev / np.where(mean_r > 0, mean_r, 1.0), 0.0)
+    excess = np.maximum(yt[None] - yr, 0.0).mean(axis=1)
+    ratio = np.where(mean_r > 0, yt.mean() / np.where(mean_r > 0, mean_r, 1.0), np.nan)
+    return {"rmse": rmse, "indirect_relative_rmse": rel, "leak": leak, "indirect_excess": excess,
+            "mean_ratio": ratio}
+
+
+def _value(x) -> float | None:
+    v = float(x)
+    return v if math.isfinite(v) else None
+
+
+def point_metrics(test, ref, e_direct, albedo, emission, exposure: float) -> dict:
+    """The metrics of the module doc for (N, 3) test and reference indirect irradiance (no standard errors)."""
+    r = np.asarray(ref, np.float64)
+    if len(r) == 0:
+        return {k: None for k in METRICS}
+    b = _metrics_batch(test, r[None], e_direct, albedo, emission, exposure)
+    return {k: _value(v[0]) for k, v in b.items()}
+
+
+def _img(a: np.ndarray) -> np.ndarray:
+    return np.asarray(a, np.float64).reshape(-1, 1, 3)
+
+
+def _replicas(ref, err, replicas: int, seed: int) -> np.ndarray:
+    r = np.asarray(ref, np.float64)
+    s = np.asarray(err, np.float64)
+    z = np.random.default_rng([int(seed), 0xB007]).standard_normal((int(replicas), len(r), 1))
+    return np.maximum(r[None] + s[None] * z, 0.0)
+
+
+def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas: int = REPLICAS,
+                        seed: int = 0, exposure: float | None = None) -> dict:
+    """:func:`point_metrics` plus ``<metric>_stderr`` for each (module doc); ``exposure`` default: from the
+    reference's points."""
+    r = np.asarray(ref, np.float64)
+    if exposure is None:
+        exposure = MT.exposure_for(_img(radiance(e_direct, r, albedo, emission))) if len(r) else 1.0
+    out = point_metrics(test, r, e_direct, albedo, emission, exposure)
+    if len(r) == 0:
+        return {**out, **{f"{k}_stderr": None for k in METRICS}}
+    reps = _metrics_batch(test, _replicas(r, err, replicas, seed), e_direct, albedo, emission, exposure)
+    for k in METRICS:
+        xs = reps[k][np.isfinite(reps[k])]
+        out[f"{k}_stderr"] = float(np.std(xs, ddof=1)) if xs.size > 1 and out[k] is not None else None
+    return out
+
+
+def region_ratios(test, ref, err, regions: dict, *, replicas: int = REPLICAS, seed: int = 0) -> dict:
+    """Per region (name -> point indices into (P, D, 3) arrays): ``{name: {"mean_ratio", "mean_ratio_stderr",
+    "reference_mean", "reference_mean_stderr", "mean"}}`` of luminance over the region's points and normals."""
+    t = np.asarray(test, np.float64)
+    r = np.asarray(ref, np.float64)
+    s = np.asarray(err, np.float64)
+    out = {}
+    for name, idx in (regions or {}).items():
+        idx = np.asarray(idx, np.int64)
+        yt = MT.luminance(t[idx]).ravel()
+        rr, ss = r[idx].reshape(-1, 3), s[idx].reshape(-1, 3)
+        yr = MT.luminance(rr)
+        mr = float(yr.mean())
+        reps = MT.luminance(_replicas(rr, ss, replicas, seed)).mean(axis=1)       # (replicas,)
+        ratio = float(yt.mean()) / mr if mr > 0 else None
+        ratios = [float(yt.mean()) / m for m in reps if m > 0]
+        out[name] = {"mean_ratio": ratio,
+                     "mean_ratio_stderr": float(np.std(ratios, ddof=1)) if ratio is not None and len(ratios) > 1
+                     else None,
+                     "mean": float(yt.mean()), "reference_mean": mr,
+                     "reference_mean_stderr": float(np.sqrt(np.sum((ss @ MT.REC709) ** 2)) / len(yr))}
+    return out
