@@ -255,7 +255,10 @@ def test_dashboard_lists_bakes_and_compares_two(page, tmp_path, kiln_server, sho
     table = page.inner_text("#compare-table")
     assert "bake seconds" in table and "artifact size MiB" in table
     assert "place.counts" in page.inner_text("#config-delta")
-    assert "no previews: bake with evaluate.enabled" in page.inner_text("#compare")
+    # evaluate is on by default: both bakes carry previews of the same review camera, side by side
+    page.wait_for_selector("#compare-previews tbody tr[data-mode]", timeout=10000)
+    assert page.locator("#compare-previews-none").count() == 0
+    assert page.locator("#compare-previews tbody tr[data-mode] img").count() >= 2
     page.wait_for_selector("#chart[data-points] canvas", timeout=10000)
     assert int(page.get_attribute("#chart", "data-points")) >= 2
     page.screenshot(path=str(shots / "dashboard.png"), full_page=True)
