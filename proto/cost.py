@@ -35,8 +35,8 @@ has cast its planning rays. Light bounces until converged are estimated at :data
 (capped by ``light.max_bounces`` or set by ``light.bounces``).
 
 Calibration (``tests/bench/bench_cost.py``, each stage in a forked work-horse): see :data:`CALIBRATION`.
-The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of every
-measured stage (by at most a third) and the time estimate of every measured bake (by 1x - 3.7x).
+The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of the measured
+stages (within 3%, by at most 43%) and the time estimate of every measured bake (by 1.04x - 3.3x).
 """
 from __future__ import annotations
 
@@ -101,8 +101,8 @@ ANNEAL_SECONDS_PER_PROBE_SWEEP = 0.1e-6
 PRT_SECONDS_PER_CONFIG_RAY_BOUNCE = 0.11e-6
 PRT_SECONDS_PER_CONFIG_TEXEL = 2.3e-6
 PRT_SECONDS_PER_CONFIG_POINT = 9e-5        # direct light (shadow rays) per configuration and measurement sample
-EVAL_FIXED_SECONDS = 6.0                   # EGL context, shader compiles, camera placement
-EVAL_SECONDS_PER_PATH_BOUNCE = 1.5e-6      # the path-traced reference, per sample and bounce (x ray-cost scale)
+EVAL_FIXED_SECONDS = 1.0                   # EGL context and shader compiles (with previews), camera placement
+EVAL_SECONDS_PER_PATH_BOUNCE = 2.8e-6      # the path-traced reference, per path vertex (x ray-cost scale)
 EVAL_SECONDS_PER_PIXEL_PASS = 1e-6         # each mode's shading pass, per repeat
 EVAL_FLIP_SECONDS_PER_PIXEL = 5e-6         # FLIP, per mode
 EVAL_PATH_VERTICES = 3.0                   # mean vertices of a reference path (64 bounces, roulette from vertex 3)
@@ -110,21 +110,23 @@ EVAL_SECONDS_PER_POINT_MODE = 2e-5         # a mode reconstructed at a point, wi
 
 CALIBRATION = """
 Measured with ``tests/bench/bench_cost.py`` (each stage forked from a warm process, as RQ runs a work-horse, on
-this project's shared 2-core machine with other jobs running) on 13 bakes: the procedural cornell (1,036
-triangles) and two-rooms (352) at 64 - 4,608 probes, 64 - 1,024 rays per probe, S = 2 - 12, one and four slabs,
-PRT with 64 - 128 configurations and lightmaps of 0 - 256², evaluate at 64x48 and 256x192; and
-zdm2-sauerbraten (58,772 triangles) at 12,800 probes (spacing 2.5 m) and on its automatic grid (budget 3,000:
-2,850 probes, S = 16, 9.3 M field samples).
+this project's shared 2-core machine with other jobs running; the measurements are kept in
+``tests/bench/cost_calibration.json``) on 14 bakes: the procedural cornell (1,036 triangles) and two-rooms (352)
+at 64 - 4,608 probes, 64 - 1,024 rays per probe, S = 2 - 12, one and four slabs, PRT with 64 - 128
+configurations and lightmaps of 0 - 256², the evaluate stage and its reference at their defaults (2,048
+surface points x 64 paths, one 160x120 preview) and at 8,192 points without previews; and zdm2-sauerbraten
+(58,772 triangles) at 12,800 probes (spacing 2.5 m), at 3,360 probes with evaluate, and on its automatic grid
+(budget 3,000: 2,850 probes, S = 16, 9.3 M field samples).
 
-Estimate / measured (``bench_cost.py --check FILE...`` prints every stage):
+Estimate / measured (``bench_cost.py --check tests/bench/cost_calibration.json`` prints every stage):
 
 - peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.34x
-  (median 1.07x); per stage (133 stages that ran) 1.00x - 1.34x, median 1.12x: the model is an upper bound of
-  every measured stage, by at most a third.
-- seconds of a bake: 1.0x - 3.7x (median 1.45x). The largest over-estimates come from the light bounces
-  (26 assumed until converged; zdm2 converged in 3, cornell in 8), which the evaluate reference also uses.
-  Per stage 0.6x - 25x: sub-second stages are dominated by loading, and 24 of 133 stages ran longer than
-  estimated (by at most 1/0.6), none of them long.
+  (median 1.13x); per stage (171 stages) 0.97x - 1.43x, median 1.14x: an upper bound of every measured stage
+  within 3%, and above it by at most 43%.
+- seconds of a bake: 1.04x - 3.3x (median 1.55x). The largest over-estimates come from the light bounces (26
+  assumed until converged; zdm2 converged in 3, cornell in 8) and the reference's path lengths (3 vertices
+  assumed; a dark scene's paths end sooner). Per stage 0.6x - 40x: sub-second stages are dominated by loading,
+  and 17 of 171 stages ran longer than estimated (by at most 1/0.6), none of them long.
 
 Large configurations are extrapolated: the memory terms are linear in what they hold (probe rays, field
 samples, PRT configurations x probe rays), which the largest calibrated bakes confirm (light: 260 - 350 B per
@@ -300,10 +302,11 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         pts = ev.surface_points + (len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0)
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6
-        add("reference", EVAL_FIXED_SECONDS + (pts * ev.spp + px * ev.preview_spp) * vertices
+        lib = LIB_EVAL if px else LIB_RAYS                      # EGL only for the previews
+        add("reference", (EVAL_FIXED_SECONDS if px else 0.0) + (pts * ev.spp + px * ev.preview_spp) * vertices
             * EVAL_SECONDS_PER_PATH_BOUNCE * rays_scale,
-            LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * ev.spp * 64, 0, internal=pts * 108 + px * 120)
-        seconds = 0.5 * EVAL_FIXED_SECONDS + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
+            lib + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * ev.spp * 64, 0, internal=pts * 108 + px * 120)
+        seconds = (0.5 * EVAL_FIXED_SECONDS if px else 0.0) + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
             ev.repeats * EVAL_SECONDS_PER_PIXEL_PASS + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
         add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * 64 + F * 9,
             px * 4 * (2 * modes + 2) + pts * modes * 24)

@@ -439,7 +439,7 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--burst", action="store_true", help="exit when the queue is empty")
     s.add_argument("--queues", default=None,
                    help="queues to take jobs from, in order: short,long (default), short, or long "
-                        "(kiln-short: most stages; kiln-long: evaluate, prt and stages estimated long)")
+                        "(kiln-short: most stages; kiln-long: prt and stages estimated long)")
     s.add_argument("--nice", type=int, default=None,
                    help=f"niceness 0..19 of the worker and its work-horses (default {WORKER_NICE}, or "
                         "KILN_WORKER_NICE): bakes yield the CPU to the API on a shared machine")

@@ -14,6 +14,7 @@
 | ``KILN_MAX_JSON_KB`` | 1024 | JSON request bodies (413 beyond; read only after the key check) |
 | ``KILN_INGEST_TIMEOUT_S`` | 300 | seconds one upload may take to parse (422 ``ingest_timeout``) |
 | ``KILN_INGEST_PROCESSES`` | 2 | parser processes of the API |
+| ``KILN_API_THREADS`` | 8 | threads running the API's sync routes |
 | ``KILN_MAX_UPLOADS_PER_TEAM`` | 2 | a team's concurrent uploads (429 beyond) |
 | ``KILN_QUOTA_STORED_MB`` | 51200 | a team's stored scenes and bake artifacts (429 ``quota_exceeded``) |
 | ``KILN_QUOTA_SCENES`` | 1000 | a team's scenes (429 ``quota_exceeded``) |
@@ -48,6 +49,8 @@ class Settings(BaseSettings):
     max_json_kb: int = Field(1024, ge=1, le=1 << 20, description="largest JSON request body")
     ingest_timeout_s: float = Field(300.0, gt=0, description="seconds one upload may take to parse")
     ingest_processes: int = Field(2, ge=1, le=64, description="parser processes of the API")
+    api_threads: int = Field(8, ge=1, le=256, description="threads running the API's sync routes (fewer thrash "
+                                                          "the GIL less under many clients)")
     max_uploads_per_team: int = Field(2, ge=1, description="a team's concurrent uploads")
     quota_stored_mb: int = Field(51200, ge=1, description="a team's stored scenes and artifacts")
     quota_scenes: int = Field(1000, ge=1, description="a team's scenes")

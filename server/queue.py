@@ -5,7 +5,8 @@ never imports stage code. Job ids are ``<bake>-<attempt>-<stage>``: a bake re-en
 recovery gets fresh ids, and its old jobs (if any survive) find the bake already moved on.
 
 Two queues: :data:`LONG_QUEUE` (``kiln-long``) takes the stages the cost model (:mod:`proto.cost`) expects
-to run long — evaluate, prt, and any stage estimated over ``proto.cost.LONG_STAGE_SECONDS`` — and
+to run long — prt, and any stage estimated over ``proto.cost.LONG_STAGE_SECONDS`` (a large evaluate, light or
+visibility) — and
 :data:`SHORT_QUEUE` (``kiln-short``) the rest. Workers listen to both, short first, and ``kiln serve``
 dedicates one worker to the short queue, so one heavy bake cannot hold every worker. Each stage's job
 timeout follows its estimate (:func:`proto.cost.stage_timeout`), not a flat hour.
@@ -56,7 +57,7 @@ def job_ids(bake: dict) -> list[str]:
 
 
 def stage_queue(stage: cost.StageCost | None) -> str:
-    """The queue a stage's job goes to: long when the cost model says so (evaluate, prt, big stages)."""
+    """The queue a stage's job goes to: long when the cost model says so (prt, big stages)."""
     return LONG_QUEUE if stage is not None and stage.long else SHORT_QUEUE
 
 
@@ -119,13 +120,19 @@ def _ghost(job: Job, stage: dict | None, now: float) -> bool:
     return beat is not None and now - beat.timestamp() > GHOST_HEARTBEAT_S
 
 
+def _in_queue(conn: redis.Redis, job: Job) -> bool:
+    q = Queue(job.origin, connection=conn)
+    return any(conn.lpos(key, job.id) is not None for key in (q.key, q.intermediate_queue_key))
+
+
 def live_jobs(conn: redis.Redis, bake: dict) -> list[str]:
     """The bake's jobs that will still run.
 
     Redis restarted between a job's end and the enqueue of its dependents (its append-only file keeps up to the
     last second), or a worker died with Redis: then a bake can hold only DEFERRED jobs waiting for jobs that
-    ended (or STARTED ghosts, :func:`_ghost`), which nothing will ever enqueue. Such a bake has no live job once
-    nothing of it moved for :data:`STALL_S`, so :func:`recover` re-enqueues it.
+    ended (or STARTED ghosts, :func:`_ghost`; or QUEUED ones that a dead worker had popped from their queue),
+    which nothing will ever run. Such a bake has no live job once nothing of it moved for :data:`STALL_S`, so
+    :func:`recover` re-enqueues it (bench_load.py lost 1-2 bakes of 12 this way before).
     """
     stages = {s["name"].replace(".", "_"): s for s in bake.get("stages", [])}
     prefix = f"{bake['id']}-{bake['attempt']}-"
@@ -137,7 +144,11 @@ def live_jobs(conn: redis.Redis, bake: dict) -> list[str]:
             st = job.get_status()
         except NoSuchJobError:
             continue
-        if st in RUNNABLE:
+        if st == JobStatus.QUEUED and not _in_queue(conn, job):
+            # queued in its hash but in no queue list: a worker popped it and died with Redis before it started
+            log.warning("job %s is queued but in no queue (popped by a worker that died)", jid)
+            deferred.append(jid)          # counts as waiting: lost once nothing moved for STALL_S
+        elif st in RUNNABLE:
             runnable.append(jid)
         elif st == JobStatus.STARTED:
             if _ghost(job, stages.get(jid.removeprefix(prefix)), now):

@@ -110,7 +110,7 @@ class WorkerPool:
     """N ``kiln worker`` processes, restarted when they die.
 
     The first :func:`short_workers` of them take only the short queue (``--queues short``), the others
-    both queues, short first: a bake's long stages (evaluate, prt, big light or visibility) can occupy at
+    both queues, short first: a bake's long stages (prt, a big evaluate, light or visibility) can occupy at
     most the others, and every bake's short stages still run.
     """
 

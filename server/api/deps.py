@@ -1,4 +1,9 @@
-"""Request dependencies: settings, catalog, store, Redis, and the caller's team (API-key auth)."""
+"""Request dependencies: settings, catalog, store, Redis, and the caller's team (API-key auth).
+
+They are ``async def`` on purpose: none of them blocks (they read ``app.state`` and a header), and FastAPI runs a
+sync dependency in its thread pool — four thread hops for ``GET /v1/bakes/{id}`` (50 clients polling: 130
+requests/s, p99 0.58 s, against 1 client's 3.8 ms a request, measured with tests/bench/bench_load.py).
+"""
 from __future__ import annotations
 
 import hmac
@@ -11,23 +16,23 @@ from server.api.errors import ApiError
 from server.config import OPEN_TEAM, Settings
 
 
-def settings(request: Request) -> Settings:
+async def settings(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def catalog(request: Request) -> Catalog:
+async def catalog(request: Request) -> Catalog:
     return request.app.state.catalog
 
 
-def store(request: Request) -> Store:
+async def store(request: Request) -> Store:
     return request.app.state.store
 
 
-def redis_conn(request: Request):
+async def redis_conn(request: Request):
     return request.app.state.redis
 
 
-def team(request: Request) -> str:
+async def team(request: Request) -> str:
     """The team of the caller's API key (``Authorization: Bearer <key>``); ``default`` when the server is open."""
     s: Settings = request.app.state.settings
     keys = s.keys

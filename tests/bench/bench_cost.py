@@ -33,37 +33,37 @@ from workers.procedural import write_scene  # noqa: E402
 
 ZDM2 = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
 
+OFF = {"evaluate": {"enabled": False}}
 SMALL = {"trace": {"rays_per_probe": 64}, "visibility": {"samples_per_cell": 4, "slabs": 1},
-         "masks": {"sweeps": 50}}
+         "masks": {"sweeps": 50}, **OFF}
 CASES = {
-    # name: (scene, config)
+    # name: (scene, config); measured without evaluate (and its reference) unless the case is about them
     "tiny": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL}),
     "small": ("two-rooms", {"place": {"counts": [12, 6, 8]}, **SMALL}),
     "rays": ("two-rooms", {"place": {"counts": [12, 6, 8]}, "trace": {"rays_per_probe": 1024},
-                           "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 50}}),
+                           "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 50}, **OFF}),
     "medium": ("two-rooms", {"place": {"counts": [24, 12, 16]}, "trace": {"rays_per_probe": 256},
-                             "visibility": {"samples_per_cell": 6, "slabs": 1}, "masks": {"sweeps": 50}}),
+                             "visibility": {"samples_per_cell": 6, "slabs": 1}, "masks": {"sweeps": 50}, **OFF}),
     "field": ("cornell", {"place": {"counts": [10, 10, 10]}, "trace": {"rays_per_probe": 64},
-                          "visibility": {"samples_per_cell": 12, "slabs": 1}, "masks": {"sweeps": 20}}),
+                          "visibility": {"samples_per_cell": 12, "slabs": 1}, "masks": {"sweeps": 20}, **OFF}),
     "prt": ("cornell", {"place": {"counts": [6, 6, 6]}, **SMALL,
                         "prt": {"enabled": True, "configurations": 64, "measurement_points": 256, "basis": 16,
                                 "lightmap": 64}}),
     "zdm2": ("zdm2", {"place": {"spacing": 2.5}, "trace": {"rays_per_probe": 128},
-                      "visibility": {"samples_per_cell": 4, "slabs": 1}, "masks": {"sweeps": 50}}),
+                      "visibility": {"samples_per_cell": 4, "slabs": 1}, "masks": {"sweeps": 50}, **OFF}),
     "zdm2_auto": ("zdm2", {"place": {"budget": 3000}, "trace": {"rays_per_probe": 128},
-                           "visibility": {"slabs": 1}, "masks": {"sweeps": 50}}),
-    "eval": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL,
-                         "evaluate": {"enabled": True, "cameras": 1, "width": 64, "height": 48, "spp": 4,
-                                      "repeats": 1, "flip": False}}),
-    "defaults": ("two-rooms", {"place": {"counts": [16, 8, 12]}}),
+                           "visibility": {"slabs": 1}, "masks": {"sweeps": 50}, **OFF}),
+    "defaults": ("two-rooms", {"place": {"counts": [16, 8, 12]}, **OFF}),
     "prt_default": ("cornell", {"place": {"counts": [8, 8, 8]}, **SMALL, "prt": {"enabled": True}}),
     "prt_rays": ("two-rooms", {"place": {"counts": [12, 6, 8]}, "trace": {"rays_per_probe": 512},
                                "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 20},
                                "prt": {"enabled": True, "configurations": 64, "measurement_points": 64,
-                                       "lightmap": 0}}),
-    "eval_medium": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL,
-                                "evaluate": {"enabled": True, "cameras": 1, "width": 256, "height": 192, "spp": 16,
-                                             "repeats": 1}}),
+                                       "lightmap": 0}, **OFF}),
+    # the evaluate stage and its path-traced reference (on by default)
+    "ref_default": ("cornell", {"place": {"counts": [4, 4, 4]}, **SMALL, "evaluate": {"enabled": True}}),
+    "ref_points": ("two-rooms", {"place": {"counts": [12, 6, 8]}, **SMALL,
+                                 "evaluate": {"enabled": True, "surface_points": 8192, "previews": 0}}),
+    "ref_zdm2": ("zdm2", {"place": {"spacing": 4.0}, **SMALL, "evaluate": {"enabled": True}}),
 }
 
 
