@@ -5,6 +5,7 @@ out. It never touches Redis, HTTP or the catalog; the pipeline stores what it re
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any, Callable
 
@@ -99,3 +100,19 @@ def samples_per_cell(config: BakeConfig, place_stats: dict) -> int:
         return int(config.visibility.samples_per_cell)
     auto = place_stats.get("auto") or {}
     return int(auto.get("samples_per_cell", 8))
+
+
+def jsonable(x):
+    """``x`` with numpy scalars and arrays as Python values and non-finite floats as None (stage stats are JSON)."""
+    if isinstance(x, dict):
+        return {str(k): jsonable(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [jsonable(v) for v in x]
+    if isinstance(x, (np.floating, float)):
+        v = float(x)
+        return v if math.isfinite(v) else None
+    if isinstance(x, np.integer):
+        return int(x)
+    if isinstance(x, np.ndarray):
+        return jsonable(x.tolist())
+    return x

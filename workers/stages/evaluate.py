@@ -46,7 +46,7 @@ from workers.kernels.ddgi import cage_probes
 from workers.kernels.grid import OFF
 from workers.kernels.point_modes import MaskArrays, mode_irradiance
 from workers.render.shading import prepare_mode
-from workers.stages.base import Artifact, StageContext, StageOutput, samples_per_cell
+from workers.stages.base import Artifact, StageContext, StageOutput, samples_per_cell, jsonable
 from workers.stages.reference import GBUFFER_CHANNELS, point_column
 
 HEATMAP_VMAX = 0.25  # LDR error at the red end of the heatmaps
@@ -405,7 +405,7 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
 
     cameras = rstats.get("cameras") or []
     if check is not None:
-        arts.append(Artifact("check_points", _jsonable(check), format="json",
+        arts.append(Artifact("check_points", jsonable(check), format="json",
                              description="reference and every mode's indirect irradiance at the check points "
                                          "([point][normal] RGB)", meta={"modes": modes, "points": len(check["points"])}))
     # the artifact holds no wall times (they live in the stats): the same bake gives the same bytes on any worker
@@ -420,10 +420,10 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
                                                             "camera_source")},
                     "heatmap_vmax": HEATMAP_VMAX,
                     "tone_map": "exposure 0.18/median reference luminance, ACES (Narkowicz), sRGB"}
-    arts.append(Artifact("eval_metrics", _jsonable(metrics_json), format="json",
+    arts.append(Artifact("eval_metrics", jsonable(metrics_json), format="json",
                          description="evaluate metrics per mode (at the surface points, with standard errors) and "
                                      "per preview camera"))
-    arts.append(Artifact("eval_cameras", _jsonable({"cameras": rdoc.get("cameras", []),
+    arts.append(Artifact("eval_cameras", jsonable({"cameras": rdoc.get("cameras", []),
                                                     "source": rdoc.get("source")}), format="json",
                          description="the review cameras"))
     ctx.report(1.0)
@@ -435,19 +435,5 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
              "seconds": time.perf_counter() - t_start}
     if warnings:
         stats["warnings"] = warnings
-    return StageOutput(artifacts=arts, stats=_jsonable(stats))
+    return StageOutput(artifacts=arts, stats=jsonable(stats))
 
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, (np.integer,)):
-        return int(x)
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    return x

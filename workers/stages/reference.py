@@ -46,7 +46,7 @@ from workers.kernels.pathtrace import indirect_irradiance, reference_at_gbuffer,
 from workers.kernels.shading import direct_irradiance
 from workers.kernels.surface_points import area_points, camera_points, check_point_set
 from workers.render.cameras import Camera, auto_cameras, default_camera, fit_clip_planes
-from workers.stages.base import Artifact, StageContext, StageOutput
+from workers.stages.base import Artifact, StageContext, StageOutput, jsonable
 
 __all__ = ["run_reference", "review_cameras", "POINT_COLUMNS", "GBUFFER_CHANNELS", "BATCH_POINTS",
            "DEFAULT_BOUNCES", "RR_DEPTH", "point_column"]
@@ -290,19 +290,5 @@ def run_reference(ctx: StageContext) -> StageOutput:
              "check_trace": c_stats, "timings": timings, "seconds": time.perf_counter() - t_start}
     if warnings:
         stats["warnings"] = warnings
-    return StageOutput(artifacts=arts, stats=_jsonable(stats))
+    return StageOutput(artifacts=arts, stats=jsonable(stats))
 
-
-def _jsonable(x):
-    if isinstance(x, dict):
-        return {str(k): _jsonable(v) for k, v in x.items()}
-    if isinstance(x, (list, tuple)):
-        return [_jsonable(v) for v in x]
-    if isinstance(x, (np.floating, float)):
-        v = float(x)
-        return v if math.isfinite(v) else None
-    if isinstance(x, np.integer):
-        return int(x)
-    if isinstance(x, np.ndarray):
-        return _jsonable(x.tolist())
-    return x
