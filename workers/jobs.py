@@ -357,7 +357,7 @@ def ingest_upload(path: str, filename: str | None, store_root: str, limits: dict
     Returns ``{"scene_id", "summary"}`` or ``{"error": {"status", "code", "message"}}``; never raises
     for bad input. Run out of process so a huge or hostile upload cannot grow the API's memory.
     """
-    from workers.ingest import IngestError, IngestLimits, ingest_file
+    from workers.gltf import IngestError, IngestLimits, ingest_file
 
     # fault injection for tests: uploads named slow* take this many seconds to parse
     delay = float(os.environ.get("KILN_FAULT_INGEST_DELAY", "0") or 0)

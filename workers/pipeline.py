@@ -25,7 +25,7 @@ from workers.stages.base import LazyArtifacts, StageContext, StageOutput
 from workers.stages.anneal import run_anneal
 from workers.stages.compress import run_compress
 from workers.stages.evaluate import run_evaluate
-from workers.stages.ingest import run_ingest
+from workers.stages.lighting import run_lighting
 from workers.stages.masks import run_masks
 from workers.stages.light import run_light
 from workers.stages.place import run_place
@@ -36,7 +36,7 @@ from workers.stages.trace import run_trace
 from workers.stages.visibility import run_visibility, run_visibility_slab
 
 RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
-    "ingest": run_ingest,
+    "ingest": run_lighting,  # public name kept (manifests, cache keys); module workers/stages/lighting.py
     "place": run_place,
     "relocate": run_relocate,
     "trace": run_trace,

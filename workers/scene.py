@@ -1,6 +1,6 @@
 """The normalized scene: what every bake stage reads instead of glTF.
 
-Produced by :func:`workers.ingest.ingest_file` (glTF 2.0 -> normalized scene).
+Produced by :func:`workers.gltf.ingest_file` (glTF 2.0 -> normalized scene).
 All geometry is flattened to world space (node transforms applied), float32, metres,
 glTF's frame (+Y up, right-handed). Triangles keep the glTF winding (counter-clockwise
 front faces).

@@ -17,7 +17,7 @@ What is written (``scene_to_glb``), all in world space (one identity node per UV
 - the lights (the ingest stage's resolved lights: the scene's plus the config's) as ``KHR_lights_punctual``
   on their own nodes (position = translation, direction = the node's -Z axis).
 
-``workers.ingest.ingest_file`` reads the file back to the same triangles, normals, UVs, colours and
+``workers.gltf.ingest_file`` reads the file back to the same triangles, normals, UVs, colours and
 materials (tests/workers/test_scene_glb.py).
 """
 from __future__ import annotations

@@ -28,7 +28,7 @@ from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
 from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
-from workers.ingest import ingest_file  # noqa: E402
+from workers.gltf import ingest_file  # noqa: E402
 from workers.procedural import write_scene  # noqa: E402
 
 ZDM2 = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"

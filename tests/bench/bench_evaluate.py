@@ -41,7 +41,7 @@ from proto.models import BakeConfig, EvaluateSection  # noqa: E402
 from proto.stages import plan  # noqa: E402
 from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
-from workers.ingest import ingest_file  # noqa: E402
+from workers.gltf import ingest_file  # noqa: E402
 from workers.procedural import write_scene  # noqa: E402
 from workers.stages.base import LazyArtifacts, StageContext  # noqa: E402
 from workers.stages.evaluate import run_evaluate  # noqa: E402

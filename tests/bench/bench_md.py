@@ -25,7 +25,7 @@ from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
 from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
-from workers.ingest import ingest_file  # noqa: E402
+from workers.gltf import ingest_file  # noqa: E402
 
 SCENE = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
 SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0}

@@ -46,7 +46,7 @@ from proto.stages import plan  # noqa: E402
 from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers import prt_relight  # noqa: E402
-from workers.ingest import ingest_file  # noqa: E402
+from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels import prt as kprt  # noqa: E402
 from workers.stages.base import StageContext  # noqa: E402
 from workers.stages.prt import light_stage_reference, prt_dataset, prt_output  # noqa: E402

@@ -99,7 +99,7 @@ def test_closed_furnace_converges_to_geometric_series(emitter_sampling):
 
 def test_open_furnace_sky(scene_files):
     """Open space under a uniform sky L: E_indirect = π·L for any normal, any bounce count."""
-    from workers.ingest import ingest_file
+    from workers.gltf import ingest_file
 
     s = ingest_file(scene_files["furnace"])
     sky = np.array([0.2, 0.5, 1.0])
@@ -192,7 +192,7 @@ def test_validation():
 # ----------------------------------------------------------------------------------- shadows
 def test_sealed_box_cavity_gets_no_light(scene_files):
     """sealed-box: the sun, the lamp and the sky cannot reach the cavity; the slab outside is lit."""
-    from workers.ingest import ingest_file
+    from workers.gltf import ingest_file
 
     s = ingest_file(scene_files["sealed-box"])
     caster = RayCaster(s.triangles)
@@ -247,7 +247,7 @@ def test_cycles_lightmaps_correlate(tmp_path):
     """
     from PIL import Image
 
-    from workers.ingest import ingest_file
+    from workers.gltf import ingest_file
 
     d, z = _vinc3r_zip(tmp_path)
     s = ingest_file(z)

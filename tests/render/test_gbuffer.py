@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import shared_path
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.kernels.pathtrace import reference_at_gbuffer
 from workers.kernels.shading import surface_at_hits
 from workers.raycast import RayCaster

@@ -8,7 +8,7 @@ import pytest
 
 from proto.glsl_preprocess import load_sources, preprocess
 from tests.gltf_build import GltfBuilder, quad
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.kernels.materials import gi_albedo
 from workers.kernels.shading import surface_at_hits
 from workers.raycast import caster_for_scene

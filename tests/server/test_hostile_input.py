@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 from tests.conftest import Service
-from tests.workers.test_ingest import QUAD, Gltf, glb_bytes, minimal, png_bytes, write_glb
+from tests.workers.gltf.builders import QUAD, Gltf, glb_bytes, minimal, png_bytes, write_glb
 
 JSON = {"Content-Type": "application/json"}
 LFS_POINTER = (b"version https://git-lfs.github.com/spec/v1\n"

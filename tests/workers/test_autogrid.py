@@ -5,7 +5,7 @@ import numpy as np
 
 from tests.gltf_build import GltfBuilder, box_inward, quad
 from tests.workers.test_probes import bake_until
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.kernels.autogrid import analyze_free_space, choose_grid
 from workers.kernels.materials import double_sided_triangles
 from workers.raycast import caster_for_scene

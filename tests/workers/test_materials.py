@@ -11,7 +11,7 @@ import pytest
 from tests.gltf_build import GltfBuilder, box_inward, quad
 from tests.workers.test_light import probe_irradiance
 from tests.workers.test_probes import bake_until
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.kernels.materials import albedo_warnings, gi_albedo, opaque_at_hits, surface_materials
 from workers.kernels.shading import direct_irradiance
 from workers.raycast import CutoutRayCaster, caster_for_scene

@@ -8,7 +8,7 @@ from proto.models import BakeConfig
 from proto.stages import plan
 from proto.store import Store
 from workers import pipeline
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, base_positions, unpack_atlas
 from workers.procedural import BAKE_BOXES
 from workers.raycast import RayCaster

@@ -149,7 +149,7 @@ def test_metal_room(glbs):
 
 @pytest.mark.parametrize("name", sorted(MATERIAL_SCENES))
 def test_ingest_reads_them(tmp_path, glbs, name):
-    from workers.ingest import ingest_file
+    from workers.gltf import ingest_file
 
     path = tmp_path / f"{name}.glb"
     path.write_bytes(glbs[name])

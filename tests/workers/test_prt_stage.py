@@ -16,10 +16,10 @@ import pytest
 from proto import bundle
 from proto.models import BakeConfig
 from tests.conftest import shared_path
-from tests.workers.test_ingest import QUAD, QUAD_UV, Gltf, write_glb
+from tests.workers.gltf.builders import QUAD, QUAD_UV, Gltf, write_glb
 from tests.workers.test_probes import bake_until
 from workers import prt_relight
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.kernels import prt as kprt
 from workers.kernels.ddgi import sample_irradiance
 from workers.stages import prt as sprt

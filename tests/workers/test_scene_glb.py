@@ -8,17 +8,17 @@ import pytest
 
 from proto import bundle
 from proto.models import BakeConfig
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.scene import NormalizedScene
 from workers.scene_glb import scene_to_glb
 from workers.stages.base import StageContext
-from workers.stages.ingest import run_ingest
+from workers.stages.lighting import run_lighting
 
 
 def _rich_scene() -> NormalizedScene:
     """Six triangles over four materials and three UV1 charts (one run without TEXCOORD_1), vertex colours,
     an emissive material brighter than 1, MASK and BLEND alpha, three textures (one metallic-roughness), in
-    first-use order as workers.ingest numbers them."""
+    first-use order as workers.gltf numbers them."""
     rng = np.random.default_rng(3)
     T = 6
     tri = rng.uniform(-2, 2, (T, 3, 3)).astype(np.float32)
@@ -155,7 +155,7 @@ def test_the_ingest_stage_writes_the_scene_artifact(tmp_path, scene_files):
     cfg = BakeConfig.model_validate({"scene": {"lights": [{"type": "spot", "position": [2, 2.5, 2], "direction": [0, -1, 0],
                                                            "intensity": 200, "outer_cone_angle": math.radians(40)}],
                                                "sky": [0.1, 0.1, 0.1]}})
-    out = run_ingest(StageContext(config=cfg, scene_loader=lambda: scene, inputs={}, report=lambda f: None))
+    out = run_lighting(StageContext(config=cfg, scene_loader=lambda: scene, inputs={}, report=lambda f: None))
     arts = {a.name: a for a in out.artifacts}
     assert arts["scene"].format == "glb" and arts["scene"].meta["lights"] == len(scene.lights) + 1
     # written and read back through the bundle format

@@ -268,7 +268,7 @@ class ExternalScene:
     applied) and Kiln's ray caster, for the free-space checks."""
 
     def __init__(self, name: str):
-        from workers.ingest import ingest_file
+        from workers.gltf import ingest_file
         from workers.raycast import caster_for_scene
 
         self.name, self.spec = name, EXTERNAL[name]
@@ -589,7 +589,7 @@ def drop_coincident(data: bytes) -> tuple[bytes, dict]:
 def same_surfaces(a: Path, b: Path, origins: np.ndarray, n_dirs: int = 512) -> dict:
     """Kiln's rays from ``origins`` in ``n_dirs`` directions against the scenes of GLBs a and b (Kiln's ingest):
     how many hit distances or materials differ (b = a with coincident triangles dropped: none may)."""
-    from workers.ingest import ingest_file
+    from workers.gltf import ingest_file
     from workers.raycast import caster_for_scene
 
     dirs = fibonacci_dirs(n_dirs)

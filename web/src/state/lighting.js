@@ -3,7 +3,7 @@
  * SceneSection.sky). Pure functions: degrees <-> radians, sRGB colour pickers <-> linear RGB, a sun given by
  * elevation and azimuth <-> the direction its light travels, sensible physical defaults per light type, and
  * the warnings shown before a bake starts (a light outside the scene, nothing lighting the scene) — the same
- * rules the ingest stage applies after the fact (workers/stages/ingest.py).
+ * rules the ingest stage applies after the fact (workers/stages/lighting.py).
  */
 
 export const degToRad = (d) => (Number(d) * Math.PI) / 180;
@@ -109,7 +109,7 @@ export function defaultLight(type = 'point', bounds = null) {
   return light;
 }
 
-/** Fraction of the bounds' diagonal a light may lie outside them (workers/stages/ingest.py LIGHT_BOUNDS_MARGIN). */
+/** Fraction of the bounds' diagonal a light may lie outside them (workers/stages/lighting.py LIGHT_BOUNDS_MARGIN). */
 export const LIGHT_BOUNDS_MARGIN = 0.1;
 
 /** Whether a position lies within scene bounds grown by `margin` × their diagonal. */

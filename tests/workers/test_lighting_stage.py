@@ -4,9 +4,9 @@ from __future__ import annotations
 import pytest
 
 from proto.models import BakeConfig
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 from workers.stages.base import StageContext
-from workers.stages.ingest import run_ingest
+from workers.stages.lighting import run_lighting
 
 
 @pytest.fixture(scope="module")
@@ -17,7 +17,7 @@ def scenes(scene_files):
 def _warnings(scene, config: dict) -> list[dict]:
     ctx = StageContext(config=BakeConfig.model_validate(config), scene_loader=lambda: scene, inputs={},
                        report=lambda f: None)
-    return run_ingest(ctx).stats.get("warnings", [])
+    return run_lighting(ctx).stats.get("warnings", [])
 
 
 @pytest.mark.parametrize("name", ["cornell", "two-rooms", "sealed-box"])

@@ -1,5 +1,5 @@
-"""Compressed glTF geometry through workers.ingest: KHR_draco_mesh_compression and
-EXT_meshopt_compression / KHR_meshopt_compression (decoders in workers.gltf_compression).
+"""Compressed glTF geometry through workers.gltf: KHR_draco_mesh_compression and
+EXT_meshopt_compression / KHR_meshopt_compression (decoders in workers.gltf.compression).
 
 Every compressed file is made here from an uncompressed one with the libraries' own encoders
 (DracoPy.encode per primitive; meshopt's encode_gltf_buffer per bufferView, with a fallback buffer that
@@ -25,8 +25,8 @@ import numpy as np
 import pytest
 from scipy.spatial import cKDTree
 
-from workers import gltf_compression as gc
-from workers.ingest import ERROR_CODES, IngestError, IngestLimits, ingest_file
+from workers.gltf import ERROR_CODES, IngestError, IngestLimits, ingest_file
+from workers.gltf import compression as gc
 from workers.procedural import make_scene
 
 DTYPES = {5120: np.int8, 5121: np.uint8, 5122: np.int16, 5123: np.uint16, 5125: np.uint32, 5126: np.float32}

@@ -8,7 +8,9 @@ of view in radians. Each perspective camera referenced by a node of the default 
 Lenient by design (the upload is validated elsewhere; a camera only chooses viewpoints): orthographic cameras,
 non-finite or degenerate transforms and out-of-range fields are skipped, never an ingest error. At most
 :data:`MAX_CAMERAS`, in node order. Names are made safe for artifact names (``[a-z0-9_-]``, at most 24
-characters, unique; ``gltf-<i>`` when nothing is left).
+characters, unique; ``gltf-<i>`` when nothing is left). Positions past
+:data:`workers.gltf.limits.MAX_COORD` are skipped. Consumer: :mod:`workers.gltf.reader` (``NormalizedScene.cameras``),
+the evaluate stage. Inverse: :mod:`workers.scene_glb` writes no cameras.
 """
 from __future__ import annotations
 
@@ -17,10 +19,11 @@ import re
 
 import numpy as np
 
+from workers.gltf.limits import MAX_COORD
+
 __all__ = ["build_cameras", "safe_camera_name", "MAX_CAMERAS"]
 
 MAX_CAMERAS = 16
-MAX_COORD = 1e7
 
 
 def safe_camera_name(name, index: int, taken: set[str]) -> str:

@@ -1,9 +1,11 @@
-"""Stage ``ingest``: the scene as the bake sees it — the normalized scene plus the
-config's lighting (DESIGN stage 0).
+"""Stage ``ingest`` (this module's name says what it does): the scene as the bake sees it — the normalized
+scene plus the config's lighting (DESIGN stage 0).
 
-The upload itself was parsed and validated when it arrived (:mod:`workers.ingest`); this
-stage resolves the lights every later stage uses: the glTF's KHR_lights_punctual lights
-(unless ``scene.use_scene_lights`` is false) followed by the config's lights, and the sky.
+The stage keeps its public name ``ingest``: stage names are in every stored manifest and stage record, in the
+cache keys (:func:`proto.stages.plan`) and in what the web app and API clients look up. The upload itself was
+parsed and validated when it arrived (:mod:`workers.gltf`); this stage resolves the lights every later stage
+uses: the glTF's KHR_lights_punctual lights (unless ``scene.use_scene_lights`` is false) followed by the
+config's lights, and the sky.
 
 Output ``lights`` (json): ``{"lights": [light dicts as in workers.scene], "sky": [r, g, b]}``; ``scene``
 (glb): the normalized scene with those lights as glTF binary (:mod:`workers.scene_glb`), so a bundle shows
@@ -68,7 +70,8 @@ def _lighting_warnings(scene, section, lights: list[dict], n_emissive: int) -> l
     return out
 
 
-def run_ingest(ctx: StageContext) -> StageOutput:
+def run_lighting(ctx: StageContext) -> StageOutput:
+    """Run the ``ingest`` stage: resolve the lights and sky, warn about lighting, write the scene as GLB."""
     section = ctx.config.scene
     scene = ctx.scene
     ctx.report(0.1)

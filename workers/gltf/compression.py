@@ -1,7 +1,7 @@
 """Decoders for glTF 2.0 geometry compression: ``KHR_draco_mesh_compression`` and
 ``EXT_meshopt_compression`` / ``KHR_meshopt_compression`` (numpy in, numpy out).
 
-:mod:`workers.ingest` calls these from small hooks: a Draco primitive's decoded attributes and faces
+:mod:`workers.gltf.accessors` calls these from small hooks: a Draco primitive's decoded attributes and faces
 become the values of the accessors the primitive names [KHR_draco_mesh_compression]; a meshopt
 bufferView's decoded bytes replace the view's data [EXT_meshopt_compression]. Everything after that
 (accessor normalization, ``KHR_mesh_quantization``, node transforms, skins, morph targets, texture

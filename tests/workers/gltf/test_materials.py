@@ -1,0 +1,134 @@
+"""Tests for workers.gltf.materials: materials, textures and their UV sets, images."""
+
+from __future__ import annotations
+
+import io
+import math
+
+import numpy as np
+from PIL import Image
+
+from tests.workers.gltf.builders import (
+    Gltf, png_bytes, png_header_only, write_glb, write_zip, QUAD, QUAD_UV, sample_scene, expect_error,
+)
+from workers.gltf import IngestLimits, ingest_file
+
+
+def test_webp_textures_decode(tmp_path):
+    buf = io.BytesIO()
+    Image.new("RGB", (8, 4), (10, 200, 30)).save(buf, "WEBP", lossless=True)
+    g = sample_scene()
+    g.images[0] = buf.getvalue()
+    g.doc["textures"][0] = {"extensions": {"EXT_texture_webp": {"source": 0}}}
+    g.doc["extensionsUsed"].append("EXT_texture_webp")
+    g.doc["extensionsRequired"] = ["EXT_texture_webp"]
+    s = ingest_file(write_zip(tmp_path / "s.zip", g, image_names=["textures/a%20b.webp"]))
+    assert s.textures[0].shape == (4, 8, 4)
+    assert s.textures[0][0, 0].tolist() == [10, 200, 30, 255]
+
+
+def test_texture_transform_and_texcoord_choice(tmp_path):
+    g = Gltf()
+    tex = g.image(png_bytes())
+    g.doc["materials"] = [
+        {
+            "pbrMetallicRoughness": {
+                "baseColorTexture": {
+                    "index": tex,
+                    "texCoord": 1,
+                    "extensions": {
+                        "KHR_texture_transform": {"offset": [0.5, 0.25], "scale": [2, 3], "rotation": math.pi / 2}
+                    },
+                }
+            }
+        }
+    ]
+    g.doc["extensionsUsed"] = ["KHR_texture_transform"]
+    g.node(mesh=g.mesh(QUAD[:3], material=0, TEXCOORD_0=np.zeros((3, 2)), TEXCOORD_1=QUAD_UV[:3]))
+    s = ingest_file(write_glb(tmp_path / "t.glb", g))
+    uv = QUAD_UV[:3].astype(np.float64) * [2, 3]
+    c, sn = 0.0, 1.0  # cos, sin of pi/2: u' = c u + s v, v' = -s u + c v (sample viewer / three.js)
+    expected = np.stack([c * uv[:, 0] + sn * uv[:, 1], -sn * uv[:, 0] + c * uv[:, 1]], 1) + [0.5, 0.25]
+    np.testing.assert_allclose(s.uv0[0], expected, atol=1e-6)
+    assert any("uv0 holds TEXCOORD_1" in w for w in s.warnings)
+
+
+def test_textures_are_deduplicated_per_image(tmp_path):
+    g = Gltf()
+    t0 = g.image(png_bytes(color=(1, 1, 1, 255)))
+    t1 = g.image(png_bytes(color=(9, 9, 9, 255)))
+    g.doc["textures"].append({"source": 0})  # a third texture reusing image 0
+    g.doc["materials"] = [
+        {"pbrMetallicRoughness": {"baseColorTexture": {"index": t1}}},
+        {
+            "pbrMetallicRoughness": {"baseColorTexture": {"index": 2}},
+            "emissiveTexture": {"index": t0},
+            "emissiveFactor": [1, 1, 1],
+        },
+    ]
+    g.node(mesh=g.mesh(QUAD[:3], material=1, TEXCOORD_0=QUAD_UV[:3]))
+    s = ingest_file(write_glb(tmp_path / "t.glb", g))
+    assert len(s.textures) == 2
+    assert s.materials[0]["base_color_texture"] == 0 and s.textures[0][1, 1, 0] == 9
+    assert s.materials[1]["base_color_texture"] == 1 and s.materials[1]["emissive_texture"] == 1
+    assert s.textures[1][1, 1, 0] == 1
+
+
+def test_material_details(tmp_path):
+    g = Gltf()
+    g.doc["materials"] = [
+        {"name": "sg", "extensions": {"KHR_materials_pbrSpecularGlossiness": {"diffuseFactor": [0.1, 0.2, 0.3, 1]}}},
+        {"alphaMode": "MASK"},
+    ]
+    g.doc["extensionsRequired"] = g.doc["extensionsUsed"] = ["KHR_materials_pbrSpecularGlossiness"]
+    g.node(mesh=g.mesh(QUAD[:3], material=0))
+    g.node(mesh=g.mesh(QUAD[:3], material=1, COLOR_0=np.ones((3, 4))))
+    s = ingest_file(write_glb(tmp_path / "m.glb", g))
+    assert s.materials[0]["base_color"] == [0.1, 0.2, 0.3, 1] and s.materials[0]["name"] == "sg"
+    assert s.materials[1] == {
+        "name": "material_1",
+        "base_color": [1, 1, 1, 1],
+        "base_color_texture": None,
+        "emissive": [0, 0, 0],
+        "emissive_texture": None,
+        "double_sided": False,
+        "metallic": 1.0,                      # glTF's defaults: metallicFactor 1, roughnessFactor 1
+        "roughness": 1.0,
+        "metallic_roughness_texture": None,
+        "alpha_mode": "MASK",                 # a cutout for every ray (workers.raycast.cutout)
+        "alpha_cutoff": 0.5,
+    }
+    assert s.materials[0]["metallic"] == 0.0  # specular-glossiness: the diffuse factor is the albedo
+    assert not any("MASK" in w for w in s.warnings)
+    np.testing.assert_array_equal(s.colors[1], 1.0)   # COLOR_0 kept (RGBA, per corner)
+
+
+def test_image_too_large_is_checked_from_the_header(tmp_path):
+    for w, h in [(9000, 9000), (100_000, 100_000)]:  # below and above PIL's own bomb threshold
+        g = sample_scene()
+        g.images[0] = png_header_only(w, h)
+        expect_error("image_too_large", write_glb(tmp_path / f"{w}.glb", g))
+    g = sample_scene()
+    g.images[0] = png_bytes(64, 64)
+    expect_error("image_too_large", write_glb(tmp_path / "small.glb", g), IngestLimits(max_image_pixels=64 * 63))
+
+
+def test_invalid_image(tmp_path):
+    g = sample_scene()
+    g.images[0] = b"\x89PNG\r\n\x1a\nthis is not a png"
+    expect_error("invalid_image", write_glb(tmp_path / "a.glb", g))
+    g.images[0] = b"GIF89a" + bytes(30)
+    expect_error("invalid_image", write_glb(tmp_path / "b.glb", g))
+
+
+# ---------------------------------------------------------------------------------------------- unit: UV transforms
+
+
+def test_texture_transform_matrix_is_translation_rotation_scale():
+    from workers.gltf.materials import same_transform, texture_transform_matrix
+
+    m = texture_transform_matrix({"offset": [0.5, 0.25], "rotation": math.pi / 2, "scale": [2, 1]}, "m")
+    # u' = cos r * su + sin r * v, v' = -sin r * su + cos r * v, then the offset
+    assert np.allclose(m @ [1, 0, 1], [0.5, -1.75]) and np.allclose(m @ [0, 1, 1], [1.5, 0.25])
+    assert np.allclose(texture_transform_matrix({}, "m"), [[1, 0, 0], [0, 1, 0]])
+    assert same_transform(None, None) and not same_transform(m, None) and same_transform(m, m.copy())
