@@ -11,12 +11,13 @@ import anyio
 from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
+from fastapi_offline import FastAPIOffline
 
 from proto.catalog import Catalog
 from proto.stages import KILN_VERSION
 from proto.store import Store
 from server import queue
-from server.api import errors
+from server.api import errors, openapi
 from server.api.guard import Guard
 from server.api.jsonbody import FiniteJSONResponse
 from server.api.routes import bakes, compare, ops, relight, review, scenes
@@ -76,9 +77,12 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             task.cancel()
             app.state.ingest_pool.shutdown()
 
-    app = FastAPI(title="Kiln", version=KILN_VERSION, lifespan=lifespan, default_response_class=FiniteJSONResponse,
-                  description="Bake service for leak-free, relightable probe global illumination.")
+    # FastAPIOffline: /docs and /redoc load Swagger UI and ReDoc from Kiln itself, not a CDN (server/api/openapi.py)
+    app = FastAPIOffline(title="Kiln", version=KILN_VERSION, lifespan=lifespan, redoc_url=None,
+                         default_response_class=FiniteJSONResponse, swagger_ui_parameters=openapi.SWAGGER_UI_PARAMETERS,
+                         description="Bake service for leak-free, relightable probe global illumination.")
     errors.install(app)
+    openapi.install(app)
     app.add_middleware(Guard)     # the key check and the JSON body cap, before any body byte is read
     app.include_router(ops.router)
     app.include_router(scenes.router)

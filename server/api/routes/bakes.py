@@ -13,7 +13,7 @@ from typing import Literal
 
 import redis
 from fastapi import APIRouter, Depends, Query, Request, Response
-from fastapi.responses import FileResponse, JSONResponse, StreamingResponse
+from fastapi.responses import JSONResponse, StreamingResponse
 from pydantic import BaseModel, ConfigDict, Field
 
 from proto import bundle, cost
@@ -28,7 +28,10 @@ from server.api.routes import review
 from server.api.routes.scenes import quota_error, stored_bytes
 from server.api.jsonbody import FiniteJSONRoute
 from server.api.jsonbody import dumps as finite_dumps
+from server.api.files import BlobResponse
 from server.api.paging import Page, page
+from server.api.schemas import (BakeCreated, BakeDryRun, BakePublic, BakeRefused, BakeSnapshot, BakesPublic,
+                                error_responses)
 
 log = logging.getLogger("kiln.api")
 router = APIRouter(prefix="/v1/bakes", tags=["bakes"], route_class=FiniteJSONRoute)
@@ -169,7 +172,17 @@ def _bake_retry_after(catalog: Catalog, team: str) -> int:
     return int(min(BAKE_RETRY_AFTER_MAX_S, max(BAKE_RETRY_AFTER_MIN_S, math.ceil(best))))
 
 
-@router.post("", status_code=202, summary="Start a bake of a scene with a config (or estimate it: dry_run)")
+_NO_BAKE = {404: "no such bake for this team"}
+
+
+@router.post("", status_code=202, summary="Start a bake of a scene with a config (or estimate it: dry_run)",
+             response_model=BakeCreated,
+             responses={200: {"model": BakeDryRun, "description": "dry_run=true: the estimate; nothing started"},
+                        **error_responses(401, {404: "no such scene for this team"}, 413,
+                                          {429: "a team quota: concurrent bakes or stored bytes (Retry-After)"}),
+                        422: {"model": BakeRefused, "description": "the config refused (invalid_config, the "
+                              "message names the field) or over the server's budget (over_budget, with the "
+                              "estimate and the limits)"}})
 def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.team),
                 catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store),
                 dry_run: bool = Query(False, description="only estimate the bake: 200 {estimate, limits, "
@@ -231,7 +244,8 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
     return {"id": bake_id, "status": bake["status"], "links": links(bake_id)}
 
 
-@router.get("", summary="List bakes (filter by scene and status; paginated)")
+@router.get("", summary="List bakes (filter by scene and status; paginated)", response_model=BakesPublic,
+            responses=error_responses(401, {422: "limit, offset or status out of range"}))
 def list_bakes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
                scene_id: str | None = None,
                status: Literal["queued", "running", "succeeded", "failed", "cancelled"] | None = None,
@@ -244,14 +258,16 @@ def list_bakes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.c
                           "total": total, "limit": limit, "offset": offset})
 
 
-@router.get("/{bake_id}", summary="A bake: status, per-stage progress, timings, error, warnings, artifacts")
+@router.get("/{bake_id}", summary="A bake: status, per-stage progress, timings, error, warnings, artifacts",
+            response_model=BakePublic, responses=error_responses(401, _NO_BAKE))
 def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
              store: Store = Depends(deps.store)):
     bake = _get(catalog, team, bake_id)
     return json_response(public(bake, store, _scene_warnings(catalog, bake)))
 
 
-@router.post("/{bake_id}/cancel", summary="Cancel a queued or running bake")
+@router.post("/{bake_id}/cancel", summary="Cancel a queued or running bake", response_model=BakePublic,
+             responses=error_responses(401, _NO_BAKE, {409: "the bake has finished (bake_finished)"}, 413))
 def cancel_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
                 catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
     bake = _get(catalog, team, bake_id)
@@ -275,7 +291,8 @@ def _cancel(request: Request, catalog: Catalog, bake: dict) -> None:
         log.warning("could not cancel the jobs of bake %s (%s); they will skip it", bake["id"], e)
 
 
-@router.delete("/{bake_id}", status_code=204, summary="Delete a bake (cancelling it first)")
+@router.delete("/{bake_id}", status_code=204, summary="Delete a bake (cancelling it first)",
+               response_class=Response, responses=error_responses(401, _NO_BAKE))
 def delete_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
                 catalog: Catalog = Depends(deps.catalog)):
     bake = _get(catalog, team, bake_id)
@@ -293,7 +310,28 @@ def _snapshot(bake: dict, scene_warnings: list[str] | None = None) -> dict:
             "warnings": bake_warnings(bake, scene_warnings)}
 
 
-@router.get("/{bake_id}/events", summary="Server-Sent Events: stage progress, then the final status")
+SSE_EVENT = {
+    "type": "object", "required": ["event", "data"], "description": "one Server-Sent Event",
+    "properties": {
+        "event": {"type": "string", "enum": ["progress", "status", "deleted"]},
+        "data": {"type": "string", "contentMediaType": "application/json", "contentSchema": {"anyOf": [
+            {"$ref": f"#/components/schemas/{BakeSnapshot.__name__}"},
+            {"type": "object", "required": ["id"], "properties": {"id": {"type": "string"}},
+             "additionalProperties": False, "description": "event: deleted"}]}},
+    },
+}
+"""An event of ``GET /v1/bakes/{id}/events`` in the OpenAPI document (3.1: a text/event-stream's ``schema`` is
+one event); its ``data`` is a :class:`BakeSnapshot` (server.api.openapi adds it to the components)."""
+
+
+@router.get("/{bake_id}/events", summary="Server-Sent Events: stage progress, then the final status",
+            response_class=StreamingResponse,
+            responses={200: {"description": "`event: progress` with a BakeSnapshot as `data` at each change, then "
+                                            "one `event: status` (the final snapshot; `event: deleted`, `data: "
+                                            "{\"id\"}`, when the bake is deleted meanwhile); `: keep-alive` "
+                                            "comments every 15 s",
+                             "content": {"text/event-stream": {"schema": SSE_EVENT}}},
+                       **error_responses(401, _NO_BAKE)})
 async def bake_events(bake_id: str, request: Request, team: str = Depends(deps.team),
                       catalog: Catalog = Depends(deps.catalog)):
     scene_warnings = _scene_warnings(catalog, _get(catalog, team, bake_id))
@@ -323,7 +361,30 @@ async def bake_events(bake_id: str, request: Request, team: str = Depends(deps.t
                              headers={"Cache-Control": "no-cache", "X-Accel-Buffering": "no"})
 
 
-@router.get("/{bake_id}/artifacts/{name}", summary="One artifact file (ETag, Range)")
+_FILE = {"schema": {"type": "string", "format": "binary"}}
+_RANGE_PARAMETERS = [
+    {"name": "Range", "in": "header", "required": False, "schema": {"type": "string"},
+     "description": "bytes=START-END (one or more ranges): 206 with those bytes"},
+    {"name": "If-Range", "in": "header", "required": False, "schema": {"type": "string"},
+     "description": "the ETag: the Range applies only while the file is the same"},
+]
+
+
+@router.get("/{bake_id}/artifacts/{name}", summary="One artifact file (ETag, Range)",
+            response_class=BlobResponse,
+            openapi_extra={"parameters": [
+                {"name": "If-None-Match", "in": "header", "required": False, "schema": {"type": "string"},
+                 "description": "the ETag (the artifact's sha256, quoted) the client has: 304 when it matches"},
+                *_RANGE_PARAMETERS]},
+            responses={200: {"description": "the file (by its format: image/ktx2, application/octet-stream for "
+                                            "npy, application/json, image/png, model/gltf-binary)",
+                             "content": {m: _FILE for m in dict.fromkeys(MEDIA.values())}},
+                       206: {"description": "the requested byte ranges (multipart/byteranges for several)",
+                             "content": {**{m: _FILE for m in dict.fromkeys(MEDIA.values())},
+                                         "multipart/byteranges": _FILE}},
+                       304: {"description": "If-None-Match names this artifact's ETag"},
+                       **error_responses({400: "a malformed Range header"}, 401,
+                                         {404: "no such bake for this team, or no such artifact (yet)"}, 416)})
 def get_artifact(bake_id: str, name: str, request: Request, team: str = Depends(deps.team),
                  catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
     bake = _get(catalog, team, bake_id)
@@ -334,12 +395,19 @@ def get_artifact(bake_id: str, name: str, request: Request, team: str = Depends(
     etag = f'"{info["sha256"]}"'
     if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
         return Response(status_code=304, headers={"ETag": etag})
-    return FileResponse(store.blob_path(info["sha256"]), media_type=MEDIA.get(info["format"]),
+    return BlobResponse(store.blob_path(info["sha256"]), media_type=MEDIA.get(info["format"]),
                         filename=info["file"], content_disposition_type="inline",
                         headers={"ETag": etag, "Cache-Control": "private, max-age=31536000, immutable"})
 
 
-@router.get("/{bake_id}/bundle", summary="The whole bundle as one zip")
+@router.get("/{bake_id}/bundle", summary="The whole bundle as one zip", response_class=BlobResponse,
+            openapi_extra={"parameters": _RANGE_PARAMETERS},
+            responses={200: {"description": "the bundle zip (manifest.json + one file per artifact)",
+                             "content": {"application/zip": _FILE}},
+                       206: {"description": "the requested byte ranges",
+                             "content": {"application/zip": _FILE, "multipart/byteranges": _FILE}},
+                       **error_responses({400: "a malformed Range header"}, 401, _NO_BAKE,
+                                         {409: "the bake has not succeeded (bake_not_finished)"}, 416)})
 def get_bundle(bake_id: str, request: Request, team: str = Depends(deps.team),
                catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
     bake = _get(catalog, team, bake_id)
@@ -352,4 +420,4 @@ def get_bundle(bake_id: str, request: Request, team: str = Depends(deps.team),
             export_bundle(store, Manifest.model_validate(bake["manifest"]), work)
             zdir.mkdir(parents=True, exist_ok=True)
             bundle.zip_bundle(work, zpath)
-    return FileResponse(zpath, media_type="application/zip", filename=f"kiln-bake-{bake_id}.zip")
+    return BlobResponse(zpath, media_type="application/zip", filename=f"kiln-bake-{bake_id}.zip")

@@ -24,7 +24,8 @@ from fastapi import APIRouter, Depends, Query
 from proto.catalog import Catalog
 from server.api.deps import catalog, team
 from server.api.errors import ApiError
-from server.api.jsonbody import FiniteJSONRoute
+from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
+from server.api.schemas import Comparison, error_responses
 
 router = APIRouter(prefix="/v1", tags=["compare"], route_class=FiniteJSONRoute)
 
@@ -52,9 +53,12 @@ def _summary(b: dict) -> dict:
     return {k: b.get(k) for k in ("id", "scene_id", "status", "created")}
 
 
-@router.get("/compare")
+@router.get("/compare", summary="Metric deltas of two bakes (both evaluated)", response_model=Comparison,
+            responses=error_responses(401, {404: "no such bake for this team",
+                                            409: "a bake has no evaluate metrics yet (no_metrics)",
+                                            422: "a or b missing"}))
 def compare(a: str = Query(..., description="the first bake's id"), b: str = Query(..., description="the second"),
-            team_: str = Depends(team), cat: Catalog = Depends(catalog)) -> dict:
+            team_: str = Depends(team), cat: Catalog = Depends(catalog)):
     bakes = {}
     for key, bid in (("a", a), ("b", b)):
         bake = cat.get_bake(bid, team_)
@@ -73,5 +77,6 @@ def compare(a: str = Query(..., description="the first bake's id"), b: str = Que
     for name in common:
         x, y = ms["a"][name], ms["b"][name]
         out[name] = {"a": x, "b": y, "delta": y - x, "ratio": (y / x) if x != 0 else None}
-    return {"a": _summary(bakes["a"]), "b": _summary(bakes["b"]), "metrics": out,
-            "only_a": sorted(set(ms["a"]) - set(ms["b"])), "only_b": sorted(set(ms["b"]) - set(ms["a"]))}
+    return FiniteJSONResponse({"a": _summary(bakes["a"]), "b": _summary(bakes["b"]), "metrics": out,
+                               "only_a": sorted(set(ms["a"]) - set(ms["b"])),
+                               "only_b": sorted(set(ms["b"]) - set(ms["a"]))})

@@ -1,6 +1,8 @@
 """``/healthz``, ``/metrics`` (Prometheus text format) and ``/v1/config/schema``."""
 from __future__ import annotations
 
+from typing import Any
+
 from fastapi import APIRouter, Depends, Request, Response
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import GaugeMetricFamily, SummaryMetricFamily
@@ -9,11 +11,12 @@ from proto.models import BakeConfig
 from server import queue
 from server.api import deps
 from server.api.jsonbody import FiniteJSONRoute
+from server.api.schemas import Health, error_responses
 
 router = APIRouter(tags=["ops"], route_class=FiniteJSONRoute)
 
 
-@router.get("/healthz", summary="Liveness and dependencies")
+@router.get("/healthz", summary="Liveness and dependencies", response_model=Health)
 def healthz(request: Request):
     st = request.app.state
     redis_ok = True
@@ -65,13 +68,18 @@ class _Collector:
         yield dur
 
 
-@router.get("/metrics", summary="Prometheus metrics (with API keys: needs one, and shows that team's bakes)")
+@router.get("/metrics", summary="Prometheus metrics (with API keys: needs one, and shows that team's bakes)",
+            response_class=Response,
+            responses={200: {"description": "Prometheus text format 0.0.4",
+                             "content": {"text/plain; version=0.0.4; charset=utf-8": {"schema": {"type": "string"}}}},
+                       **error_responses(401)})
 def metrics(request: Request, team: str = Depends(deps.team)):
     reg = CollectorRegistry()
     reg.register(_Collector(request.app, None if request.app.state.settings.open else team))
     return Response(generate_latest(reg), media_type="text/plain; version=0.0.4; charset=utf-8")
 
 
-@router.get("/v1/config/schema", summary="JSON Schema of the bake config")
+@router.get("/v1/config/schema", summary="JSON Schema of the bake config (no API key needed)",
+            response_model=dict[str, Any])
 def config_schema():
     return BakeConfig.model_json_schema()

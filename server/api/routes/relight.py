@@ -58,6 +58,7 @@ from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
 from server.api.routes.bakes import _artifact_infos
+from server.api.schemas import RelightJSON, error_responses
 
 router = APIRouter(prefix="/v1/bakes", tags=["relight"], route_class=FiniteJSONRoute)
 
@@ -112,10 +113,14 @@ def _grid(bake: dict) -> dict:
 
 
 @router.post("/{bake_id}/relight", summary="Relight a PRT bake: new lights -> probe SH volume and lightmap",
-             responses={200: {"content": {"application/zip": {}, "application/json": {}},
-                              "description": "a bundle of the relit arrays (zip, or JSON with base64 files)"},
-                        404: {"description": "no such bake for this team"},
-                        409: {"description": "the bake has no PRT transfer"}})
+             response_model=RelightJSON,
+             responses={200: {"content": {"application/zip": {"schema": {"type": "string", "format": "binary"}},
+                                          "application/json": {}},
+                              "description": "a bundle of the relit arrays: a zip (format=zip, the default), or "
+                                             "JSON with the manifest and base64 files (format=json)"},
+                        **error_responses(401, {404: "no such bake for this team",
+                                                409: "the bake has no PRT transfer (no_prt)"}, 413,
+                                          {422: "a light refused (the message names the field), or format"})})
 def relight_bake(bake_id: str, body: RelightRequest,
                  format: Literal["zip", "json"] = Query("zip", description="zip (a bundle) or json (base64 files)"),
                  team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),

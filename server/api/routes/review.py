@@ -5,7 +5,7 @@ Every bake of a scene is scored from the same review cameras (the evaluate stage
 
 1. ``stored``: cameras saved with ``PUT /v1/scenes/{id}/cameras`` (kept with the scene in the catalog,
    ``summary.review_cameras``);
-2. ``gltf``: the glTF's own perspective cameras (read at upload, :mod:`workers.gltf_cameras`);
+2. ``gltf``: the glTF's own perspective cameras (read at upload, :mod:`workers.gltf.cameras`);
 3. ``auto``: placed by the bake in free space looking at geometry (``evaluate.cameras`` of them); GET shows the
    ones the scene's latest evaluated bake recorded (``from_bake``), or none before the first.
 
@@ -32,7 +32,8 @@ from proto.models import BakeConfig, CameraSpec
 from proto.store import Store
 from server.api import deps
 from server.api.errors import ApiError
-from server.api.jsonbody import FiniteJSONRoute
+from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
+from server.api.schemas import SceneCameras, error_responses
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"], route_class=FiniteJSONRoute)
 
@@ -138,17 +139,23 @@ def _scene(catalog: Catalog, team: str, scene_id: str) -> dict:
     return s
 
 
-@router.get("/{scene_id}/cameras", summary="The scene's review cameras (stored, the glTF's own, or automatic)")
+_NO_SCENE = {404: "no such scene for this team"}
+
+
+@router.get("/{scene_id}/cameras", summary="The scene's review cameras (stored, the glTF's own, or automatic)",
+            response_model=SceneCameras, responses=error_responses(401, _NO_SCENE))
 def get_cameras(scene_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
                 store: Store = Depends(deps.store)):
-    return cameras_doc(catalog, store, team, _scene(catalog, team, scene_id))
+    return FiniteJSONResponse(cameras_doc(catalog, store, team, _scene(catalog, team, scene_id)))
 
 
-@router.put("/{scene_id}/cameras", summary="Set the scene's review cameras (an empty list removes them)")
+@router.put("/{scene_id}/cameras", summary="Set the scene's review cameras (an empty list removes them)",
+            response_model=SceneCameras,
+            responses=error_responses(401, _NO_SCENE, 413, {422: "a camera refused (the message names the field)"}))
 def put_cameras(scene_id: str, body: CamerasBody, team: str = Depends(deps.team),
                 catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
     _scene(catalog, team, scene_id)
     cams = _named([c.model_dump() for c in body.cameras]) if body.cameras else None
     if not catalog.set_scene_cameras(team, scene_id, cams):
         raise ApiError(404, "scene_not_found", f"no scene {scene_id}")
-    return cameras_doc(catalog, store, team, _scene(catalog, team, scene_id))
+    return FiniteJSONResponse(cameras_doc(catalog, store, team, _scene(catalog, team, scene_id)))

@@ -14,6 +14,7 @@ from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
 from server.api.paging import Page, page
+from server.api.schemas import ScenePublic, ScenesPublic, error_responses
 from server.config import Settings
 from server.ingest_pool import UploadsBusy
 
@@ -113,7 +114,42 @@ def _check_upload_quota(settings: Settings, catalog: Catalog, store: Store, team
                           "delete scenes or bakes first (KILN_QUOTA_STORED_MB)")
 
 
-@router.post("", status_code=201, summary="Upload a scene (.glb, .gltf with data URIs, or .zip)")
+_BINARY = {"schema": {"type": "string", "format": "binary"}}
+UPLOAD_BODY = {
+    "required": True,
+    "description": "The scene file: a raw body (any content type but multipart: the bytes decide the format; name "
+                   "it with `X-Filename` or `?filename=`), or multipart/form-data with one file part (its file "
+                   "name is kept). At most KILN_MAX_UPLOAD_MB.",
+    "content": {
+        "model/gltf-binary": _BINARY,
+        "model/gltf+json": {"schema": {"type": "object", "description": "a glTF 2.0 document (buffers and "
+                                                                        "images as data URIs)"}},
+        "application/zip": _BINARY,
+        "application/octet-stream": _BINARY,
+        "multipart/form-data": {"schema": {"type": "object", "required": ["file"], "properties": {
+            "file": {"type": "string", "format": "binary", "description": "the .glb, .gltf or .zip"}}}},
+    },
+}
+"""``POST /v1/scenes``'s request body in the OpenAPI document: the route streams the body itself (no FastAPI body
+parameter, so that nothing reads it into memory), so it is declared here."""
+UPLOAD_PARAMETERS = [
+    {"name": "X-Filename", "in": "header", "required": False, "schema": {"type": "string"},
+     "description": "the file name of a raw body (shown in the scene's `filename`, named in messages)"},
+    {"name": "filename", "in": "query", "required": False, "schema": {"type": "string"},
+     "description": "the same as X-Filename"},
+]
+
+
+@router.post("", status_code=201, summary="Upload a scene (.glb, .gltf with data URIs, or .zip)",
+             response_model=ScenePublic,
+             openapi_extra={"requestBody": UPLOAD_BODY, "parameters": UPLOAD_PARAMETERS},
+             responses={200: {"model": ScenePublic, "description": "the team already has this scene (same id)"},
+                        201: {"description": "a new scene"},
+                        **error_responses({400: "an empty upload, or a multipart body without a file part"}, 401,
+                                          408, {413: "over KILN_MAX_UPLOAD_MB, or it expands past "
+                                                     "KILN_MAX_SCENE_MB / the triangle limit"},
+                                          415, {422: "not a valid scene (the code names why: workers/gltf/errors.py "
+                                                     "ERROR_CODES)"}, 429)})
 async def upload_scene(request: Request, team: str = Depends(deps.team)):
     """Admission first, before any body byte is read: the team's concurrent uploads (429 with Retry-After,
     ``KILN_MAX_UPLOADS_PER_TEAM``) and its quotas (429 ``quota_exceeded``). The body streams to disk within
@@ -180,23 +216,28 @@ def _expanded_limits(settings: Settings) -> dict:
     return {"max_total_image_pixels": settings.max_scene_bytes // 4}
 
 
-@router.get("", summary="List the team's scenes")
+@router.get("", summary="List the team's scenes", response_model=ScenesPublic,
+            responses=error_responses(401, {422: "limit or offset out of range"}))
 def list_scenes(team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
                 pg: Page = Depends(page)):
     limit, offset = pg
     items, total = catalog.list_scenes(team, limit, offset)
-    return {"items": items, "total": total, "limit": limit, "offset": offset}
+    return FiniteJSONResponse({"items": items, "total": total, "limit": limit, "offset": offset})
 
 
-@router.get("/{scene_id}", summary="One scene")
+@router.get("/{scene_id}", summary="One scene", response_model=ScenePublic,
+            responses=error_responses(401, {404: "no such scene for this team"}))
 def get_scene(scene_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog)):
     s = catalog.get_scene(team, scene_id)
     if s is None:
         raise ApiError(404, "scene_not_found", f"no scene {scene_id}")
-    return s
+    return FiniteJSONResponse(s)
 
 
-@router.delete("/{scene_id}", status_code=204, summary="Delete a scene (409 while bakes use it)")
+@router.delete("/{scene_id}", status_code=204, summary="Delete a scene (409 while bakes use it)",
+               response_class=Response,
+               responses=error_responses(401, {404: "no such scene for this team",
+                                               409: "bakes use the scene (scene_in_use): delete them first"}))
 def delete_scene(scene_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
                  store: Store = Depends(deps.store)):
     if catalog.get_scene(team, scene_id) is None:
