@@ -38,25 +38,51 @@ class CliError(Exception):
 # --------------------------------------------------------------------------- config
 
 
-def load_config(path: str | None):
-    """BakeConfig from a TOML (or JSON) file; CliError(EXIT_INPUT) naming the field on error."""
+def load_presets() -> dict[str, dict]:
+    """The bake presets (Preview / Medium / Production) of proto/presets.json, one file for the web form and
+    ``--preset``, by id in file order: ``{id: {"id", "label", "description", "config"}}`` (partial configs)."""
+    import proto
+
+    try:
+        doc = json.loads((Path(proto.__file__).parent / "presets.json").read_text())
+    except (OSError, json.JSONDecodeError):
+        return {}
+    return {p["id"]: p for p in doc.get("presets", [])}
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """``over`` on top of ``base``: tables merge key by key, anything else (numbers, lists) is replaced."""
+    out = dict(base)
+    for k, v in over.items():
+        out[k] = _merge(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def load_config(path: str | None, preset: str | None = None):
+    """BakeConfig from a TOML (or JSON) file on top of a preset's partial config (the file's values win);
+    CliError(EXIT_INPUT) naming the field on error."""
     import tomllib
 
     from pydantic import ValidationError
 
     from proto.models import BakeConfig
 
-    if path is None:
-        return BakeConfig()
-    p = Path(path)
-    try:
-        text = p.read_text()
-    except OSError as e:
-        raise CliError(EXIT_INPUT, f"cannot read config {path}: {e.strerror}")
-    try:
-        data = json.loads(text) if p.suffix == ".json" else tomllib.loads(text)
-    except (tomllib.TOMLDecodeError, json.JSONDecodeError) as e:
-        raise CliError(EXIT_INPUT, f"config {path} is not valid {'JSON' if p.suffix == '.json' else 'TOML'}: {e}")
+    data: dict = {}
+    if preset is not None:
+        presets = load_presets()
+        if preset not in presets:
+            raise CliError(EXIT_USAGE, f"unknown preset {preset!r} (one of: {', '.join(presets) or 'none'})")
+        data = json.loads(json.dumps(presets[preset]["config"]))
+    if path is not None:
+        p = Path(path)
+        try:
+            text = p.read_text()
+        except OSError as e:
+            raise CliError(EXIT_INPUT, f"cannot read config {path}: {e.strerror}")
+        try:
+            data = _merge(data, json.loads(text) if p.suffix == ".json" else tomllib.loads(text))
+        except (tomllib.TOMLDecodeError, json.JSONDecodeError) as e:
+            raise CliError(EXIT_INPUT, f"config {path} is not valid {'JSON' if p.suffix == '.json' else 'TOML'}: {e}")
     try:
         return BakeConfig.model_validate(data)
     except ValidationError as e:
@@ -66,7 +92,8 @@ def load_config(path: str | None):
             loc = ".".join(str(x) for x in err["loc"]) or "config"
             msg = "unknown field" if err["type"] == "extra_forbidden" else err["msg"]
             parts.append(f"{loc}: {msg}")
-        raise CliError(EXIT_INPUT, f"invalid config {path}: " + "; ".join(parts))
+        what = f"config {path}" if path is not None else "config"
+        raise CliError(EXIT_INPUT, f"invalid {what}{f' (preset {preset})' if preset else ''}: " + "; ".join(parts))
 
 
 # --------------------------------------------------------------------------- progress
@@ -104,12 +131,12 @@ def _default_cache() -> Path:
 def bake_local(args) -> int:
     from proto.stages import expand, export_bundle
     from proto.store import Store
-    from workers.ingest import IngestError, ingest_file
+    from workers.gltf import IngestError, ingest_file
     from workers.pipeline import bake_local as run
     from workers.stages.base import StageError
 
     gates = _parse_gates(args)
-    config = load_config(args.config)
+    config = load_config(args.config, args.preset)
     if not Path(args.scene).is_file():
         raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
     try:
@@ -154,7 +181,7 @@ def bake_remote(args) -> int:
     import httpx
 
     gates = _parse_gates(args)
-    config = load_config(args.config)
+    config = load_config(args.config, args.preset)
     scene = Path(args.scene)
     if not scene.is_file():
         raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
@@ -448,6 +475,9 @@ def build_parser() -> argparse.ArgumentParser:
     s = sub.add_parser("bake", help="bake a scene into a bundle (in-process, or through --server)")
     s.add_argument("scene", help=".glb, .gltf or .zip")
     s.add_argument("--config", help="bake config (TOML, or JSON by extension)")
+    s.add_argument("--preset", choices=list(load_presets()) or None, default=None,
+                   help="start from a preset of proto/presets.json (preview: seconds; medium: the defaults; "
+                        "production: denser grid, more rays); values --config gives win over the preset's")
     s.add_argument("--out", required=True, help="output directory for the bundle")
     s.add_argument("--json", action="store_true", help="print only the manifest as JSON on stdout")
     s.add_argument("--server", help="bake through a Kiln server at this URL instead of in-process")

@@ -2,7 +2,8 @@
  * "Upload and bake": drop or pick a .glb/.gltf/.zip (the API's refusal shown in words), pick a scene,
  * fill the config form generated from the JSON Schema, start a bake, follow it stage by stage over SSE,
  * cancel it, open it in the viewer. Before the bake starts the page warns about what would make it wrong
- * (a light outside the scene, nothing lighting the scene: state/lighting.js) and asks to confirm.
+ * (a light outside the scene, nothing lighting the scene: state/lighting.js) and asks to confirm. A preset
+ * (Preview / Medium / Production, in the form: ui/configForm.js) fills the form; the estimate follows every change.
  */
 import { createConfigForm } from './configForm.js';
 import { clear, h, shortId } from './dom.js';
@@ -95,6 +96,11 @@ export function createBakePage(app) {
         const r = await api.estimateBake(sceneId, form.config());
         if (seq !== estimateSeq) return;
         const e = r.estimate || {};
+        // the numbers as the server gave them (for scripts and the browser tests), the words below for people
+        Object.assign(estimate.dataset, {
+          probes: String(e.probes ?? ''), seconds: String(e.seconds ?? ''), peakMemoryBytes: String(e.peak_memory_bytes ?? ''),
+          artifactBytes: String(e.artifact_bytes ?? ''), preset: form.preset() || 'custom',
+        });
         estimate.textContent = `Estimate: ${e.probes_exact === false ? 'at most ' : ''}${e.probes ?? '?'} probes · about ${formatSeconds(e.seconds)}`
           + ` · peak memory ${formatBytes(e.peak_memory_bytes)} · artifact size ${formatBytes(e.artifact_bytes)}`
           + `${r.over_budget && r.over_budget.length ? ' · over the server\'s budget: the bake would be refused' : ''}`;

@@ -7,9 +7,14 @@
  * For people (state/formLabels.js): labels in words, help lines without paper references (those go to the
  * tooltip), advanced fields folded under "Advanced"; lights and sky have their own controls (ui/lightEditor.js:
  * a type, physical units, degrees, colour pickers).
+ *
+ * Presets (Preview / Medium / Production, proto/presets.json through state/presets.js, the file `kiln bake --preset`
+ * reads): choosing one fills the form (the defaults, then the preset; lights, sky and seed stay); the picker shows
+ * "custom" once a value differs from every preset.
  */
 import { buildFieldTree, configDiff, fieldErrors, walkFields } from '../state/schema.js';
 import { OPEN_SECTIONS, fieldUi, humanize } from '../state/formLabels.js';
+import { PRESETS, applyPreset, findPreset, presetOf } from '../state/presets.js';
 import { clear, h } from './dom.js';
 import { createLightList, createSkyControl } from './lightEditor.js';
 
@@ -162,13 +167,34 @@ export function createConfigForm(schema) {
   let form;
   const listeners = [];
   const ctx = { bounds: null, onPlaceLight: null, lights: null };
-  const onChange = () => { if (form) { form.clearErrors(); listeners.forEach((fn) => fn(form)); } };
+  const presetSelect = h('select#bake-preset', { title: 'fill the form with a preset (proto/presets.json; the CLI: kiln bake --preset ID)' },
+    h('option', { value: '' }, 'custom'), PRESETS.map((p) => h('option', { value: p.id, title: p.description }, p.label)));
+  const presetHelp = h('span#preset-help.help');
+  const syncPreset = () => {
+    const id = presetOf(PRESETS, tree.default, top.get());
+    presetSelect.value = id || '';
+    presetHelp.textContent = id ? findPreset(id).description : 'your own settings (differs from every preset)';
+  };
+  const onChange = () => { if (form) { syncPreset(); form.clearErrors(); listeners.forEach((fn) => fn(form)); } };
   const top = objectFields({ ...tree, children: tree.children }, onChange, true, ctx);
   top.set(tree.default);
-  const el = h('div.config-form', general, top.el,
+  presetSelect.addEventListener('change', () => { if (presetSelect.value) form.applyPreset(presetSelect.value); else syncPreset(); });
+  const el = h('div.config-form', general,
+    h('div.row.preset-row', h('label', { for: 'bake-preset' }, 'Preset '), presetSelect, ' ', presetHelp),
+    top.el,
     h('div.form-actions', h('button.small', { type: 'button', on: { click: () => { top.set(tree.default); onChange(); } } }, 'reset to defaults')));
+  syncPreset();
   form = {
     el, tree,
+    /** Fill the form with preset `id` of proto/presets.json (the defaults, then the preset; lights, sky, seed kept). */
+    applyPreset(id) {
+      const preset = findPreset(id);
+      if (!preset) throw new Error(`unknown preset ${id}`);
+      top.set(applyPreset(tree.default, top.get(), preset));
+      onChange();
+    },
+    /** The preset the form's values are (null: custom). */
+    preset: () => presetOf(PRESETS, tree.default, top.get()),
     values: () => top.get(),
     config: () => configDiff(tree, top.get()),
     clearErrors() {
@@ -202,6 +228,7 @@ export function createConfigForm(schema) {
       for (const k of keys.slice(0, -1)) o = o[k];
       o[keys[keys.length - 1]] = value;
       top.set(v);
+      syncPreset();
       listeners.forEach((fn) => fn(form));  // the pre-bake warnings and the estimate follow
     },
   };

@@ -3,6 +3,10 @@
  * cameras, probes, exposure, the streaming progress bar, the frame-time readout, and debug images.
  * Lights are drawn in every mode; "Place a light" adds or moves a light of the bake form by clicking a surface
  * (0.3 m in front of it) and dragging the gizmo.
+ *
+ * Review cameras (view/reviewCameras.js): the first view is the scene's first review camera (GET
+ * /v1/scenes/{id}/cameras, then the bake's own evaluate cameras; none: autocamera.js), a button per camera jumps
+ * to it, and "Save this view as a review camera" appends the current view with PUT /v1/scenes/{id}/cameras.
  */
 import { Viewer } from '../view/viewer.js';
 import { drawDepthAtlas, drawIrradianceAtlas, drawMaskSlice, drawThetaSlice } from './debugImages.js';
@@ -10,6 +14,7 @@ import { clear, h, shortId } from './dom.js';
 import { bakeWarnings, sceneLabel } from '../state/stats.js';
 import { defaultLight } from '../state/lighting.js';
 import { warningList } from './warnings.js';
+import { appendCameraBody, bakeReviewCameras, mergeReviewCameras } from '../view/reviewCameras.js';
 
 export function createViewerPage(app) {
   const { api, store } = app;
@@ -31,6 +36,9 @@ export function createViewerPage(app) {
   const camOrbit = h('button.small#cam-orbit', { type: 'button', dataset: { cam: 'orbit' } }, 'Orbit');
   const camFly = h('button.small#cam-fly', { type: 'button', dataset: { cam: 'fly' } }, 'Fly (WASD QE, drag)');
   const camLink = h('button.small#cam-link', { type: 'button' }, 'Link to this view');
+  const camList = h('div#cam-list.row.cam-list', { title: 'the scene\'s review cameras: the views its evaluated bakes are scored from' });
+  const camSave = h('button.small#cam-save', { type: 'button', title: 'add this view (position, target, field of view) to the scene\'s review cameras (PUT /v1/scenes/{id}/cameras): later evaluated bakes of the scene are scored from it too' }, 'Save this view as a review camera');
+  const camNote = h('p#cam-note.muted');
   const probesBox = h('input#show-probes', { type: 'checkbox' });
   const probeColor = h('select#probe-coloring', h('option', { value: 'state' }, 'by state (OFF red / ACTIVE green / SLEEPING blue)'), h('option', { value: 'sh' }, 'by own SH irradiance'),
     h('option', { value: 'cluster' }, 'by MD cluster (8 colours; OFF dark)'));
@@ -63,6 +71,8 @@ export function createViewerPage(app) {
         h('div.row', h('label', shadowsBox, ' shadowed direct light (shadow maps)')),
         h('h3', 'Camera'),
         h('div.row', camOrbit, camFly, camLink),
+        h('div.row', h('span.muted', 'Review cameras')), camList,
+        h('div.row', camSave), camNote,
         h('h3', 'Lights'),
         h('div.row', h('label', lightsBox, ' show lights'), placeBtn, placeDone),
         placeNote,
@@ -75,6 +85,73 @@ export function createViewerPage(app) {
   let viewer = null;
   let status = {};
   let openId = null;
+
+  // ------------------------------------------------------------------ review cameras: a list to jump between, save
+  let review = { sceneId: null, bakeCams: [], cams: [] };
+
+  async function fetchReviewDoc(sceneId) {
+    return api.request(`/v1/scenes/${encodeURIComponent(sceneId)}/cameras`);
+  }
+
+  /** The scene's review cameras and this bake's (the scene's first); none when the scene is unknown. */
+  async function loadReviewCameras(sceneId, bake) {
+    const bakeCams = bakeReviewCameras(bake);
+    let doc = null;
+    if (sceneId) { try { doc = await fetchReviewDoc(sceneId); } catch { /* the bake's own, if any */ } }
+    review = { sceneId, bakeCams, cams: mergeReviewCameras(doc, bakeCams), source: doc?.source || null };
+    return review.cams;
+  }
+
+  function markCamera(key) {
+    canvas.dataset.camera = key == null ? '' : String(key);
+    camList.querySelectorAll('button').forEach((b) => b.classList.toggle('active', b.dataset.cam === String(key)));
+  }
+
+  function renderCamList(active = null) {
+    clear(camList);
+    const fmt = (v) => v.map((x) => x.toFixed(2)).join(', ');
+    review.cams.forEach((c, i) => {
+      camList.append(h('button.small.cam', {
+        type: 'button', dataset: { cam: String(i), name: c.name, source: c.source },
+        title: `${c.name} (${c.source}): from (${fmt(c.position)}) towards (${fmt(c.target)})${c.fov_y ? `, ${c.fov_y.toFixed(0)}° vertical` : ''}`,
+        on: { click: () => jumpTo(i) },
+      }, `${i + 1}. ${c.name}`));
+    });
+    camList.append(h('button.small.cam', { type: 'button', dataset: { cam: 'auto' }, title: 'the viewer\'s own first view: inside a room for closed scenes, outside for open ones', on: { click: () => jumpTo('auto') } }, 'automatic view'));
+    camSave.disabled = !review.sceneId;
+    markCamera(active);
+  }
+
+  function jumpTo(key) {
+    if (!viewer) return;
+    const cam = key === 'auto' ? viewer.autoView() : review.cams[key];
+    if (!cam) return;
+    viewer.setView(cam);
+    markCamera(key);
+    updateHash();
+  }
+
+  camSave.addEventListener('click', async () => {
+    if (!viewer || !review.sceneId) { camNote.textContent = 'Open a bake or a scene first.'; return; }
+    camSave.disabled = true;
+    try {
+      const view = viewer.viewState();
+      const body = appendCameraBody(await fetchReviewDoc(review.sceneId), view);
+      const doc = await api.request(`/v1/scenes/${encodeURIComponent(review.sceneId)}/cameras`, { method: 'PUT', json: body });
+      review.cams = mergeReviewCameras(doc, review.bakeCams);
+      review.source = doc.source;
+      const saved = body.cameras[body.cameras.length - 1].name;
+      const i = review.cams.findIndex((c) => c.name === saved);
+      renderCamList(i >= 0 ? i : null);
+      camNote.className = 'muted ok';
+      camNote.textContent = `Saved as review camera ${i + 1} (“${saved}”) of the scene: later evaluated bakes of this scene are scored from its ${doc.cameras.length} review cameras.`;
+    } catch (e) {
+      camNote.className = 'error';
+      camNote.textContent = `Not saved: ${e.message}`;
+    } finally {
+      camSave.disabled = !review.sceneId;
+    }
+  });
 
   /** The banner above the canvas listing the opened bake's warnings (hidden when it has none). */
   function renderWarnings(bake) {
@@ -398,10 +475,17 @@ export function createViewerPage(app) {
         header.append(h('p.muted', 'Pick a bake to view (or upload and bake a scene first).'));
       }
       const cam = (q.get('cam') || '').split(',').map(Number);
-      const camera = cam.length === 6 && cam.every(Number.isFinite) ? { position: cam.slice(0, 3), target: cam.slice(3) } : undefined;
+      const linked = cam.length === 6 && cam.every(Number.isFinite) ? { position: cam.slice(0, 3), target: cam.slice(3) } : undefined;
       progress.value = 0;
       progressLabel.textContent = '';
       const sceneId = bake ? bake.scene_id : sceneParam;
+      // the first view: a linked one, else the scene's first review camera, else the automatic one
+      camNote.className = 'muted';
+      camNote.textContent = '';
+      const reviews = await loadReviewCameras(sceneId, bake);
+      if (openId !== id) return;  // another bake was opened meanwhile
+      const camera = linked || reviews[0];
+      renderCamList(linked ? null : reviews.length ? 0 : 'auto');
       await v.open({ bake, sceneFile: sceneId ? app.sessionFiles.get(sceneId) || null : null, camera, mode: q.get('mode') || undefined });
       probesBox.checked = !v.root;  // probes alone over an empty scene; over the geometry on demand
       if (probesBox.checked !== v.state.probes) v.setProbes({ visible: probesBox.checked });

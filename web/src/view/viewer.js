@@ -164,7 +164,8 @@ export class Viewer {
 
   /**
    * Open a bake (may be null: just a scene) with the scene file uploaded in this session (may be null).
-   * @param {{bake: object|null, sceneFile: File|null, camera?: {position: number[], target: number[]}, mode?: string}} opts
+   * `camera` (a review camera, a linked view; fov_y in degrees, default 60): the first view; none: autocamera.js.
+   * @param {{bake: object|null, sceneFile: File|null, camera?: {position: number[], target: number[], fov_y?: number}, mode?: string}} opts
    */
   async open({ bake, sceneFile, camera, mode }) {
     const gen = (this.generation = (this.generation || 0) + 1);
@@ -218,7 +219,7 @@ export class Viewer {
     this.camera.far = size * 20 + 10;
     this.camera.updateProjectionMatrix();
     this.controls.fly.speed = Math.max(0.5, size / 8);
-    this.controls.lookAt(cam.position, cam.target);
+    this.setView(cam);
     this.userExposure = false;
     const ev = autoExposureEV(bake, gltfLights(root));
     this.set({ exposure: 2 ** ev });
@@ -483,6 +484,31 @@ export class Viewer {
 
   cameraState() {
     return { position: this.camera.position.toArray(), target: this.controls.orbit.target.toArray() };
+  }
+
+  /** Look from `position` at `target` (glTF coordinates, metres) with a vertical field of view of `fov_y` degrees. */
+  setView({ position, target, fov_y: fovY }) {
+    this.camera.fov = Number.isFinite(fovY) && fovY > 1 && fovY < 179 ? fovY : 60;
+    this.camera.updateProjectionMatrix();
+    this.controls.lookAt(position, target);
+    this.invalidate();
+  }
+
+  /**
+   * The view as a review camera: position, a target the camera looks at (in fly mode the orbit target is left
+   * behind: a point as far in front of the camera), fov_y (degrees); glTF coordinates.
+   */
+  viewState() {
+    const position = this.camera.position.clone();
+    const forward = new Vector3(0, 0, -1).applyQuaternion(this.camera.quaternion);
+    const dist = Math.max(0.25, position.distanceTo(this.controls.orbit.target));
+    const target = position.clone().addScaledVector(forward, dist);
+    return { position: position.toArray(), target: target.toArray(), fov_y: this.camera.fov };
+  }
+
+  /** The automatic first view (autocamera.js: inside a room for closed scenes, outside for open ones). */
+  autoView() {
+    return autoCamera(this.root, bakeBounds(this.bake));
   }
 
   // ------------------------------------------------------------------ lights on screen, placing lights
