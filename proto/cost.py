@@ -24,7 +24,8 @@ masks      F × K                                         F × K floats
 compress   F × K                                         F × K
 prt        C × (M + N bounces) + lightmap texels         a batch × N + C × (P × SH + lightmap texels)
 reference  (points × spp + preview px × preview_spp) × ~3  the preview G-buffers and reference images
-           path vertices (path tracer, Russian roulette)
+           path vertices (path tracer, Russian roulette);
+           check-point normals × check_spp paths
 evaluate   points × modes + preview px × modes × repeats  W × H per mode of the previews
 ========== ============================================= ===============================================
 
@@ -80,6 +81,8 @@ VIS_CHUNK_MEM = 130 * MB       # a full chunk of visibility rays (bounded by CHU
 VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
 FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 7}
 FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 10, "compress": 2.5}
+PATH_CHUNK = 1 << 18          # paths in flight per wavefront chunk (workers.kernels.pathtrace.DEFAULT_MAX_PATHS)
+PATH_BYTES = 512              # bytes per path in flight (ibid.)
 PRT_FIXED_MEM = 40 * MB       # the measurement points, the lightmap's atlas (xatlas)
 PRT_MEM_PER_CONFIG_RAY = 88    # the batched bounce loop: a batch's configurations' radiance on every probe ray
 PRT_MEM_PER_CONFIG_TEXEL = 48  # every configuration's lightmap texels, and their fit (float64)
@@ -200,7 +203,8 @@ def grid_counts(summary: dict, config: BakeConfig) -> tuple[tuple[int, int, int]
         counts = []
         for l, h in zip(lo, hi):
             e = h - l
-            n = math.ceil(e / s - 1e-9) + 1 if e > 0 else 1
+            q = e / s                 # inf for a subnormal spacing (5e-324): clamped like any huge count
+            n = (math.ceil(q - 1e-9) + 1 if math.isfinite(q) else 1 << 31) if e > 0 else 1
             counts.append(int(min(max(n, 1), 1 << 31)))
         return tuple(counts), True
     n = max(2, int(sec.budget ** (1 / 3)))
@@ -299,13 +303,16 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         cams = ev.cameras if isinstance(ev.cameras, int) else len(ev.cameras)
         pv = min(int(ev.previews), cams)                        # cameras with preview images
         px = pv * ev.width * ev.height
-        pts = ev.surface_points + (len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0)
+        cpn = len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0   # check-point normals
+        pts = ev.surface_points + cpn
+        paths = ev.surface_points * ev.spp + cpn * ev.effective_check_spp()
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6
         lib = LIB_EVAL if px else LIB_RAYS                      # EGL only for the previews
-        add("reference", (EVAL_FIXED_SECONDS if px else 0.0) + (pts * ev.spp + px * ev.preview_spp) * vertices
+        add("reference", (EVAL_FIXED_SECONDS if px else 0.0) + (paths + px * ev.preview_spp) * vertices
             * EVAL_SECONDS_PER_PATH_BOUNCE * rays_scale,
-            lib + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * ev.spp * 64, 0, internal=pts * 108 + px * 120)
+            lib + scene_mem + px * EVAL_MEM_PER_PIXEL + ev.surface_points * ev.spp * 64
+            + min(cpn * ev.effective_check_spp(), PATH_CHUNK) * PATH_BYTES, 0, internal=pts * 108 + px * 120)
         seconds = (0.5 * EVAL_FIXED_SECONDS if px else 0.0) + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
             ev.repeats * EVAL_SECONDS_PER_PIXEL_PASS + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
         add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * 64 + F * 9,

@@ -30,7 +30,7 @@ MAX_PROBES = 1 << 20
 
 MAX_COORD = 1e7
 """Largest world-space coordinate (metres, 10,000 km) a config may name: light positions, boxes, cameras.
-The same bound the upload applies to scene geometry (workers.ingest.MAX_COORD)."""
+The same bound the upload applies to scene geometry (workers.gltf.limits.MAX_COORD)."""
 
 MAX_COLOR = 1e6
 """Largest linear-RGB light colour component (sky radiance has the same bound)."""
@@ -365,7 +365,11 @@ class EvaluateSection(_Strict):
     width: Int = Field(160, ge=16, le=4096, description="reference: preview width, pixels")
     height: Int = Field(120, ge=16, le=4096, description="reference: preview height, pixels")
     fov_y: Float = Field(60.0, gt=1.0, lt=179.0, description="reference: degrees, for auto-placed cameras")
-    spp: Int = Field(64, ge=1, le=65536, description="reference: paths per surface point and check-point normal")
+    spp: Int = Field(64, ge=1, le=65536, description="reference: paths per surface point")
+    check_spp: Int | None = Field(None, ge=1, le=262144, description=(
+        "reference: paths per check-point normal; default max(spp, 8192): check points are few and a level "
+        "designer reads each one, so each gets a low-noise value (measured on two rooms: a region of a room lit "
+        "only through a doorway scatters ±2% between seeds at 8192-16384 paths, up to 11% at 2048)"))
     preview_spp: Int = Field(4, ge=1, le=4096, description="reference: paths per preview pixel (pictures only, "
                                                            "never metrics)")
     bounces: Int | None = Field(None, ge=1, le=256, description="reference: path bounces; default 64 with "
@@ -393,6 +397,16 @@ class EvaluateSection(_Strict):
         if isinstance(v, list) and len(v) > 16:
             raise ValueError("at most 16 cameras")
         return v
+
+    def effective_check_spp(self) -> int:
+        """Paths per check-point normal: ``check_spp``, default max(``spp``, :data:`CHECK_SPP_DEFAULT`)."""
+        return int(self.check_spp) if self.check_spp else max(int(self.spp), CHECK_SPP_DEFAULT)
+
+
+CHECK_SPP_DEFAULT = 8192
+"""Paths per check-point normal unless ``evaluate.check_spp`` says: a region of two-rooms lit only through its
+doorway scatters about ±2% between seeds at 8192-16384 paths (heavy tails: the rare paths through the door that
+reach the lit room), 11% high at 2048 (tests/bench/bench_evaluate.py --cost --cycles-spp N)."""
 
 
 class BakeConfig(_Strict):

@@ -14,8 +14,10 @@
 // = 24; an OFF corner costs 1.
 // Textures: uProbeData (3D RGBA32F, NEAREST; texel (i,j,k) = relocated position xyz of probe (i,j,k), w = 1
 // unless OFF, 0 when OFF; built from probe_positions_relocated + probe_states), uIrradianceAtlas (2D, the
-// `irradiance` artifact, LINEAR), uDepthAtlas (2D, `depth_moments`, LINEAR). Float atlases need
-// OES_texture_float_linear on WebGL2 (or convert them to half floats).
+// `irradiance` artifact, LINEAR), uDepthAtlas (2D, `depth_moments`, LINEAR); an atlas wider than the device's
+// MAX_TEXTURE_SIZE is bound re-packed with its tile columns wrapped (uIrradianceColumns / uDepthColumns tiles per
+// row, 0 = as stored; octahedral.glsl octAtlasUVWrapped): as stored it would not upload, and DDGI read 0.
+// Float atlases need OES_texture_float_linear on WebGL2 (or convert them to half floats).
 #include "common.glsl"
 #include "gi_grid.glsl"
 #include "gi_view.glsl"
@@ -27,6 +29,8 @@ uniform highp sampler2D uDepthAtlas;
 uniform float uDdgiBias;        // 0.75 · min spacing · B (metres)
 uniform int uIrradianceTexels;  // n of the irradiance tiles (tile n + 2)
 uniform int uDepthTexels;       // m of the depth tiles (tile m + 2)
+uniform int uIrradianceColumns; // tiles per row of a wrapped irradiance atlas (octahedral.glsl octAtlasUVWrapped), 0: none
+uniform int uDepthColumns;      // the same for the depth atlas
 
 vec3 giIndirectIrradiance(vec3 x, vec3 n) {
   vec3 bp = x + (n * 0.2 + giViewDir * 0.8) * uDdgiBias;
@@ -55,7 +59,7 @@ vec3 giIndirectIrradiance(vec3 x, vec3 n) {
     float r = length(b);
     float cheb = 1.0;
     if (r > 0.0) {
-      vec2 mom = texture(uDepthAtlas, octAtlasUV(b, probe, counts.x, uDepthTexels, depSize)).rg;
+      vec2 mom = texture(uDepthAtlas, octAtlasUVWrapped(b, probe, counts, uDepthTexels, uDepthColumns, depSize)).rg;
       if (r > mom.x) {
         float variance = abs(mom.x * mom.x - mom.y);
         float dv = r - mom.x;
@@ -68,7 +72,7 @@ vec3 giIndirectIrradiance(vec3 x, vec3 n) {
     if (w < 0.2) w *= w * w * 25.0;  // 1 / 0.2²
     vec3 lerpw = mix(1.0 - alpha, alpha, vec3(off));
     w *= max(0.001, lerpw.x) * max(0.001, lerpw.y) * max(0.001, lerpw.z);
-    acc += w * texture(uIrradianceAtlas, octAtlasUV(n, probe, counts.x, uIrradianceTexels, irrSize)).rgb;
+    acc += w * texture(uIrradianceAtlas, octAtlasUVWrapped(n, probe, counts, uIrradianceTexels, uIrradianceColumns, irrSize)).rgb;
     wsum += w;
   }
   return wsum > 0.0 ? acc / wsum : vec3(0.0);

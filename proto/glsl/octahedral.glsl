@@ -27,3 +27,17 @@ vec2 octAtlasUV(vec3 dir, ivec3 probe, int nx, int n, vec2 atlasSize) {
   vec2 texel = tileOrigin + 1.0 + (octEncode(dir) + 1.0) * 0.5 * float(n);  // interior starts 1 texel in
   return texel / atlasSize;
 }
+
+// The same texel for an atlas whose tile columns wrap after `columns` tiles (0: no wrap, octAtlasUV's layout): tile
+// c = k·nx + i goes to column c mod columns of row block c div columns, the blocks stacked below one another (ny
+// tiles high each). A renderer re-packs an atlas wider than its device's MAX_TEXTURE_SIZE this way
+// (workers/render/shading.py wrap_atlas: the 53 x 8 x 53 automatic grid of sealed-box is 28,090 texels wide,
+// 16,384 on llvmpipe and most GPUs); the tiles and their borders are unchanged, so filtering is too.
+vec2 octAtlasUVWrapped(vec3 dir, ivec3 probe, ivec3 counts, int n, int columns, vec2 atlasSize) {
+  int c = probe.z * counts.x + probe.x;
+  int col = columns > 0 ? c - (c / columns) * columns : c;
+  int row = probe.y + (columns > 0 ? (c / columns) * counts.y : 0);
+  float t = float(n + 2);
+  vec2 texel = vec2(float(col), float(row)) * t + 1.0 + (octEncode(dir) + 1.0) * 0.5 * float(n);
+  return texel / atlasSize;
+}

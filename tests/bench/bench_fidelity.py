@@ -73,7 +73,7 @@ from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
 from proto.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
-from workers.ingest import ingest_file  # noqa: E402
+from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels import samplers as SM  # noqa: E402
 from workers.kernels.ddgi import sample_irradiance  # noqa: E402
 from workers.kernels.grid import OFF, unpack_atlas  # noqa: E402
@@ -258,7 +258,8 @@ def sanity(modes: dict[str, np.ndarray], probes: dict[str, np.ndarray], probe_id
     return out
 
 
-def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384) -> dict | None:
+def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384,
+              overrides: dict | None = None) -> dict | None:
     """The comparison of scene ``name``; None (with a message) for a real scene whose source is not there."""
     pdoc = json.loads((DATA / f"{name}.points.json").read_text())
     source = source_of(pdoc)
@@ -282,7 +283,7 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
         if ref["glb_sha256"] != sha or ref["points"] != pdoc["points"] or (ref.get("config") or {}) != scene_config:
             notes.append(f"reference {m} was made for another version of the scene, points or lights: regenerate it")
     t0 = time.perf_counter()
-    scene, recs, cfg, times = bake(name, work, store_dir, scene_config, source)
+    scene, recs, cfg, times = bake(name, work, store_dir, deep_merge(scene_config, overrides or {}), source)
     bake_seconds = time.perf_counter() - t0
     points = np.asarray(pdoc["points"], np.float64)
     dirs = np.asarray(next(iter(refs.values()))["dirs"], np.float64)
@@ -326,7 +327,8 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
     place = recs["place"].stats
     lit = recs["ingest"]["lights"]
     out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times,
-           "config": "default (BakeConfig())" + (f" + {json.dumps(scene_config)}" if scene_config else ""),
+           "config": "default (BakeConfig())" + (f" + {json.dumps(scene_config)}" if scene_config else "")
+           + (f" + EXPERIMENT {json.dumps(overrides)}" if overrides else ""),
            "source": pdoc.get("source"), "triangles": int(np.asarray(scene.triangles).shape[0]),
            "lights": len(lit["lights"]), "sky": list(lit["sky"]),
            "sanity": sanity(modes, probes, probe_idx, recs, cfg),
@@ -419,12 +421,23 @@ def main() -> int:
     ap.add_argument("--json", type=Path, default=None, help="write the results as JSON here")
     ap.add_argument("--store", type=Path, default=None, help="stage store to reuse (default: a fresh temp store)")
     ap.add_argument("--pt-spp", type=int, default=16384, help="paths per receiver of Kiln's path tracer (0: skip)")
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
+                    help="a config override on top of the default (an experiment, not the default: the table says "
+                         "so), e.g. --set masks.clusters=8; repeatable")
     args = ap.parse_args()
+    overrides: dict = {}
+    for item in args.set:
+        key, _, value = item.partition("=")
+        node = overrides
+        *path, leaf = key.split(".")
+        for k in path:
+            node = node.setdefault(k, {})
+        node[leaf] = json.loads(value)
     results = {}
     with tempfile.TemporaryDirectory() as tmp:
         for name in [s for s in args.scenes.split(",") if s]:
             print(f"baking {name} ...", flush=True)
-            res = run_scene(name, Path(tmp), args.store, args.pt_spp)
+            res = run_scene(name, Path(tmp), args.store, args.pt_spp, overrides)
             if res is None:
                 continue
             results[name] = res

@@ -11,7 +11,7 @@ from proto.models import BakeConfig
 from proto.stages import STAGE_BY_NAME, plan
 from proto.store import Store
 from workers import pipeline
-from workers.ingest import ingest_file
+from workers.gltf import ingest_file
 
 EV = {"enabled": True, "cameras": 2, "surface_points": 96, "spp": 4, "previews": 0,
       "points": {"points": [[2.0, 1.2, 2.0], [6.0, 1.2, 2.0]], "regions": {"room-a": [0], "room-b": [1]}}}
@@ -105,3 +105,31 @@ def test_reference_reports_progress_per_batch_of_points(scene_files):
     assert out.stats["surface_points"] == 3 * BATCH_POINTS and out.stats["trace"]["batches"] == 3
     assert seen == sorted(seen) and seen[-1] == 1.0
     assert len([f for f in seen if 0.05 < f < 1.0]) >= 2          # between the batches, not only start and end
+
+
+def test_check_points_get_their_own_low_noise_path_count(scene_files):
+    """evaluate.check_spp (default max(spp, 8192)): the few check points a level designer reads get low-noise
+    values, whatever the surface points' spp; the standard error shrinks as 1/sqrt(paths)."""
+    from proto.models import CHECK_SPP_DEFAULT
+    from workers.stages.base import LazyArtifacts, StageContext
+    from workers.stages.reference import run_reference
+
+    scene = ingest_file(scene_files["two-rooms"])
+    lights = {"lights": [dict(l) for l in scene.lights], "sky": [0.0, 0.0, 0.0]}
+    pts = {"points": [[2.0, 1.2, 2.0]], "normals": [[0.0, 1.0, 0.0]]}
+
+    def run(**ev):
+        config = BakeConfig.model_validate({"evaluate": {**EV, "surface_points": 8, "cameras": 0, "points": pts,
+                                                         **ev}})
+        assert config.evaluate.effective_check_spp() == ev.get("check_spp", CHECK_SPP_DEFAULT)
+        out = run_reference(StageContext(config=config, scene_loader=lambda: scene, report=lambda f: None,
+                                         inputs={"ingest": LazyArtifacts({}, {"lights": lambda: lights})}))
+        doc = next(a.data for a in out.artifacts if a.name == "reference_check_points")
+        return out.stats, float(np.mean(doc["reference_indirect"])), float(np.mean(doc["reference_stderr"]))
+
+    s_hi, e_hi, err_hi = run()
+    s_lo, e_lo, err_lo = run(check_spp=128)
+    assert s_hi["check_spp"] == CHECK_SPP_DEFAULT and s_lo["check_spp"] == 128 and s_hi["spp"] == EV["spp"]
+    assert e_hi > 0 and err_hi / e_hi < 0.02                       # a low-noise value in the lit room
+    assert 4.0 < err_lo / err_hi < 12.0                             # sqrt(8192 / 128) = 8
+    assert abs(e_lo - e_hi) < 5 * err_lo

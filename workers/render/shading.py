@@ -60,12 +60,15 @@ from workers.kernels.shading import direct_irradiance
 from .context import create_context
 
 __all__ = ["MODES", "MAX_LIGHTS", "ModeResources", "GBufferInputs", "ShadingRenderer", "prepare_mode",
-           "shadow_masks", "light_uniforms", "stack_volumes"]
+           "shadow_masks", "light_uniforms", "stack_volumes", "wrap_atlas"]
 
 MODES = ("direct", "leaking", "ddgi", "mask", "mask_normalized", "prt")
 MAX_LIGHTS = 8
 PRT_MAX_GROUPS = 16
 MAX_3D_TEXTURE_DEPTH = 2048
+MAX_TEXTURE_SIZE = 16384
+"""Widest 2D texture the pass uploads as stored (GL_MAX_TEXTURE_SIZE of llvmpipe and most GPUs and WebGL2 devices):
+a wider DDGI atlas is bound re-packed by :func:`wrap_atlas`."""
 """Deepest stacked 3D texture the pass builds for L2 cluster volumes (GL_MAX_3D_TEXTURE_SIZE of desktop GL / llvmpipe
 and most WebGL2 GPUs; WebGL2 only guarantees 256): deeper stacks fall back to L1."""
 _SAMPLER_TYPES = {0x8B5E: "2d", 0x8B5F: "3d"}  # GL_SAMPLER_2D, GL_SAMPLER_3D  # basis slots ≤ 64 (mode_prt.glsl KILN_PRT_MAX_GROUPS)
@@ -159,6 +162,28 @@ def stack_volumes(volumes) -> np.ndarray:
     return np.ascontiguousarray(np.concatenate([np.asarray(v, np.float32) for v in volumes], axis=0))
 
 
+def wrap_atlas(atlas, counts, max_width: int = MAX_TEXTURE_SIZE) -> tuple[np.ndarray, int]:
+    """A DDGI octahedral atlas (ny·t, nz·nx·t, C) (proto/bundle.md 5.1) re-packed to at most ``max_width`` texels wide:
+    ``(atlas, columns)``, tile c = k·nx + i at column c mod columns of row block c div columns, the blocks (ny tiles
+    high) stacked downwards, unused tiles 0 (``octahedral.glsl`` ``octAtlasUVWrapped``). ``columns`` is 0 and the
+    atlas returned as is when it fits. The tiles keep their borders, so bilinear filtering reads the same texels."""
+    a = np.asarray(atlas)
+    nx, ny, nz = (int(c) for c in counts)
+    t = a.shape[0] // ny
+    C = nx * nz
+    if a.shape[1] <= max_width:
+        return a, 0
+    columns = max_width // t
+    if columns < 1:
+        raise ValueError(f"an atlas tile of {t} texels does not fit {max_width}")
+    rows = -(-C // columns)
+    tiles = a.reshape(ny, t, C, t, *a.shape[2:]).swapaxes(1, 2)                      # (ny, C, t, t, ...)
+    pad = np.zeros((ny, rows * columns - C) + tiles.shape[2:], a.dtype)
+    tiles = np.concatenate([tiles, pad], axis=1).reshape(ny, rows, columns, t, t, *a.shape[2:])
+    out = tiles.transpose(1, 0, 3, 2, 4, *range(5, tiles.ndim))                     # (rows, ny, t, columns, t, ...)
+    return np.ascontiguousarray(out.reshape(rows * ny * t, columns * t, *a.shape[2:])), columns
+
+
 def _grid_uniforms(grid) -> dict:
     return {"uGridOrigin": tuple(float(x) for x in grid["origin"]),
             "uGridSpacing": tuple(float(x) for x in grid["spacing"]),
@@ -213,11 +238,14 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask
         dep = np.ascontiguousarray(arrays["depth_moments"], np.float32)
         t_irr = irr.shape[0] // ny
         t_dep = dep.shape[0] // ny
+        irr, irr_cols = wrap_atlas(irr, grid["counts"])      # wider than MAX_TEXTURE_SIZE: it would not upload
+        dep, dep_cols = wrap_atlas(dep, grid["counts"])
         r.textures.update(uProbeData=(np.ascontiguousarray(data), False), uIrradianceAtlas=(irr, True),
                           uDepthAtlas=(dep, True))
         r.uniforms.update(uDdgiBias=bias_scale(grid["spacing"], self_shadow_bias), uIrradianceTexels=t_irr - 2,
-                          uDepthTexels=t_dep - 2)
-        r.info.update(irradiance_texels=t_irr - 2, depth_texels=t_dep - 2, probes_off=int((states == OFF).sum()))
+                          uDepthTexels=t_dep - 2, uIrradianceColumns=irr_cols, uDepthColumns=dep_cols)
+        r.info.update(irradiance_texels=t_irr - 2, depth_texels=t_dep - 2, probes_off=int((states == OFF).sum()),
+                      atlas_columns=[irr_cols, dep_cols])
         return r
     if mode in ("mask", "mask_normalized"):
         if mask_meta is None:

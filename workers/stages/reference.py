@@ -11,7 +11,7 @@ What it computes
 ----------------
 1. **Review cameras** (:func:`review_cameras`): ``evaluate.cameras`` when it is a list (the server puts the
    scene's stored review cameras there, ``PUT /v1/scenes/{id}/cameras``); else the glTF's own cameras (read at
-   ingest, :mod:`workers.gltf_cameras`); else ``evaluate.cameras`` cameras auto-placed in free space inside the
+   ingest, :mod:`workers.gltf.cameras`); else ``evaluate.cameras`` cameras auto-placed in free space inside the
    scene bounds looking at geometry (:func:`workers.render.cameras.auto_cameras`, a regular grid of candidates:
    independent of the probe grid); the default outside camera when none qualifies (an open scene).
 2. **Surface points** (:mod:`workers.kernels.surface_points`): ``surface_points`` stratified points on the
@@ -19,10 +19,12 @@ What it computes
    free space (``"area"``; also the fallback without cameras).
 3. **Check points**: ``evaluate.points`` (each point with its normal, or the 6 axis normals).
 4. At every surface point and check-point normal: direct irradiance (punctual lights, Embree shadow rays) and
-   path-traced indirect irradiance (:func:`workers.kernels.pathtrace.indirect_irradiance`: ``spp`` paths,
+   path-traced indirect irradiance (:func:`workers.kernels.pathtrace.indirect_irradiance`: ``spp`` paths per
+   surface point, ``check_spp`` (:func:`check_spp`, default at least :data:`proto.models.CHECK_SPP_DEFAULT`) per check-point normal,
    ``bounces`` vertices (default 64: the converged light the light stage iterates to) with Russian roulette from
    vertex 3, next-event estimation of emitters) with each value's standard error from its paths. Traced in
-   batches of :data:`BATCH_POINTS` points; progress is reported per batch.
+   batches of at most :data:`BATCH_POINTS` points (fewer at high path counts: memory); progress is reported per
+   batch.
 5. **Previews** (needs EGL): for the first ``previews`` review cameras the G-buffer (:class:`workers.render.gbuffer.GBufferRenderer`)
    and a ``preview_spp`` reference image (:func:`workers.kernels.pathtrace.reference_at_gbuffer`) — pictures
    only, no metric is computed from them. Without EGL the previews are skipped with a warning
@@ -42,7 +44,7 @@ import time
 
 import numpy as np
 
-from workers.kernels.pathtrace import indirect_irradiance, reference_at_gbuffer, scene_eps
+from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, reference_at_gbuffer, scene_eps
 from workers.kernels.shading import direct_irradiance
 from workers.kernels.surface_points import area_points, camera_points, check_point_set
 from workers.render.cameras import Camera, auto_cameras, default_camera, fit_clip_planes
@@ -69,10 +71,15 @@ def point_column(table: np.ndarray, name: str) -> np.ndarray:
     return np.asarray(table, np.float64)[:, 3 * i:3 * i + 3]
 
 
+def check_spp(ev) -> int:
+    """Paths per check-point normal (:meth:`proto.models.EvaluateSection.effective_check_spp`)."""
+    return ev.effective_check_spp()
+
+
 def _settings(config) -> dict:
     ev = config.evaluate
     return {"cameras": ev.cameras, "width": int(ev.width), "height": int(ev.height), "fov_y": float(ev.fov_y),
-            "spp": int(ev.spp), "preview_spp": int(ev.preview_spp),
+            "spp": int(ev.spp), "check_spp": check_spp(ev), "preview_spp": int(ev.preview_spp),
             "bounces": int(ev.bounces) if ev.bounces else DEFAULT_BOUNCES, "surface_points": int(ev.surface_points),
             "sampling": ev.sampling, "previews": int(ev.previews)}
 
@@ -144,7 +151,7 @@ def _trace_points(scene, pts, nrm, geo, lights, sky, s, seed, caster, eps, repor
     rr = RR_DEPTH if s["bounces"] > RR_DEPTH else None
     res = indirect_irradiance(scene, pts, nrm, lights, sky=sky, spp=s["spp"], bounces=s["bounces"], seed=seed,
                               rr_depth=rr, caster=caster, eps=eps, geo_normals=geo,
-                              max_paths=BATCH_POINTS * s["spp"], report=report)
+                              max_paths=min(BATCH_POINTS * s["spp"], DEFAULT_MAX_PATHS), report=report)
     e_ind[:] = res.irradiance
     err[:] = res.stderr
     stats.update(rays=int(res.stats["rays"]), seconds=float(res.stats["seconds"]),
@@ -203,7 +210,7 @@ def run_reference(ctx: StageContext) -> StageOutput:
     preview_cams = cams[:s["previews"]]
     previews = bool(preview_cams)
     preview_px = sum(c.width * c.height for c in preview_cams)
-    paths = (len(sp["position"]) + P * D) * s["spp"] + preview_px * s["preview_spp"]
+    paths = len(sp["position"]) * s["spp"] + P * D * s["check_spp"] + preview_px * s["preview_spp"]
     work = _Work(ctx.report, 1.02 * paths)
     work.part(0.02 * paths)(1.0)                 # cameras and sampling
 
@@ -219,8 +226,8 @@ def run_reference(ctx: StageContext) -> StageOutput:
 
     t0 = time.perf_counter()
     c_dir, c_ind, c_err, c_stats = _trace_points(scene, np.repeat(cpts, D, axis=0), cnrm.reshape(-1, 3),
-                                                 cnrm.reshape(-1, 3), lights, sky, s, seed + 0x10000, caster, eps,
-                                                 work.part(P * D * s["spp"]))
+                                                 cnrm.reshape(-1, 3), lights, sky, {**s, "spp": s["check_spp"]},
+                                                 seed + 0x10000, caster, eps, work.part(P * D * s["check_spp"]))
     timings["check_points_s"] = time.perf_counter() - t0
     check = None
     if cp is not None:
@@ -284,7 +291,8 @@ def run_reference(ctx: StageContext) -> StageOutput:
     ctx.report(1.0)
     stats = {"enabled": True, "cameras": [camera_record(c) for c in cams], "camera_source": source,
              "sampling": sampling, "surface_points": int(len(sp["position"])), "check_points": int(P),
-             "normals_per_check_point": int(D), "spp": s["spp"], "preview_spp": s["preview_spp"],
+             "normals_per_check_point": int(D), "spp": s["spp"], "check_spp": s["check_spp"],
+             "preview_spp": s["preview_spp"],
              "bounces": s["bounces"], "rr_depth": RR_DEPTH if s["bounces"] > RR_DEPTH else None,
              "previews": preview_names, "surface": {k: v for k, v in sp["stats"].items()}, "trace": pt_stats,
              "check_trace": c_stats, "timings": timings, "seconds": time.perf_counter() - t_start}
