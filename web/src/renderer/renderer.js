@@ -40,6 +40,7 @@ export class GIRenderer {
     this.three.debug.onShaderError = (gl, program, vs, fs) => this.reportShaderError(gl, vs, fs);
     this.floatLinear = this.three.extensions.has('OES_texture_float_linear');
     this.max3DTextureSize = this.gl.getParameter(this.gl.MAX_3D_TEXTURE_SIZE) || 256;  // the L2 cluster stack's limit
+    this.maxTextureSize = this.gl.getParameter(this.gl.MAX_TEXTURE_SIZE) || 4096;   // wider DDGI atlases are re-packed
     this.timer = new FrameTimer(this.gl);
     this.lightsVec = () => Array.from({ length: MAX_LIGHTS }, () => new Vector4());
     this.shared = {
@@ -60,6 +61,8 @@ export class GIRenderer {
       uDdgiBias: { value: 0 },
       uIrradianceTexels: { value: 8 },
       uDepthTexels: { value: 16 },
+      uIrradianceColumns: { value: 0 },  // tiles per row of a re-packed (too wide) DDGI atlas, 0 = as stored
+      uDepthColumns: { value: 0 },
       uClusterCount: { value: 1 },
       uMaskS: { value: 1 },
       uMaskT: { value: 2 },

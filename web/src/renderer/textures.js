@@ -55,6 +55,37 @@ export function textureFromKTX2(ktx, { filter = 'linear', floatLinear = true } =
 }
 
 /**
+ * A DDGI atlas (parsed KTX2, 2D, ny·t high, nz·nx·t wide) re-packed with its tile columns wrapped after `columns`
+ * tiles: tile c = k·nx + i goes to column c mod columns of row block c div columns, the blocks (ny tiles high each)
+ * stacked downwards, unused tiles 0 — octahedral.glsl octAtlasUVWrapped reads it; workers/render/shading.py
+ * wrap_atlas writes the same. The tiles keep their borders, so bilinear filtering reads the same texels.
+ */
+export function wrapAtlas(ktx, counts, columns) {
+  if (!columns) return ktx;
+  const [nx, ny, nz] = counts.map(Number);
+  const t = ktx.height / ny;
+  const C = nx * nz;
+  const rows = Math.ceil(C / columns);
+  const comp = ktx.components;
+  const width = columns * t;
+  const height = rows * ny * t;
+  const data = new ktx.data.constructor(width * height * comp);
+  const span = t * comp;
+  for (let c = 0; c < C; c++) {
+    const col = c % columns;
+    const block = Math.floor(c / columns);
+    for (let j = 0; j < ny; j++) {
+      for (let y = 0; y < t; y++) {
+        const src = ((j * t + y) * ktx.width + c * t) * comp;
+        const dst = (((block * ny + j) * t + y) * width + col * t) * comp;
+        data.set(ktx.data.subarray(src, src + span), dst);
+      }
+    }
+  }
+  return { ...ktx, data, width, height };
+}
+
+/**
  * Probe volumes (parsed KTX2, same size) stacked along z into one 3D texture: gi_grid.glsl giStackedUVW
  * (workers/render/shading.py stack_volumes: the bytes concatenated in slot order). RGBA32F, LINEAR.
  */

@@ -14,6 +14,7 @@
  * workers/render/shading.py prepare_mode binds them. `defines(names, artifacts, caps)` (optional) gives the
  * preprocessor #defines of the mode's shader: KILN_SH_L2 where the bake has the L2 volumes (shOrder below).
  */
+import { atlasColumns } from '../math/atlas.js';
 const CHANNELS = ['r', 'g', 'b'];
 
 /** K, the number of clusters: cluster_sh_{k}_r for k = 0, 1, ... in the artifact names. */
@@ -140,11 +141,17 @@ export const GI_MODES = [
       uIrradianceAtlas: ['irradiance', 'atlas'], uDepthAtlas: ['depth_moments', 'atlas'],
       uProbeData: [['probe_positions_relocated', 'probe_states'], 'probe-data'],
     },
-    uniforms: ({ grid, artifacts }) => {
+    // caps.maxTexture: the device's MAX_TEXTURE_SIZE; a wider atlas is bound re-packed (renderer/textures.js
+    // wrapAtlas, kind 'atlas') and these columns tell the shader its layout (shading.py wrap_atlas)
+    uniforms: ({ grid, artifacts, caps = {} }) => {
       const ny = grid.counts[1];
+      const tIrr = Math.floor(artifacts.irradiance.height / ny);
+      const tDep = Math.floor(artifacts.depth_moments.height / ny);
+      const max = caps.maxTexture || Infinity;
       return {
-        uDdgiBias: ddgiBias(grid.spacing), uIrradianceTexels: Math.floor(artifacts.irradiance.height / ny) - 2,
-        uDepthTexels: Math.floor(artifacts.depth_moments.height / ny) - 2,
+        uDdgiBias: ddgiBias(grid.spacing), uIrradianceTexels: tIrr - 2, uDepthTexels: tDep - 2,
+        uIrradianceColumns: atlasColumns(artifacts.irradiance.width, tIrr, max),
+        uDepthColumns: atlasColumns(artifacts.depth_moments.width, tDep, max),
       };
     },
   },

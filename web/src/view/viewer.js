@@ -9,7 +9,8 @@ import { ArtifactLoader, loadArtifacts } from '../loader/artifacts.js';
 import { loadSceneBytes, loadSceneFile } from '../loader/scene.js';
 import { GIRenderer } from '../renderer/renderer.js';
 import { hasShader } from '../renderer/shaders.js';
-import { probeDataTexture, stackedVolumeTexture, textureFromKTX2 } from '../renderer/textures.js';
+import { probeDataTexture, stackedVolumeTexture, textureFromKTX2, wrapAtlas } from '../renderer/textures.js';
+import { atlasColumns } from '../math/atlas.js';
 import { parseNpy } from '../loader/npy.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
 import { PRT_MAX_GROUPS } from '../renderer/renderer.js';
@@ -304,7 +305,8 @@ export class Viewer {
    */
   shCaps() {
     const grid = bakeGrid(this.bake);
-    return { max3D: this.renderer.max3DTextureSize, nz: grid ? Number(grid.counts[2]) : 0 };
+    return { max3D: this.renderer.max3DTextureSize, maxTexture: this.renderer.maxTextureSize,
+      nz: grid ? Number(grid.counts[2]) : 0 };
   }
 
   /** Upload and bind a mode's textures (as workers/render/shading.py prepare_mode) and set its uniforms. */
@@ -313,9 +315,18 @@ export class Viewer {
     if (!this.bindTextures(modeTextures(mode, names, this.artifacts, this.shCaps()))) return false;
     if (mode.uniforms) {
       const grid = bakeGrid(this.bake);
-      this.renderer.setModeUniforms(mode.uniforms({ grid, names, bake: this.bake, info: (n) => this.artifactInfo(n), artifacts: this.artifacts }));
+      this.renderer.setModeUniforms(mode.uniforms({ grid, names, bake: this.bake, info: (n) => this.artifactInfo(n),
+        artifacts: this.artifacts, caps: this.shCaps() }));
     }
     return true;
+  }
+
+  /** A DDGI atlas as bound: re-packed when wider than the device allows (math/atlas.js, textures.js wrapAtlas). */
+  atlasFor(name) {
+    const a = this.artifacts[name];
+    const grid = bakeGrid(this.bake);
+    const t = Math.floor(a.height / Number(grid.counts[1]));
+    return wrapAtlas(a, grid.counts, atlasColumns(a.width, t, this.renderer.maxTextureSize));
   }
 
   /** Upload and bind {uniform: [artifact name | names, kind]} (false while an artifact is not loaded yet). */
@@ -330,6 +341,7 @@ export class Viewer {
       let tex;
       if (kind === 'stack') tex = stackedVolumeTexture(list.map((n) => this.artifacts[n]), options);
       else if (kind === 'probe-data') tex = probeDataTexture(this.artifacts[list[0]], this.artifacts[list[1]]);
+      else if (kind === 'atlas') tex = textureFromKTX2(this.atlasFor(list[0]), options);
       else tex = textureFromKTX2(this.artifacts[list[0]], { ...options, filter: kind.endsWith('nearest') ? 'nearest' : 'linear' });
       tex.userData.artifact = key;
       textures[uniform] = tex;
