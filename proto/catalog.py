@@ -149,17 +149,26 @@ class Catalog:
         with self._read() as c:
             return c.execute("SELECT 1 FROM scenes WHERE id=? LIMIT 1", (scene_id,)).fetchone() is not None
 
+    def _set_summary_field(self, team: str, scene_id: str, field: str, value) -> bool:
+        """Set (or, with ``None``, remove) ``summary.<field>`` of a team's scene; False when it has no such scene."""
+        with self._conn() as c:
+            if value is None:
+                cur = c.execute(f"UPDATE scenes SET summary=json_remove(summary, '$.{field}') "
+                                "WHERE team=? AND id=?", (team, scene_id))
+            else:
+                cur = c.execute(f"UPDATE scenes SET summary=json_set(summary, '$.{field}', json(?)) "
+                                "WHERE team=? AND id=?", (json.dumps(value), team, scene_id))
+            return cur.rowcount == 1
+
     def set_scene_cameras(self, team: str, scene_id: str, cameras: list[dict] | None) -> bool:
         """Store a scene's review cameras (``summary.review_cameras``; ``None`` removes them); False when the team
         has no such scene. The evaluate stage of the scene's later bakes uses them (server/api/routes/review.py)."""
-        with self._conn() as c:
-            if cameras is None:
-                cur = c.execute("UPDATE scenes SET summary=json_remove(summary, '$.review_cameras') "
-                                "WHERE team=? AND id=?", (team, scene_id))
-            else:
-                cur = c.execute("UPDATE scenes SET summary=json_set(summary, '$.review_cameras', json(?)) "
-                                "WHERE team=? AND id=?", (json.dumps(cameras), team, scene_id))
-            return cur.rowcount == 1
+        return self._set_summary_field(team, scene_id, "review_cameras", cameras)
+
+    def set_scene_thresholds(self, team: str, scene_id: str, thresholds: list[str] | None) -> bool:
+        """Store a scene's quality thresholds (``summary.thresholds``, gates of server/gates.py; ``None`` removes
+        them); False when the team has no such scene (server/api/routes/thresholds.py)."""
+        return self._set_summary_field(team, scene_id, "thresholds", thresholds)
 
     # ------------------------------------------------------------------ bakes
     def create_bake(self, team: str, scene_id: str, config: dict, stages: list[tuple[str, str]]) -> str:

@@ -20,7 +20,7 @@ from server import queue
 from server.api import errors, openapi
 from server.api.guard import Guard
 from server.api.jsonbody import FiniteJSONResponse
-from server.api.routes import bakes, compare, ops, relight, review, scenes
+from server.api.routes import bakes, compare, ops, relight, review, scenes, thresholds
 from server.config import Settings, get_settings
 from server.ingest_pool import IngestPool
 
@@ -90,6 +90,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.include_router(relight.router)
     app.include_router(compare.router)
     app.include_router(review.router)
+    app.include_router(thresholds.router)
 
     # The built viewer (web/dist, `npm run build`) at / with its assets (relative URLs: ./assets/...); the
     # minimal page in server/static when it has not been built. Both are looked up per request, so building

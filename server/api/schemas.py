@@ -102,6 +102,7 @@ class ScenePublic(_Out):
     created: float = Field(..., description="upload time, seconds since the epoch")
     filename: str | None = Field(None, description="the client's file name (multipart, X-Filename or ?filename)")
     review_cameras: list[ReviewCamera] | None = Field(None, description="stored by PUT /v1/scenes/{id}/cameras")
+    thresholds: list[str] | None = Field(None, description="quality gates stored by PUT /v1/scenes/{id}/thresholds")
 
 
 class ScenesPublic(_Out):
@@ -119,6 +120,45 @@ class SceneCameras(_Out):
     source: Literal["stored", "gltf", "auto"]
     cameras: list[ReviewCamera]
     from_bake: str | None
+
+
+class ThresholdGate(_Out):
+    """One stored threshold read with the gates grammar (server/gates.py): it *fails* a bake when
+    ``<metric> <op> <value>`` holds for a metric it names (``*`` matches any text), or when it names none."""
+
+    text: str = Field(..., examples=["mask_normalized.leak > 0.05"])
+    metric: str = Field(..., description="a metric name or an fnmatch pattern ('*.leak')")
+    op: Literal[">", ">=", "<", "<=", "==", "!="]
+    value: float
+
+
+class ThresholdResult(_Out):
+    """A gate checked against one bake's metrics (``gates.check``)."""
+
+    text: str
+    passed: bool
+    matched: dict[str, float] = Field(..., description="metric -> value, every metric the gate names")
+    failing: dict[str, float] = Field(..., description="metric -> value where the comparison holds")
+    message: str = Field(..., description="gates.Gate.describe()")
+
+
+class BakeThresholds(_Out):
+    """The scene's thresholds checked against one of its succeeded bakes (``gates.manifest_metrics``)."""
+
+    bake_id: str
+    created: float
+    passed: bool = Field(..., description="every threshold passed (true when there are none)")
+    results: list[ThresholdResult]
+
+
+class SceneThresholds(_Out):
+    """``GET/PUT /v1/scenes/{id}/thresholds``: the stored gates, read, and their pass/fail for the scene's
+    succeeded bakes (the newest ``limit``, newest first)."""
+
+    scene_id: str
+    thresholds: list[str]
+    gates: list[ThresholdGate]
+    bakes: list[BakeThresholds]
 
 
 # --------------------------------------------------------------------------------------------- bakes

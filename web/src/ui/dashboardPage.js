@@ -3,6 +3,12 @@
  * one column per stage's time, artifact size, and the evaluate stage's metrics with units, lower is better),
  * two picked bakes side by side with deltas, and a chart of any value across a scene's bakes over time
  * (uPlot). Preview images open full size on click.
+ *
+ * Like with like (compareViews.js): per scene, its stored quality thresholds (GET/PUT /v1/scenes/{id}/thresholds,
+ * editable here, pass/fail per bake from the server's gates check in the table's "thresholds" column) and a small
+ * chart per evaluate metric over the scene's bakes in time order with each threshold drawn as a line; for two
+ * ticked bakes an A/B slider over the same camera's previews, their difference image and the quality deltas
+ * with standard errors and which is better.
  */
 import uPlot from 'uplot';
 import 'uplot/dist/uPlot.min.css';
@@ -11,6 +17,8 @@ import {
   metricColumns, metricInfo, probeCount, sceneLabel, stageGroups,
 } from '../state/stats.js';
 import { clear, formatTime, h, shortId } from './dom.js';
+import { abView, deltaTable, metricChart } from './compareViews.js';
+import { gatesFor } from '../state/quality.js';
 import { warningBadge, warningList } from './warnings.js';
 
 const fmt = (v) => (v == null ? '–' : Math.abs(v) >= 1000 || (Math.abs(v) < 0.01 && v !== 0) ? v.toExponential(3) : Number(v.toFixed(4)).toString());
@@ -23,6 +31,7 @@ export function createDashboardPage(app) {
   const compare = h('div#compare');
   const chartMetric = h('select#chart-metric');
   const chartHolder = h('div#chart');
+  const sceneCharts = h('div#scene-charts');
   const msg = h('p#dash-msg.muted');
   const metricSet = h('select#dash-metrics', { title: 'which evaluate metrics get a column' },
     h('option', { value: 'key' }, 'key metrics (RMSE, FLIP, leak, shading time)'), h('option', { value: 'all' }, 'all metrics'), h('option', { value: 'none' }, 'no metrics'));
@@ -36,6 +45,9 @@ export function createDashboardPage(app) {
     h('div.table-wrap', table),
     h('p.muted', 'Tick two bakes to compare them.'),
     compare,
+    h('h2', 'Quality per scene'),
+    h('p.muted', 'Each evaluate metric over the scene\'s bakes (oldest left), ± its standard error; dashed red: a stored threshold (a bake fails it when the comparison holds; red points fail).'),
+    sceneCharts,
     h('h2', 'Over time'),
     h('div.row', h('label', 'Value ', chartMetric)),
     chartHolder);
@@ -46,6 +58,7 @@ export function createDashboardPage(app) {
   let plot = null;
   let objectUrls = [];  // previews fetched with the API key (an <img> cannot send the Authorization header)
   let compareToken = 0;
+  let thresholds = new Map();  // scene id -> GET /v1/scenes/{id}/thresholds
 
   async function fullBake(b) {
     const done = ['succeeded', 'failed', 'cancelled'].includes(b.status);
@@ -69,12 +82,82 @@ export function createDashboardPage(app) {
       bakes = out.sort((a, b) => (a.created || 0) - (b.created || 0));
       picked = picked.filter((id) => bakes.some((b) => b.id === id));
       msg.textContent = `${bakes.length} bake${bakes.length === 1 ? '' : 's'}`;
+      await loadThresholds();
       renderTable();
+      renderSceneCharts();
       renderCompare();
       renderChartOptions();
       renderChart();
     } catch (e) {
       msg.textContent = e.message;
+    }
+  }
+
+  async function loadThresholds() {
+    const ids = [...new Set(bakes.map((b) => b.scene_id))];
+    if (sceneSelect.value && !ids.includes(sceneSelect.value)) ids.push(sceneSelect.value);
+    const next = new Map();
+    await Promise.all(ids.map(async (id) => {
+      try { next.set(id, await api.request(`/v1/scenes/${encodeURIComponent(id)}/thresholds`)); } catch { /* scene deleted */ }
+    }));
+    thresholds = next;
+  }
+
+  /** bake id -> {gate text -> passed} of the scene's thresholds (the server's gates check). */
+  function gateResults(sceneId) {
+    const out = {};
+    for (const r of thresholds.get(sceneId)?.bakes || []) out[r.bake_id] = Object.fromEntries(r.results.map((x) => [x.text, x.passed]));
+    return out;
+  }
+
+  function gatesCell(b) {
+    const doc = thresholds.get(b.scene_id);
+    const r = doc?.bakes.find((x) => x.bake_id === b.id);
+    if (!doc || !doc.thresholds.length || !r) return h('td.gates-cell', { dataset: { gates: 'none' } }, '–');
+    const failed = r.results.filter((x) => !x.passed);
+    return h('td.gates-cell', { dataset: { gates: r.passed ? 'pass' : 'fail' }, title: r.results.map((x) => `${x.passed ? '✓' : '✗'} ${x.message}`).join('\n') },
+      h('span.badge', { dataset: { gates: r.passed ? 'pass' : 'fail' } }, r.passed ? `pass ${r.results.length}/${r.results.length}` : `fail ${failed.length}/${r.results.length}`));
+  }
+
+  function thresholdsEditor(sceneId) {
+    const doc = thresholds.get(sceneId);
+    const input = h('textarea.thresholds-input', { rows: 3, dataset: { scene: sceneId }, placeholder: 'one per line, e.g. mask_normalized.leak > 0.05', spellcheck: false });
+    input.value = (doc?.thresholds || []).join('\n');
+    const out = h('span.thresholds-msg.muted', doc?.thresholds.length ? `${doc.thresholds.length} stored` : 'none stored');
+    const save = h('button.small.save-thresholds', { type: 'button', dataset: { scene: sceneId } }, 'Save thresholds');
+    save.addEventListener('click', async () => {
+      const list = input.value.split('\n').map((x) => x.trim()).filter(Boolean);
+      out.textContent = 'saving…';
+      try {
+        const d = await api.request(`/v1/scenes/${encodeURIComponent(sceneId)}/thresholds`, { method: 'PUT', json: { thresholds: list } });
+        thresholds.set(sceneId, d);
+        renderTable();
+        renderSceneCharts();
+      } catch (e) {
+        out.textContent = e.message;
+        out.className = 'thresholds-msg error';
+      }
+    });
+    return h('div.thresholds-editor', h('label', 'Thresholds (fail when true; METRIC OP NUMBER, * matches any text) ', h('br'), input), ' ', save, ' ', out);
+  }
+
+  function renderSceneCharts() {
+    clear(sceneCharts);
+    const scenes = store.get().scenes;
+    const ids = [...new Set(bakes.map((b) => b.scene_id))];
+    if (!ids.length) { sceneCharts.append(h('p.muted', 'No bakes yet.')); return; }
+    for (const sid of ids) {
+      const own = bakes.filter((b) => b.scene_id === sid && b.status === 'succeeded');
+      const gates = thresholds.get(sid)?.gates || [];
+      const keys = metricColumns(own, metricSet.value === 'none' ? 'key' : metricSet.value).filter((k) => !k.endsWith('_stderr') && !k.startsWith('ratio.'));
+      for (const k of Object.keys(own.reduce((m, b) => Object.assign(m, b.metrics || {}), {}))) {
+        if (!keys.includes(k) && !k.endsWith('_stderr') && gatesFor(k, gates).length) keys.push(k);
+      }
+      const results = gateResults(sid);
+      sceneCharts.append(h('div.scene-charts', { dataset: { scene: sid } },
+        h('h3', sceneLabel(scenes, sid), ' ', h('span.muted.small', `${own.length} succeeded bake${own.length === 1 ? '' : 's'}`)),
+        thresholdsEditor(sid),
+        keys.length ? h('div.chart-grid', keys.map((k) => metricChart(k, own, gates, results))) : h('p.muted', 'No evaluate metrics (bake with evaluate.enabled).')));
     }
   }
 
@@ -96,10 +179,11 @@ export function createDashboardPage(app) {
     clear(table);
     // two header rows: groups (stage times in seconds, metrics: lower is better), then one column each
     table.append(h('thead',
-      h('tr.group-row', h('th', { colSpan: 8 }), groups.length ? h('th.group', { colSpan: groups.length, title: 'wall-clock seconds per stage; ⟳ = taken from the cache (time of the original run)' }, 'stage time (s)') : null,
+      h('tr.group-row', h('th', { colSpan: 9 }), groups.length ? h('th.group', { colSpan: groups.length, title: 'wall-clock seconds per stage; ⟳ = taken from the cache (time of the original run)' }, 'stage time (s)') : null,
         h('th', { colSpan: 2 }), metrics.length ? h('th.group', { colSpan: metrics.length, title: 'evaluate stage, means over its cameras' }, 'quality and cost — lower is better ↓') : null),
       h('tr',
         h('th', ''), h('th', 'bake'), h('th', 'scene'), h('th', 'created'), h('th', 'status'),
+        h('th', { title: 'the scene\'s stored thresholds checked against the bake (server/gates.py)' }, 'thresholds'),
         h('th.num', { title: 'probes in the grid (nx × ny × nz)' }, 'probes'), h('th.num', { title: 'mask clusters (masks.clusters)' }, 'K'),
         h('th.num', { title: 'lights the bake used: the file\'s and the config\'s' }, 'lights'),
         groups.map((g) => h('th.num.stage-col', { dataset: { stage: g }, title: `seconds in stage ${g}` }, g)),
@@ -123,6 +207,7 @@ export function createDashboardPage(app) {
         h('td', formatTime(b.created)),
         h('td.status-cell', h('span.badge', { dataset: { status: b.status } }, b.status), ' ', warningBadge(warnings),
           b.error ? h('div.error.small', `${b.error.stage}: ${b.error.code}`) : null, warningList(warnings)),
+        gatesCell(b),
         h('td.num', probeCount(b) ?? '–'), h('td.num', clusterCount(b) ?? '–'), h('td.num', lightCount(b) ?? '–'),
         groups.map((g) => h('td.num', { title: sg[g]?.cached ? 'cached (time of the original run)' : '' }, sg[g] ? `${formatSeconds(sg[g].seconds)}${sg[g].cached ? ' ⟳' : ''}` : '–')),
         h('td.num', formatSeconds(bakeSeconds(b))),
@@ -157,6 +242,13 @@ export function createDashboardPage(app) {
       })
       .catch((e) => { img.alt = `${alt}: ${e.message}`; img.classList.add('failed'); });
     return img;
+  }
+
+  /** A PNG artifact's pixels (fetched with the API key when one is set). */
+  async function loadBitmap(bakeId, name) {
+    const r = await fetch(api.url(api.artifactPath(bakeId, name)), { headers: api.headers() });
+    if (!r.ok) throw new Error(`${name}: HTTP ${r.status}`);
+    return createImageBitmap(await r.blob());
   }
 
   function renderPreviews(a, b, token) {
@@ -197,6 +289,10 @@ export function createDashboardPage(app) {
           h('td', r.name), h('td.num', fmt(r.a)), h('td.num', fmt(r.b)),
           h('td.num', { className: r.delta > 0 ? 'num up' : r.delta < 0 ? 'num down' : 'num' }, r.delta == null ? '–' : `${r.delta > 0 ? '+' : ''}${fmt(r.delta)}`),
           h('td.num', r.relative == null ? '–' : `${r.relative > 0 ? '+' : ''}${(r.relative * 100).toFixed(1)}%`))))),
+      h('h3', 'Quality B − A (standard errors from the evaluate stage)'),
+      deltaTable(a, b),
+      h('h3', 'A/B on the same camera'),
+      abView(a, b, comparePreviews(a, b), (id, name) => loadBitmap(id, name)),
       h('h3', 'Previews (evaluate stage; error heatmaps 0 … 0.25)'),
       renderPreviews(a, b, compareToken),
       h('h3', 'Config differences'),
@@ -231,11 +327,11 @@ export function createDashboardPage(app) {
   }
 
   sceneSelect.addEventListener('change', () => { picked = []; load(); });
-  metricSet.addEventListener('change', renderTable);
+  metricSet.addEventListener('change', () => { renderTable(); renderSceneCharts(); });
   document.addEventListener('keydown', (e) => { if (e.key === 'Escape') zoom.hidden = true; });
   refreshBtn.addEventListener('click', load);
   chartMetric.addEventListener('change', renderChart);
-  store.subscribe((s, prev) => { if (s.scenes !== prev.scenes) { renderScenes(); if (bakes.length) renderTable(); } });
+  store.subscribe((s, prev) => { if (s.scenes !== prev.scenes) { renderScenes(); if (bakes.length) { renderTable(); renderSceneCharts(); } } });
 
   return {
     el,
