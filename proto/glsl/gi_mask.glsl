@@ -57,22 +57,38 @@ uniform float uMaskLo;
 uniform float uMaskOffset;
 
 // The compressed masks of clusters 0-3 (atlas 0) or 4-7 (atlas 1) at the mask lookup point of (p, n)
-// (workers/kernels/compress.py module doc, "Sampling"; mask_lookup_texel): uMaskOffset samples along n + giViewDir,
-// the texel coordinate clamped to the S³ samples of p's own cell, so the footprint never reads a neighbouring cell.
+// (workers/kernels/compress.py module doc, "Sampling"; mask_lookups): uMaskOffset samples along n + giViewDir, blended
+// with the read at p itself (both sides, below), the texel coordinates clamped to the S³ samples of p's own cell, so
+// the footprint never reads a neighbouring cell. 1 indirection + 2 atlas fetches per atlas.
 void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 live = vec3(greaterThan(uGridCounts, vec3(1.5)));
   vec3 cells = max(uGridCounts - 1.0, vec3(1.0));
   vec3 g = giGridCoord(p) + 0.5 * (1.0 - live);
   vec3 cell = clamp(floor(g), vec3(0.0), cells - 1.0);
-  g += live * (uMaskOffset / uMaskS) * (n + giViewDir);
-  vec3 t = clamp(g * uMaskS - 0.5, cell * uMaskS, cell * uMaskS + uMaskS - 1.0);
+  vec3 lo = cell * uMaskS, hi = cell * uMaskS + uMaskS - 1.0;
   vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);
-  vec3 tc = blk * uMaskT + (t - cell * uMaskS + uMaskLo) + 0.5;
-  m0 = texture(uMaskAtlas0123, tc / vec3(textureSize(uMaskAtlas0123, 0)));
-  m1 = vec4(0.0);
+  // both sides (compress.mask_lookups, lookup_blend): the read moved uMaskOffset samples along n + v (a) and the read
+  // at p itself (b); overlap = sum(min(a, b)) / sum(a) over the lookup's channels; m = mix(b, a, s), s rising from 0
+  // at overlap 0.25 to 1 at 0.5 (compress.MASK_OVERLAP): a surface's offset read holds its own side's clusters, which
+  // its footprint holds too (a); an offset that crossed a surface reads what p does not see (b)
+  vec3 t1 = clamp((g + live * (uMaskOffset / uMaskS) * (n + giViewDir)) * uMaskS - 0.5, lo, hi);
+  vec3 t0 = clamp(g * uMaskS - 0.5, lo, hi);
+  vec3 tc1 = blk * uMaskT + (t1 - cell * uMaskS + uMaskLo) + 0.5;
+  vec3 tc0 = blk * uMaskT + (t0 - cell * uMaskS + uMaskLo) + 0.5;
+  vec3 size0 = vec3(textureSize(uMaskAtlas0123, 0));
+  vec4 a0 = texture(uMaskAtlas0123, tc1 / size0), b0 = texture(uMaskAtlas0123, tc0 / size0);
+  vec4 a1 = vec4(0.0), b1 = vec4(0.0);
 #if KILN_MASK_CLUSTERS > 4
-  if (uClusterCount > 4) m1 = texture(uMaskAtlas4567, tc / vec3(textureSize(uMaskAtlas4567, 0)));
+  if (uClusterCount > 4) {
+    vec3 size1 = vec3(textureSize(uMaskAtlas4567, 0));
+    a1 = texture(uMaskAtlas4567, tc1 / size1);
+    b1 = texture(uMaskAtlas4567, tc0 / size1);
+  }
 #endif
+  float both = dot(min(a0, b0) + min(a1, b1), vec4(1.0));
+  float s = clamp((both / max(dot(a0 + a1, vec4(1.0)), 1e-6) - 0.25) / 0.25, 0.0, 1.0);
+  m0 = mix(b0, a0, s);
+  m1 = mix(b1, a1, s);
 }
 
 // m_k E_k(n) of cluster k (L1: slots 3k, 3k+1, 3k+2 of uClusterSh, 3 fetches; L2 below: 7). Called in non-uniform control flow

@@ -304,3 +304,54 @@ def test_mask_l2_sums_the_cluster_l2_volumes():
     assert SM.has_l2("mask", arrays)
     # the L1 path reads the (here zero) L1 cluster volumes
     assert np.all(SM.irradiance("mask", arrays, g, pts, n, mask_offset_samples=0.0, sh_order=1) == 0)
+
+
+def _wall_masks(in_wall):
+    """One cell [0, 1]³ (counts 2³, spacing 1), S = 8 samples per axis (12.5 cm): cluster 0 in front of the plane
+    x = 0.5, cluster 1 behind it; the samples of x in (0.5, 0.625) hold ``in_wall`` (clusters 0, 1) (e.g. a wall's
+    don't-care samples, filled from both sides)."""
+    S = 8
+    x = (np.arange(S) + 0.5) / S
+    vol = np.zeros((S, S, S, 4), np.float64)
+    vol[:, :, x < 0.5, 0] = 1.0
+    vol[:, :, x > 0.5, 1] = 1.0
+    vol[:, :, (x > 0.5) & (x < 0.625), :2] = in_wall
+    return [np.rint(vol * 255).astype(np.uint8)], SM.Grid((2, 2, 2), (0, 0, 0), (1, 1, 1))
+
+
+def test_mask_lookup_offset_does_not_step_through_a_wall_the_receiver_faces():
+    """A receiver 5 cm in front of a surface, facing it, with the runtime offset (1 sample along n + v = 2 samples,
+    25 cm): the offset read lands behind the surface, on clusters the receiver does not see (overlap 0.1 < 0.25), so
+    the lookup keeps the read at the point (godot-living-room 5 cm from its walls: normalized mask GI 0.84 -> 1.00
+    of Cycles, tests/bench/bench_fidelity.py)."""
+    masks, g = _wall_masks((0.0, 1.0))
+    p, n = np.array([[0.45, 0.5, 0.5]]), np.array([[1.0, 0.0, 0.0]])
+    at_point = SM.mask_values(masks, p, n, g, 0.0)[0, :2]
+    offset_only = SM.mask_values(masks, p + 0.25 * n, n, g, 0.0)[0, :2]
+    np.testing.assert_allclose(at_point, [0.9, 0.1], atol=2e-3)
+    np.testing.assert_allclose(offset_only, [0.0, 1.0], atol=2e-3)          # what the offset alone read
+    np.testing.assert_allclose(SM.mask_values(masks, p, n, g, 1.0, views=n)[0, :2], at_point, atol=1e-9)
+
+
+def test_mask_lookup_offset_still_lifts_a_surface_off_its_wall():
+    """A receiver on a wall's surface (x = 0.5, facing -x): half its footprint lies in the wall, whose samples hold
+    both sides' clusters; the offset read (25 cm in front) holds only its own side's, which the point holds too
+    (overlap 0.75 >= 0.5), so the offset read wins and the far side gets no weight."""
+    masks, g = _wall_masks((0.5, 0.5))
+    p, n = np.array([[0.5, 0.5, 0.5]]), np.array([[-1.0, 0.0, 0.0]])
+    np.testing.assert_allclose(SM.mask_values(masks, p, n, g, 0.0)[0, :2], [0.75, 0.25], atol=3e-3)
+    np.testing.assert_allclose(SM.mask_values(masks, p, n, g, 1.0, views=n)[0, :2], [1.0, 0.0], atol=1e-9)
+
+
+def test_lookup_blend_is_linear_between_the_overlap_bounds():
+    from workers.kernels.compress import MASK_OVERLAP, lookup_blend
+
+    lo, hi = MASK_OVERLAP
+    a = np.array([[1.0, 0.0], [1.0, 0.0], [1.0, 0.0]])
+    ov = np.array([lo, (lo + hi) / 2, hi])
+    b = np.stack([ov, 1.0 - ov], axis=1)                  # Σ min(a, b) / Σ a = ov
+    got = lookup_blend([a, b])
+    np.testing.assert_allclose(got[0], b[0])
+    np.testing.assert_allclose(got[1], (a[1] + b[1]) / 2)
+    np.testing.assert_allclose(got[2], a[2])
+    np.testing.assert_array_equal(lookup_blend([b]), b)

@@ -56,7 +56,10 @@ homogeneous of degree 1, so scaling (normalization, masks) commutes with it, but
     ``masks_4567``) (hardware trilinear: masks are per cluster, not per corner, which is the point of MD)
     read at the **mask lookup point** ``x'`` (:func:`mask_values`): x moved ``offset`` refined samples (per
     axis) along n + v (v: the unit direction to the viewer, when given), with the texel coordinate clamped
-    to x's own cell's S³ samples (θ's rule above; :func:`workers.kernels.compress.mask_lookup_texel`).
+    to x's own cell's S³ samples (θ's rule above; :func:`workers.kernels.compress.mask_lookup_texel`), blended
+    with the read at x itself by their overlap (:func:`workers.kernels.compress.lookup_blend`: the offset read
+    where it shares at least half its clusters with x's, x's own where it does not — an offset that crossed a
+    surface the receiver faces).
     Why the offset: refined samples inside a wall see no probe, so their masks are don't-care, filled from
     both sides; a surface point's trilinear footprint half inside a thin wall would read them and weight
     the clusters of the far side by up to ½ (light through the wall). One refined sample
@@ -85,7 +88,7 @@ from typing import Mapping
 
 import numpy as np
 
-from workers.kernels.compress import mask_lookup_texel
+from workers.kernels.compress import lookup_blend, mask_lookups
 from workers.kernels.grid import cage_indices, cell_coords
 from workers.kernels.sh import SH_L2_TEXELS, sh_irradiance, sh_irradiance_l1_nonlinear, sh_irradiance_l2
 
@@ -343,20 +346,21 @@ def mask_values(masks, points, normals, grid, samples: float = 0.0, views=None) 
     """(N, C) the refined-grid mask volumes ``masks`` (list of (Z, Y, X, 4) uint8) read as the runtime reads
     them for surface points with unit ``normals`` (and unit directions to the viewer ``views``, optional):
     ``samples`` refined samples along d = n + v (d = n without views), the texel coordinate clamped to p's
-    own cell's samples (:func:`workers.kernels.compress.mask_lookup_texel`), trilinear. Channels of all
-    volumes concatenated, as bytes / 255."""
+    own cell's samples (:func:`workers.kernels.compress.mask_lookup_texel`), trilinear, blended with the read
+    at p by :func:`workers.kernels.compress.lookup_blend` over all channels. Channels of all volumes
+    concatenated, as bytes / 255."""
     g = Grid.of(grid)
     p = _points(points)
     d = _points(normals, "normals")
     if views is not None:
         d = d + _points(views, "views")
     S = field_samples_per_cell(masks[0], g)
-    t, _ = mask_lookup_texel(p, g.counts, g.origin, g.spacing, S, d, samples, np.float64)
-    out = []
-    for v in masks:
-        dims = np.array([v.shape[2], v.shape[1], v.shape[0]], np.float64)
-        out.append(trilinear(v, (t + 0.5) / dims))
-    return np.concatenate(out, axis=1)
+    ts, _ = mask_lookups(p, g.counts, g.origin, g.spacing, S, d, samples, np.float64)
+    reads = []
+    for t in ts:
+        reads.append(np.concatenate([trilinear(v, (t + 0.5) / np.array([v.shape[2], v.shape[1], v.shape[0]],
+                                                                         np.float64)) for v in masks], axis=1))
+    return lookup_blend(reads)
 
 
 def _mask_terms(points, normals, masks, cluster_sh, grid, cluster_weights=None, offset: float = 0.0,
