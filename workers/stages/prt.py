@@ -78,14 +78,15 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from workers.kernels import prt as kprt
-from workers.kernels.convergence import relative_tail
-from workers.kernels.ddgi import cage_probes, sample_irradiance
+from workers.kernels.bounce import integrate, integrate_one
+from workers.kernels.ddgi import sample_irradiance
+from workers.kernels.gather import MatrixGather, SamplerGather, ddgi_weights
 from workers.kernels.grid import OFF, unpack_atlas
+from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, probe_visibility
 from workers.kernels.sh import sh_count, sh_project
 from workers.kernels.shading import direct_irradiance, surface_at_hits
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
-from workers.stages.light import HitSurfaces, hit_surfaces, irradiance_maps, probe_visibility
 
 PRT_SEED_SALT = 0x505254
 """Mixed with the bake seed for the stage's random stream ("PRT")."""
@@ -102,153 +103,38 @@ DILATE_TEXELS = 2
 LIGHTMAP_PADDING = 2
 
 
-# ------------------------------------------------------------------------------------ DDGI as a matrix
-def ddgi_weights(points, normals, views, grid: dict, positions, states, depth, n: int, bias: float,
-                 visible=None) -> sp.csr_matrix:
-    """The DDGI sampler as a sparse matrix: ``sample_irradiance(..., maps) == W @ maps.reshape(P·(n+2)², 3)``.
-
-    ``maps`` is (P, n+2, n+2, 3) bordered octahedral irradiance; ``visible`` (N, 8) the light stage's
-    ray-traced cage visibility (:func:`workers.stages.light.probe_visibility`), passed through. The
-    sampler is linear in the maps and its weights depend only on geometry, probe positions, states,
-    depth and visibility, so they are read back from the real sampler
-    (:func:`workers.kernels.ddgi.sample_irradiance`): three calls with maps that are 1 on the probes of
-    one of the 8 grid-parity classes (the 8 probes of a cage have distinct parities) give each cage
-    probe's normalized weight; one call with maps holding their own row and column index gives the
-    bilinear footprint (the same for the 8 probes: it depends on the normal only). The cage comes from
-    :func:`workers.kernels.ddgi.cage_probes`. Returns (N, P·(n+2)²) float32 CSR with 32 stored entries a
-    row (some zero, some repeated: products sum them; 8 bytes an entry, no COO temporaries).
-    """
-    pts = np.ascontiguousarray(points, np.float32)
-    nrm = np.ascontiguousarray(normals, np.float32)
-    view = np.ascontiguousarray(views, np.float32)
-    N = pts.shape[0]
-    counts = np.asarray(grid["counts"], np.int64)
-    origin = np.asarray(grid["origin"], np.float64)
-    spacing = np.asarray(grid["spacing"], np.float64)
-    nx, ny, nz = (int(c) for c in counts)
-    P = nx * ny * nz
-    t = n + 2
-    if N == 0:
-        return sp.csr_matrix((0, P * t * t), dtype=np.float32)
-    q = np.arange(P)
-    gi, gj, gk = q % nx, (q // nx) % ny, q // (nx * ny)
-    cls = (gi & 1) | ((gj & 1) << 1) | ((gk & 1) << 2)
-
-    def sample(maps):
-        return sample_irradiance(pts, nrm, view, counts, origin, spacing, positions, states, maps, depth, bias,
-                                 visible=visible)
-
-    w8 = np.zeros((N, 8), np.float64)
-    maps = np.zeros((P, t, t, 3), np.float32)
-    for call in range(3):
-        maps[:] = 0
-        for ch in range(3):
-            k = 3 * call + ch
-            if k < 8:
-                maps[cls == k, :, :, ch] = 1.0
-        out = sample(maps)
-        for ch in range(3):
-            if 3 * call + ch < 8:
-                w8[:, 3 * call + ch] = out[:, ch]
-    maps[:] = 0
-    maps[..., 0] = np.arange(t, dtype=np.float32)[None, :, None]
-    maps[..., 1] = np.arange(t, dtype=np.float32)[None, None, :]
-    maps[..., 2] = 1.0
-    foot = sample(maps).astype(np.float64)
-    r0 = np.clip(np.floor(foot[:, 0]), 0, n).astype(np.int64)
-    c0 = np.clip(np.floor(foot[:, 1]), 0, n).astype(np.int64)
-    fr = np.clip(foot[:, 0] - r0, 0.0, 1.0)
-    fc = np.clip(foot[:, 1] - c0, 0.0, 1.0)
-    _, cage = cage_probes(pts, nrm, view, counts, origin, spacing, bias)    # (N, 8) as the sampler picks them
-    # 32 taps per row (8 corners x 4 bilinear texels), built straight into CSR: row i owns entries 32i..32i+31
-    cols = np.zeros((N, 8, 4), np.int64 if P * t * t >= 2 ** 31 else np.int32)
-    vals = np.zeros((N, 8, 4), np.float32)
-    rows = np.arange(N)
-    taps = ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc))
-    for c in range(8):
-        o = (c & 1, (c >> 1) & 1, (c >> 2) & 1)
-        if any(o[a] and counts[a] == 1 for a in range(3)):
-            continue  # duplicates corner 0 on a 1-probe axis (the sampler clamps; the class sum holds both)
-        probe = cage[:, c]
-        w = w8[rows, cls[probe]]
-        for j, (dr, dc, bw) in enumerate(taps):
-            cols[:, c, j] = probe * t * t + (r0 + dr) * t + (c0 + dc)
-            vals[:, c, j] = w * bw
-    indptr = np.arange(0, 32 * N + 1, 32, dtype=cols.dtype)
-    return sp.csr_matrix((vals.reshape(-1), cols.reshape(-1), indptr), shape=(N, P * t * t))
-
-
 # ------------------------------------------------------------------------------------- dataset solver
 def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs: np.ndarray, states: np.ndarray,
                 n: int, *, bounces: int | None, max_bounces: int, tolerance: float, sh_order: int,
                 W_texels: sp.csr_matrix | None = None):
-    """The light stage's bounce iteration (:func:`workers.stages.light.integrate`, emission 0, sky 0) for B
-    lighting configurations at once.
+    """The light stage's bounce integrator (:func:`workers.kernels.bounce.integrate`, emission 0, sky 0) for B
+    lighting configurations at once, E_indirect by the sparse DDGI matrix ``W``.
 
     e_direct : (B, H, 3) direct irradiance at the front-face hits per configuration.
     Returns ``(sh (B, P, K, 3) float32, texels (B, T, 3) float32 or None, bounces (B,) int,
     maps (B, P, n+2, n+2, 3) float32)``: the probes' radiance SH (OFF probes 0), the DDGI irradiance at
     the rows of ``W_texels``, the bounce count and the converged irradiance maps of each configuration.
-    Each configuration stops by the light stage's rule (fixed ``bounces``, or its own per-probe residual
-    below ``tolerance``, :func:`workers.kernels.convergence.relative_tail`, capped at ``max_bounces``).
     """
     P, R = surf.P, surf.R
     B = e_direct.shape[0]
-    H = surf.index.size
     t = n + 2
     K = sh_count(sh_order)
-    alb = surf.albedo / np.float32(math.pi)                               # (H, 3)
-    base = (alb[:, None, :] * e_direct.transpose(1, 0, 2)).reshape(H, 3 * B).astype(np.float32)
-    rho = np.tile(alb, (1, B))
-    radiance = np.zeros((P * R, 3 * B), np.float32)                       # misses see sky 0
-    irr = np.zeros((P * t * t, 3 * B), np.float32)
-    live = np.arange(B)
     sh_out = np.zeros((B, P, K, 3), np.float32)
     tex_out = None if W_texels is None else np.zeros((B, W_texels.shape[0], 3), np.float32)
     maps_out = np.zeros((B, P, t, t, 3), np.float32)
-    count = np.zeros(B, np.int64)
-    cap = bounces if bounces is not None else max_bounces
     off = states == OFF
-    deltas: list[np.ndarray] = []
-    for b in range(1, cap + 1):
-        if b == 1:
-            radiance[surf.index] = base
-        else:
-            radiance[surf.index] = base + rho * (W @ irr)                 # albedo/π·(E_direct + E_indirect)
-        new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)   # (P, t, t, 3·live)
-        newf = new.reshape(P * t * t, -1)
-        nb = live.size
-        # per probe and configuration: the light still to come (workers.kernels.convergence, as the light stage)
-        value = np.abs(newf).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
-        deltas = (deltas + [np.abs(newf - irr).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)])[-3:]
-        residual, _ = relative_tail(deltas, value)
-        irr = newf
-        if b == cap:
-            done = np.ones(nb, bool)
-        elif bounces is None:
-            done = np.asarray(residual) < tolerance
-        else:
-            done = np.zeros(nb, bool)
-        if done.any():
-            cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
-            ids = live[done]
-            sh = sh_project(dirs, radiance[:, cols].reshape(P, R, -1), order=sh_order).astype(np.float32)
-            sh[off] = 0.0
-            sh_out[ids] = sh.reshape(P, K, -1, 3).transpose(2, 0, 1, 3)
-            maps_out[ids] = new[..., cols].reshape(P, t, t, -1, 3).transpose(3, 0, 1, 2, 4)
-            if W_texels is not None:
-                tex_out[ids] = (W_texels @ irr[:, cols]).reshape(-1, len(ids), 3).transpose(1, 0, 2)
-            count[ids] = b
-            keep = ~done
-            kc = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
-            live = live[keep]
-            deltas = [d[:, keep] for d in deltas]
-            if live.size == 0:
-                break
-            base, rho = base[:, kc], rho[:, kc]
-            radiance = np.ascontiguousarray(radiance[:, kc])
-            irr = np.ascontiguousarray(irr[:, kc])
-    return sh_out, tex_out, count, maps_out
+
+    def retire(ids, radiance, maps, b):
+        sh = sh_project(dirs, radiance, order=sh_order).astype(np.float32)
+        sh[off] = 0.0
+        sh_out[ids] = sh.reshape(P, K, -1, 3).transpose(2, 0, 1, 3)
+        maps_out[ids] = maps.reshape(P, t, t, -1, 3).transpose(3, 0, 1, 2, 4)
+        if W_texels is not None:
+            tex_out[ids] = (W_texels @ maps.reshape(P * t * t, -1)).reshape(-1, len(ids), 3).transpose(1, 0, 2)
+
+    log = integrate(surf.index, surf.miss, surf.albedo, e_direct, dirs, states, n, MatrixGather(W), retire,
+                    bounces=bounces, max_bounces=max_bounces, tolerance=tolerance)
+    return sh_out, tex_out, log.bounces, maps_out
 
 
 # ---------------------------------------------------------------------------------- measurement points
@@ -523,17 +409,14 @@ def light_stage_reference(ds: PrtDataset, lights: list[dict], light_section, lig
     None)``: the probes' radiance SH (OFF probes 0) and the DDGI irradiance
     (:func:`ddgi.sample_irradiance`) of the converged probes at the lightmap texels.
     """
-    from dataclasses import replace
-
-    from workers.stages.light import integrate
-
     pr = ds.probes
-    surf = replace(pr["surf"], emission=np.zeros_like(pr["surf"].emission))
+    surf = pr["surf"]
     e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"])
-    irr, radiance, _, _ = integrate(surf, e, pr["dirs"], (0.0, 0.0, 0.0), pr["grid"], pr["positions"], pr["states"],
-                                 pr["depth"], pr["n"], bounces=light_section.bounces,
-                                 max_bounces=light_section.max_bounces, tolerance=light_section.tolerance,
-                                 bias=pr["bias"], visible=pr["visible"])
+    gather = SamplerGather(surf.position, surf.normal, surf.view, pr["grid"], pr["positions"], pr["states"],
+                           pr["depth"], pr["bias"], pr["visible"])
+    irr, radiance, _, _ = integrate_one(surf.index, surf.miss, surf.albedo, e, pr["dirs"], pr["states"], pr["n"],
+                                        gather, bounces=light_section.bounces, max_bounces=light_section.max_bounces,
+                                        tolerance=light_section.tolerance)
     sh = sh_project(pr["dirs"], radiance, order=light_section.sh_order).astype(np.float32)
     sh[pr["states"] == OFF] = 0.0
     tex = None
