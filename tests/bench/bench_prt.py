@@ -49,7 +49,8 @@ from workers import prt_relight  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels import prt as kprt  # noqa: E402
 from workers.stages.base import StageContext  # noqa: E402
-from workers.stages.prt import light_stage_reference, prt_dataset, prt_output  # noqa: E402
+from workers.stages.prt import prt_dataset, prt_output  # noqa: E402
+from tests.workers.prt_reference import light_stage_reference  # noqa: E402
 
 SCENE_DIR = ROOT.parent / "shared" / "scenes" / "cornell-box-vinc3r"
 GLTF = "cornellBox-2.80-Eevee-gltf.gltf"

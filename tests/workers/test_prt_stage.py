@@ -3,7 +3,7 @@
 The stage is called with a hand-built StageContext on top of the real pipeline up to ``light``
 (``bake_until``), so these tests do not depend on the stage being registered in proto/stages.py.
 Reference results come from the light stage's own bounce loop (``light.integrate`` on the cached hits,
-emission excluded, sky 0) through :func:`workers.stages.prt.light_stage_reference`.
+emission excluded, sky 0) through :func:`tests.workers.prt_reference.light_stage_reference`.
 """
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from proto import bundle
 from proto.models import BakeConfig
 from tests.conftest import shared_path
 from tests.workers.gltf.builders import QUAD, QUAD_UV, Gltf, write_glb
+from tests.workers.prt_reference import light_stage_reference
 from tests.workers.test_probes import bake_until
 from workers import prt_relight
 from workers.gltf import ingest_file
@@ -61,7 +62,7 @@ def heldout(cornell):
     lights = kprt.random_light_configurations(np.random.default_rng(2024), sc.model_dump(), 16, sc.box.min,
                                               sc.box.max, inside=caster.inside_parity,
                                               target_box=((0, 0, 0), (1, 1, 1)))
-    refs = [sprt.light_stage_reference(ds, L, ctx.config.light) for L in lights]
+    refs = [light_stage_reference(ds, L, ctx.config.light) for L in lights]
     xs = [sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]) for L in lights]
     return lights, xs, [r[0].reshape(-1, 3) for r in refs], [r[1] for r in refs]
 
@@ -93,7 +94,7 @@ def test_ddgi_weights_reproduce_the_sampler(cornell):
 def test_dataset_equals_the_light_stage_for_its_configurations(cornell):
     ctx, ds, _ = cornell
     for k in (0, 5, 77):
-        sh, tex = sprt.light_stage_reference(ds, ds.configs[k], ctx.config.light)
+        sh, tex = light_stage_reference(ds, ds.configs[k], ctx.config.light)
         assert np.allclose(ds.sh[k], sh, rtol=1e-4, atol=1e-5 * np.abs(sh).max())
         assert np.allclose(ds.texels[k], tex, rtol=1e-4, atol=1e-5 * np.abs(tex).max())
         assert np.allclose(ds.direct[k], sprt.measurement_direct(ds.points, ds.configs[k], ds.probes["caster"],
@@ -286,6 +287,6 @@ def test_vinc3r_lightmap_uses_texcoord1_charts_and_xatlas(tmp_path):
             if a < b:
                 (a0, a1), (b0, b1) = boxes[a], boxes[b]
                 assert np.any(a1 <= b0) or np.any(b1 <= a0), (a, b)
-    sh, tex = sprt.light_stage_reference(ds, ds.configs[0], ctx.config.light)
+    sh, tex = light_stage_reference(ds, ds.configs[0], ctx.config.light)
     assert np.allclose(ds.texels[0], tex, rtol=1e-4, atol=1e-5 * np.abs(tex).max())
     assert np.abs(tex).max() > 0

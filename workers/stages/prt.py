@@ -78,9 +78,8 @@ import scipy.sparse as sp
 from scipy.spatial import cKDTree
 
 from workers.kernels import prt as kprt
-from workers.kernels.bounce import integrate, integrate_one
-from workers.kernels.ddgi import sample_irradiance
-from workers.kernels.gather import MatrixGather, SamplerGather, ddgi_weights
+from workers.kernels.bounce import integrate
+from workers.kernels.gather import MatrixGather, ddgi_weights
 from workers.kernels.grid import OFF, unpack_atlas
 from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, probe_visibility
 from workers.kernels.sh import sh_count, sh_project
@@ -399,33 +398,6 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
               "n": n_irr, "bias": bias, "caster": caster, "eps": eps, "visible": visible}
     return PrtDataset(configs=configs, points=points, direct=direct, sh=sh_all, texels=tex_all, lightmap=lm,
                       probes=probes, bounces=n_bounces, timings=timings)
-
-
-def light_stage_reference(ds: PrtDataset, lights: list[dict], light_section, lightmap: bool = True):
-    """The light stage's own computation for ``lights`` alone (emission 0, sky 0), for checking a transfer.
-
-    Runs :func:`workers.stages.light.integrate` (the light stage's bounce loop, with ``light_section``'s
-    settings) on the dataset's cached hits; returns ``(sh (P, K, 3) float32, texels (L, 3) float32 or
-    None)``: the probes' radiance SH (OFF probes 0) and the DDGI irradiance
-    (:func:`ddgi.sample_irradiance`) of the converged probes at the lightmap texels.
-    """
-    pr = ds.probes
-    surf = pr["surf"]
-    e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"])
-    gather = SamplerGather(surf.position, surf.normal, surf.view, pr["grid"], pr["positions"], pr["states"],
-                           pr["depth"], pr["bias"], pr["visible"])
-    irr, radiance, _, _ = integrate_one(surf.index, surf.miss, surf.albedo, e, pr["dirs"], pr["states"], pr["n"],
-                                        gather, bounces=light_section.bounces, max_bounces=light_section.max_bounces,
-                                        tolerance=light_section.tolerance)
-    sh = sh_project(pr["dirs"], radiance, order=light_section.sh_order).astype(np.float32)
-    sh[pr["states"] == OFF] = 0.0
-    tex = None
-    if lightmap and ds.lightmap is not None:
-        g = pr["grid"]
-        lm = ds.lightmap
-        tex = sample_irradiance(lm["position"], lm["normal"], lm["normal"], g["counts"], g["origin"], g["spacing"],
-                                pr["positions"], pr["states"], irr, pr["depth"], pr["bias"], visible=lm["visible"])
-    return sh, tex
 
 
 def run_prt(ctx: StageContext) -> StageOutput:
