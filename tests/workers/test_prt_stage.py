@@ -22,8 +22,11 @@ from tests.workers.test_probes import bake_until
 from workers import prt_relight
 from workers.gltf import ingest_file
 from workers.kernels import prt as kprt
+from workers.kernels import prt_scenario as scenario
 from workers.kernels.ddgi import sample_irradiance
+from workers.kernels.gather import ddgi_weights
 from workers.stages import prt as sprt
+from workers.stages.prt import USABLE_TEST_CONFIGS
 from workers.stages.base import StageContext
 
 # lights in front of the open side (+z) of the procedural Cornell box, spots aimed into it: the paper's
@@ -59,11 +62,11 @@ def heldout(cornell):
     ctx, ds, _ = cornell
     sc = ctx.config.prt.scenario
     caster = ds.probes["caster"]
-    lights = kprt.random_light_configurations(np.random.default_rng(2024), sc.model_dump(), 16, sc.box.min,
+    lights = scenario.random_light_configurations(np.random.default_rng(2024), sc.model_dump(), 16, sc.box.min,
                                               sc.box.max, inside=caster.inside_parity,
                                               target_box=((0, 0, 0), (1, 1, 1)))
     refs = [light_stage_reference(ds, L, ctx.config.light) for L in lights]
-    xs = [sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]) for L in lights]
+    xs = [scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]) for L in lights]
     return lights, xs, [r[0].reshape(-1, 3) for r in refs], [r[1] for r in refs]
 
 
@@ -82,7 +85,7 @@ def test_ddgi_weights_reproduce_the_sampler(cornell):
     _, ds, _ = cornell
     pr, g = ds.probes, ds.probes["grid"]
     surf = pr["surf"]
-    W = sprt.ddgi_weights(surf.position, surf.normal, surf.view, g, pr["positions"], pr["states"], pr["depth"],
+    W = ddgi_weights(surf.position, surf.normal, surf.view, g, pr["positions"], pr["states"], pr["depth"],
                           pr["n"], pr["bias"], pr["visible"])
     assert W.shape == (surf.index.size, 64 * (pr["n"] + 2) ** 2) and W.nnz <= 32 * W.shape[0]
     maps = np.random.default_rng(0).random((64, pr["n"] + 2, pr["n"] + 2, 3)).astype(np.float32)
@@ -97,7 +100,7 @@ def test_dataset_equals_the_light_stage_for_its_configurations(cornell):
         sh, tex = light_stage_reference(ds, ds.configs[k], ctx.config.light)
         assert np.allclose(ds.sh[k], sh, rtol=1e-4, atol=1e-5 * np.abs(sh).max())
         assert np.allclose(ds.texels[k], tex, rtol=1e-4, atol=1e-5 * np.abs(tex).max())
-        assert np.allclose(ds.direct[k], sprt.measurement_direct(ds.points, ds.configs[k], ds.probes["caster"],
+        assert np.allclose(ds.direct[k], scenario.measurement_direct(ds.points, ds.configs[k], ds.probes["caster"],
                                                                  ds.probes["eps"]))
     assert ds.bounces.min() >= 2
 
@@ -108,13 +111,13 @@ def test_measurement_points_are_blue_noise_on_lit_surfaces(cornell):
     assert p["position"].shape == (256, 3) and np.array_equal(p["offsets"], np.arange(257))
     assert np.all(p["albedo"].max(axis=1) > 0)
     lit = np.zeros(256, bool)
-    for lights in ds.configs[:sprt.USABLE_TEST_CONFIGS]:
+    for lights in ds.configs[:USABLE_TEST_CONFIGS]:
         lit |= ds.direct[ds.configs.index(lights)].max(axis=1) > 0
     assert lit.all()                      # every point is lit by some configuration
-    tri, u, v = kprt.area_samples(ctx.scene.triangles, 256, np.random.default_rng(0))
+    tri, u, v = scenario.area_samples(ctx.scene.triangles, 256, np.random.default_rng(0))
     t = ctx.scene.triangles[tri].astype(np.float64)
     rand = (1 - u - v)[:, None] * t[:, 0] + u[:, None] * t[:, 1] + v[:, None] * t[:, 2]
-    assert kprt.min_spacing(p["position"]) > 2 * kprt.min_spacing(rand)
+    assert scenario.min_spacing(p["position"]) > 2 * scenario.min_spacing(rand)
 
 
 def test_artifacts_and_section(cornell):
@@ -219,11 +222,11 @@ def test_variants_round_trip_through_the_bundle_format(tmp_path, scene_files, pr
     sec = ctx.config.prt
     N, P, K = ds.sh.shape[:3]
     f = kprt.fit(ds.direct, ds.sh.reshape(N, P * K, 3), 6, sec.ridge, sec.gamma, sec.channels)
-    want = kprt.reconstruct(f, sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
+    want = kprt.reconstruct(f, scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
     assert np.allclose(a["probe_sh"].reshape(-1, 3), want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
     if ds.texels is not None:
         g = kprt.fit(ds.direct, ds.texels, 6, sec.ridge, sec.gamma, sec.channels)
-        want = kprt.reconstruct(g, sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
+        want = kprt.reconstruct(g, scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
         got = a["lightmap"].reshape(-1, 4)[ds.lightmap["covered"].ravel(), :3]
         assert np.allclose(got, want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
     if prt.get("supersampling"):

@@ -5,7 +5,7 @@ moments, states) and light (only for ordering and cache keys; its settings come 
 Off unless ``config.prt.enabled``: then it returns no artifacts and stats ``{"enabled": false}``.
 
 1. **Scenario** (PRT §4.1): N = ``prt.configurations`` random lighting configurations from
-   ``prt.scenario`` (:func:`workers.kernels.prt.random_light_configurations`), seeded by the bake seed;
+   ``prt.scenario`` (:func:`workers.kernels.prt_scenario.random_light_configurations`), seeded by the bake seed;
    positions in ``scenario.box`` (default: the scene bounds), redrawn when inside geometry; spots aim at
    a random point of the scene bounds.
 2. **Measurement points** (§4.1): M = ``prt.measurement_points`` blue-noise points on the front faces of
@@ -68,38 +68,34 @@ channel ``u = T_c [x_c, ‖x_c‖]`` (row 0 gives u_0 = ‖x_c‖), ``y_c = Σ_j
 """
 from __future__ import annotations
 
-import math
 import time
 from dataclasses import dataclass
 from types import SimpleNamespace
 
 import numpy as np
 import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
 from workers.kernels import prt as kprt
 from workers.kernels.bounce import integrate
 from workers.kernels.gather import MatrixGather, ddgi_weights
 from workers.kernels.grid import OFF, unpack_atlas
+from workers.kernels.lightmap import DILATE_TEXELS, dilate, lightmap_texels
 from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, probe_visibility
+from workers.kernels.prt_scenario import (measurement_direct, measurement_points, random_light_configurations,
+                                         triangle_areas)
 from workers.kernels.sh import sh_count, sh_project
-from workers.kernels.shading import direct_irradiance, surface_at_hits
+from workers.kernels.shading import direct_irradiance
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
 
 PRT_SEED_SALT = 0x505254
 """Mixed with the bake seed for the stage's random stream ("PRT")."""
-CANDIDATES_PER_POINT = 5
-"""Uniform candidates per kept sample for sample elimination (Yuksel uses 5x)."""
-MAX_CANDIDATES = 2_000_000
 BATCH_BYTES = 256 << 20
 """Bytes of per-ray radiance (P·R·3·4 per configuration) a batch of configurations may hold."""
 DATASET_BYTES = 4 << 30
 """Refuse (StageError prt_too_large) a dataset plus DDGI matrices larger than this."""
 USABLE_TEST_CONFIGS = 64
 """Measurement candidates must be lit by one of the first this many configurations to be kept."""
-DILATE_TEXELS = 2
-LIGHTMAP_PADDING = 2
 
 
 # ------------------------------------------------------------------------------------- dataset solver
@@ -136,149 +132,7 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
     return sh_out, tex_out, log.bounces, maps_out
 
 
-# ---------------------------------------------------------------------------------- measurement points
-def measurement_points(scene, m: int, s: int, rng: np.random.Generator, usable=None) -> dict:
-    """M blue-noise measurement points (M·S samples grouped by point) on the scene's front faces (PRT §4.1, §5.1).
-
-    Candidates are uniform area-weighted points (CANDIDATES_PER_POINT per sample); ``usable(position,
-    normal, albedo) -> (k,) bool`` may drop some first (the stage drops those that no configuration of
-    the scenario lights: they carry no information and would waste points, e.g. the outside of a room).
-    Sample elimination [Yuksel15] keeps M·S of them; with S > 1 the M points are a second elimination of
-    those and every sample joins its nearest point. Returns ``{"position", "normal", "albedo": (M·S, 3)
-    float32, "offsets": (M+1,) int32, "usable_fraction": float}``; point i averages rows offsets[i]:offsets[i+1].
-    """
-    tris = scene.triangles
-    area = float(kprt.triangle_areas(tris).sum())
-    fine = m * s
-    cand = min(max(CANDIDATES_PER_POINT * fine, fine), max(MAX_CANDIDATES, fine))
-    tri, u, v = kprt.area_samples(tris, cand, rng)
-    surf = surface_at_hits(scene, tri, u, v)
-    pos, nrm, alb = surf["position"], surf["normal"], surf["albedo"]
-    frac = 1.0
-    if usable is not None:
-        ok = np.asarray(usable(pos, nrm, alb), bool)
-        if ok.sum() >= fine:  # else too few usable candidates: keep them all
-            frac = float(ok.mean())
-            pos, nrm, alb = pos[ok], nrm[ok], alb[ok]
-    keep = kprt.sample_elimination(pos, fine, area * frac)                 # [Yuksel15]
-    pos, nrm, alb = pos[keep], nrm[keep], alb[keep]
-    if s == 1:
-        offsets = np.arange(m + 1, dtype=np.int32)
-    else:  # §5.1: the M points are a coarser elimination of the samples; each sample joins its nearest
-        heads = kprt.sample_elimination(pos, m, area * frac)
-        _, group = cKDTree(pos[heads].astype(np.float64)).query(pos.astype(np.float64))
-        group[heads] = np.arange(m)
-        order = np.argsort(group, kind="stable")
-        pos, nrm, alb, group = pos[order], nrm[order], alb[order], group[order]
-        offsets = np.searchsorted(group, np.arange(m + 1)).astype(np.int32)
-    return {"position": pos.astype(np.float32), "normal": nrm.astype(np.float32),
-            "albedo": alb.astype(np.float32), "offsets": offsets, "usable_fraction": frac}
-
-
-def measurement_direct(points: dict, lights: list[dict], caster, eps: float) -> np.ndarray:
-    """The direct vector x (M, 3): outgoing radiance ``albedo/π · E_direct`` averaged per point (PRT §4.3, §5.1)."""
-    e = direct_irradiance(points["position"], points["normal"], lights, caster, eps)
-    rad = points["albedo"].astype(np.float64) / math.pi * e
-    return kprt.group_mean(rad, points["offsets"])
-
-
-# -------------------------------------------------------------------------------------------- lightmap
-def _xatlas_uv(tris: np.ndarray, res: int) -> np.ndarray | None:
-    """(k, 3, 2) UVs in [0, 1] for triangles without TEXCOORD_1 (xatlas, vertices welded by position)."""
-    try:
-        import xatlas
-    except ImportError:
-        return None
-    verts = tris.reshape(-1, 3)
-    uniq, inv = np.unique(verts, axis=0, return_inverse=True)
-    atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray(uniq, np.float32), inv.reshape(-1, 3).astype(np.uint32))
-    po = xatlas.PackOptions()
-    po.padding = LIGHTMAP_PADDING
-    po.resolution = int(res)
-    atlas.generate(pack_options=po)
-    if atlas.atlas_count != 1:
-        vm, idx, uvs = xatlas.parametrize(np.ascontiguousarray(uniq, np.float32), inv.reshape(-1, 3).astype(np.uint32))
-    else:
-        vm, idx, uvs = atlas[0]
-    return uvs[idx].astype(np.float32)
-
-
-def lightmap_texels(scene, res: int) -> dict:
-    """Lay out the lightmap and find its texels' surface points.
-
-    Returns ``{"uv" (T, 3, 2) float32 lightmap UVs, "tri" (res, res) int32, "covered" (res, res) bool,
-    "position", "normal": (L, 3) float32 of the covered texels in row-major order, "source", "warnings"}``.
-    """
-    T = scene.n_triangles
-    warnings = []
-    tc = scene.texcoord1()
-    if tc is None:
-        uv, chart = np.zeros((T, 3, 2), np.float32), np.full(T, -1, np.int64)
-    else:
-        uv, chart = np.array(tc[0], np.float32), np.array(tc[1], np.int64)
-    missing = chart < 0
-    source = "texcoord1" if not missing.any() else ("xatlas" if missing.all() else "texcoord1+xatlas")
-    if missing.any():
-        gen = _xatlas_uv(np.asarray(scene.triangles)[missing], res)
-        if gen is None:
-            warnings.append(f"xatlas is not installed: {int(missing.sum())} triangles without TEXCOORD_1 "
-                            "are left out of the lightmap")
-        else:
-            uv[missing] = gen
-            chart[missing] = int(chart.max(initial=-1)) + 1
-    atlas_uv, density = kprt.chart_layout(scene.triangles, uv, chart, res, padding=LIGHTMAP_PADDING)
-    tri, bary = kprt.rasterize(atlas_uv, res)
-    covered = tri >= 0
-    s = surface_at_hits(scene, tri[covered], bary[covered, 0], bary[covered, 1])
-    return {"uv": atlas_uv, "tri": tri, "covered": covered, "position": s["position"], "normal": s["normal"],
-            "source": source, "texels_per_metre": density, "warnings": warnings}
-
-
 # ------------------------------------------------------------------------------------------- the stage
-def sh_volumes(slots: np.ndarray, channels: str, counts, K: int):
-    """Probe basis volumes: ``[[(name, (nz, ny, nx, 4) float32) per slot group] per SH coefficient]``.
-
-    mono: slots (n, P·K) -> volume ``prt_sh_basis_c{k}_g{g}`` holds SH coefficient k of slots 4g..4g+3
-    in RGBA (slot 0 = the mean; PRT §5.2 packing). multi: slots (n, P·K, 3) -> one volume per slot g
-    with its RGB in rgb and a = 0."""
-    nx, ny, nz = counts
-    n = slots.shape[0]
-    out = []
-    if channels == "mono":
-        vol = slots.reshape(n, nz, ny, nx, K)
-        for k in range(K):
-            out.append([(f"prt_sh_basis_c{k}_g{g}", grp) for g, grp in enumerate(kprt.pack_rgba(vol[..., k]))])
-    else:
-        vol = slots.reshape(n, nz, ny, nx, K, 3)
-        pad = np.zeros((nz, ny, nx, 1), np.float32)
-        for k in range(K):
-            out.append([(f"prt_sh_basis_c{k}_g{j}", np.concatenate([vol[j, ..., k, :], pad], axis=-1))
-                        for j in range(n)])
-    return out
-
-
-def lm_textures(images: np.ndarray, channels: str):
-    """Lightmap basis textures ``[(name, (H, W, 4) float32)]``: mono images (n, H, W) four slots per
-    texture (``prt_lm_basis_g{g}``: slots 4g..4g+3); multi images (n, H, W, 3) one slot per texture."""
-    if channels == "mono":
-        return [(f"prt_lm_basis_g{g}", grp) for g, grp in enumerate(kprt.pack_rgba(images))]
-    pad = np.zeros(images.shape[1:3] + (1,), np.float32)
-    return [(f"prt_lm_basis_g{j}", np.concatenate([images[j], pad], axis=-1)) for j in range(images.shape[0])]
-
-
-def _fit_stats(fitted: kprt.PrtFit, direct, target) -> dict:
-    s2 = fitted.singular ** 2
-    kept = min(fitted.n - 1, s2.size)
-    y = np.asarray(target, np.float64)
-    err = np.stack([kprt.reconstruct(fitted, direct[k]) - y[k] for k in range(y.shape[0])])
-    rms = float(np.sqrt(np.mean(y ** 2)))
-    energy = float(s2[:kept].sum() / s2.sum()) if s2.sum() > 0 else 1.0
-    return {"columns": fitted.columns, "outliers_dropped": fitted.dropped, "energy_kept": energy,
-            "singular_values": fitted.singular[:min(64, fitted.singular.size)].tolist(),
-            "train_rmse": float(np.sqrt(np.mean(err ** 2))), "train_rms": rms}
-
-
 @dataclass
 class PrtDataset:
     """What the fit sees (PRT §4.1), plus what tests and benchmarks need to check it.
@@ -320,7 +174,7 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
     eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)   # as the light stage
     n_irr = lsec.irradiance_texels
     bias = lsec.self_shadow_bias
-    if kprt.triangle_areas(scene.triangles).sum() <= 0:
+    if triangle_areas(scene.triangles).sum() <= 0:
         raise StageError("no_surface", "the scene's triangles have no area to place measurement points on")
     caster = caster_for_scene(scene)
     rng = np.random.default_rng([ctx.config.seed, PRT_SEED_SALT])
@@ -328,8 +182,8 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
     # 1. lighting scenario (PRT §4.1)
     scen = sec.scenario
     box = (scen.box.min, scen.box.max) if scen.box is not None else (bounds[0], bounds[1])
-    configs = kprt.random_light_configurations(rng, scen.model_dump(), sec.configurations, box[0], box[1],
-                                               inside=caster.inside_parity, target_box=(bounds[0], bounds[1]))
+    configs = random_light_configurations(rng, scen.model_dump(), sec.configurations, box[0], box[1],
+                                          inside=caster.inside_parity, target_box=(bounds[0], bounds[1]))
     # 2. measurement points (§4.1, §5.1), on surfaces some configuration lights
     probe_configs = configs[:USABLE_TEST_CONFIGS]
 
@@ -426,7 +280,7 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
     fit_sh = kprt.fit(direct, sh_all.reshape(N, P * K, 3), sec.basis, sec.ridge, sec.gamma, sec.channels)
     artifacts: list[Artifact] = []
     sh_names = []
-    for k, group in enumerate(sh_volumes(fit_sh.slots, sec.channels, grid["counts"], K)):
+    for k, group in enumerate(kprt.sh_volumes(fit_sh.slots, sec.channels, grid["counts"], K)):
         sh_names.append([name for name, _ in group])
         for g, (name, vol) in enumerate(group):
             artifacts.append(Artifact(name, np.ascontiguousarray(vol, np.float32),
@@ -434,7 +288,7 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
                                       meta={"coefficient": k, "group": g, "channels": sec.channels}))
     artifacts.append(Artifact("prt_sh_transfer", fit_sh.transfer, format="npy",
                               description="PRT transfer to the probe SH basis coefficients (PRT eq 14)"))
-    stats_sh = _fit_stats(fit_sh, direct, sh_all.reshape(N, P * K, 3))
+    stats_sh = kprt.fit_stats(fit_sh, direct, sh_all.reshape(N, P * K, 3))
     lm_info = None
     if lm is not None and tex_all is not None and tex_all.shape[1] > 0:
         fit_lm = kprt.fit(direct, tex_all, sec.basis, sec.ridge, sec.gamma, sec.channels)
@@ -443,11 +297,11 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
         c_ = 1 if sec.channels == "mono" else 3
         imgs = np.zeros((fit_lm.n, c_, res, res), np.float32)
         imgs[:, :, cov] = fit_lm.slots.reshape(fit_lm.n, -1, c_).transpose(0, 2, 1)
-        imgs, grown = kprt.dilate(imgs, cov, DILATE_TEXELS)                 # linear: relit maps dilate too
+        imgs, grown = dilate(imgs, cov, DILATE_TEXELS)                 # linear: relit maps dilate too
         imgs = imgs[:, 0] if c_ == 1 else np.ascontiguousarray(np.moveaxis(imgs, 1, -1))
         mask = np.where(cov, 1, np.where(grown, 2, 0)).astype(np.uint8)
         lm_names = []
-        for name, tex in lm_textures(imgs, sec.channels):
+        for name, tex in kprt.lm_textures(imgs, sec.channels):
             lm_names.append(name)
             artifacts.append(Artifact(name, np.ascontiguousarray(tex, np.float32),
                                       description="PRT lightmap basis (mono: four slots per texel, slot 0 = mean)"))
@@ -461,7 +315,7 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
                    "uv_source": lm["source"], "texels_per_metre": lm["texels_per_metre"],
                    "basis": lm_names, "transfer": "prt_lm_transfer", "mask": "prt_lm_mask", "uv": "prt_lm_uv",
                    "unit": "irradiance (lux x colour): DDGI sample of the probes, view = normal",
-                   **_fit_stats(fit_lm, direct, tex_all)}
+                   **kprt.fit_stats(fit_lm, direct, tex_all)}
     timings["fit_seconds"] = time.perf_counter() - t3
 
     pts = points
