@@ -25,8 +25,8 @@ from workers.kernels import prt as kprt
 from workers.kernels import prt_scenario as scenario
 from workers.kernels.ddgi import sample_irradiance
 from workers.kernels.gather import ddgi_weights
+from workers.kernels.prt_dataset import USABLE_TEST_CONFIGS
 from workers.stages import prt as sprt
-from workers.stages.prt import USABLE_TEST_CONFIGS
 from workers.stages.base import StageContext
 
 # lights in front of the open side (+z) of the procedural Cornell box, spots aimed into it: the paper's
@@ -79,6 +79,18 @@ def test_disabled_stage_returns_nothing(tmp_path, scene_files):
     cfg = {"place": {"counts": [2, 2, 2]}, "trace": {"rays_per_probe": 16}}
     out = sprt.run_prt(_ctx(tmp_path, scene_files["cornell"], cfg))
     assert out.artifacts == [] and out.stats == {"enabled": False}
+
+
+def test_a_dataset_too_large_is_refused(tmp_path, scene_files, monkeypatch):
+    from workers.kernels import prt_dataset
+    from workers.stages.base import StageError
+
+    monkeypatch.setattr(prt_dataset, "DATASET_BYTES", 1000)
+    ctx = _ctx(tmp_path, scene_files["cornell"], {**_config(configurations=4, measurement_points=8, lightmap=0),
+                                                   "place": {"counts": [2, 2, 2]}})
+    with pytest.raises(StageError) as e:
+        sprt.prt_dataset(ctx)
+    assert e.value.code == "prt_too_large" and "lower prt.configurations" in str(e.value)
 
 
 def test_ddgi_weights_reproduce_the_sampler(cornell):
