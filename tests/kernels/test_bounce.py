@@ -70,10 +70,9 @@ def test_closed_box_sums_the_geometric_series(a):
 def test_misses_see_the_sky_and_emission_adds_to_every_bounce():
     dirs, P, R = _rays(2)
     sky = np.array([0.2, 0.3, 0.4])
-    none = np.zeros(0, np.int64)
-    irr, rad, _, _ = integrate_one(none, np.ones((P, R), bool), np.zeros((0, 3), np.float32),
-                                   np.zeros((0, 3), np.float32), dirs, np.full(P, ACTIVE), N, lambda m: np.zeros((0, 3)),
-                                   sky=sky, bounces=None, max_bounces=16, tolerance=1e-3)
+    none, empty = np.zeros(0, np.int64), np.zeros((0, 3), np.float32)
+    irr, rad, _, _ = integrate_one(none, np.ones((P, R), bool), empty, empty, dirs, np.full(P, ACTIVE), N,
+                                   lambda m: empty, sky=sky, bounces=None, max_bounces=16, tolerance=1e-3)
     assert np.allclose(irr, math.pi * sky, rtol=1e-5) and np.allclose(rad, sky)
     index, miss, albedo, e, dirs, states, gather = _box(0.5, np.zeros((1, 3)))
     irr, _, _, _ = integrate_one(index, miss, albedo, e[0], dirs, states, N, gather,
@@ -124,6 +123,10 @@ def test_fixed_bounces_stop_every_configuration_there_and_report_progress():
     index, miss, albedo, dirs, states, gather = _random_scene(rng)
     e = rng.uniform(0, 1, (2, index.size, 3)).astype(np.float32)
     calls, fractions = [], []
-    log = integrate(index, miss, albedo, e, dirs, states, N, gather, lambda ids, r, m, b: calls.append((list(ids), b)),
+
+    def retire(ids, radiance, maps, b):
+        calls.append((list(ids), b))
+
+    log = integrate(index, miss, albedo, e, dirs, states, N, gather, retire,
                     bounces=4, max_bounces=64, tolerance=1.0, report=fractions.append)
     assert calls == [([0, 1], 4)] and list(log.bounces) == [4, 4] and fractions == [0.25, 0.5, 0.75, 1.0]

@@ -122,16 +122,16 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     cap = bounces if bounces is not None else max_bounces
     for b in range(1, cap + 1):
         if b == 1:
-            radiance[index] = base
-        else:
-            radiance[index] = base + rho * gather(maps)                        # albedo/π·(E_direct + E_indirect)
+            radiance[index] = base                                             # E_indirect = 0: the first bounce
+        else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
+            radiance[index] = base + rho * gather(maps)
         new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)    # DDGI-I eq 1, α = 0
         nb = live.size
         step = np.abs(new - maps)
         # per probe and configuration: the light still to come (workers.kernels.convergence)
         value = np.abs(new).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
         deltas = (deltas + [step.reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)])[-3:]
-        residual, _ = relative_tail(deltas, value)
+        residual, _ = relative_tail(deltas, value)                          # ρ_p(b), max over probes that matter
         for j, c in enumerate(live):
             s = slice(3 * j, 3 * j + 3)
             total = float(np.abs(new[..., s]).sum())
