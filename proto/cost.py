@@ -87,7 +87,7 @@ PRT_FIXED_MEM = 40 * MB       # the measurement points, the lightmap's atlas (xa
 PRT_MEM_PER_CONFIG_RAY = 88    # the batched bounce loop: a batch's configurations' radiance on every probe ray
 PRT_MEM_PER_CONFIG_TEXEL = 48  # every configuration's lightmap texels, and their fit (float64)
 PRT_MEM_PER_RAY = 256          # the DDGI sampler as a sparse matrix, a row per probe-ray hit
-PRT_BATCH_BYTES = 256 << 20    # workers.stages.prt.BATCH_BYTES: per-ray radiance of one batch of configurations
+PRT_BATCH_BYTES = 256 << 20    # kernels.prt_dataset.BATCH_BYTES: per-ray radiance of one batch of configurations
 EVAL_MEM_PER_PIXEL = 4600      # G-buffer, reference accumulators, every mode's image and FLIP, per pixel
 
 # -- seconds on this 2-core machine (fitted, see CALIBRATION) -------------------------------------------------
@@ -291,7 +291,7 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         L2 = prt.lightmap ** 2
         seconds = (C * N * B * PRT_SECONDS_PER_CONFIG_RAY_BOUNCE + C * L2 * PRT_SECONDS_PER_CONFIG_TEXEL
                    + C * M * PRT_SECONDS_PER_CONFIG_POINT * rays_scale / 0.5)
-        # configurations are solved in batches of at most 256 MB of per-ray radiance (workers/stages/prt.py)
+        # configurations are solved in batches of at most 256 MB of per-ray radiance (workers/kernels/prt_dataset.py)
         batch = min(C, max(1, min(64, PRT_BATCH_BYTES // max(N * 12, 1))))
         memory = (LIB_RAYS + PRT_FIXED_MEM + scene_mem + batch * N * PRT_MEM_PER_CONFIG_RAY
                   + C * L2 * PRT_MEM_PER_CONFIG_TEXEL + C * P * sh_k * 12 + N * PRT_MEM_PER_RAY)
