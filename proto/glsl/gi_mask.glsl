@@ -68,9 +68,10 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 lo = cell * uMaskS, hi = cell * uMaskS + uMaskS - 1.0;
   vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);
   // both sides (compress.mask_lookups, lookup_blend): the read moved uMaskOffset samples along n + v (a) and the read
-  // at p itself (b); overlap = sum(min(a, b)) / sum(a) over the lookup's channels; m = mix(b, a, s), s rising from 0
-  // at overlap 0.25 to 1 at 0.5 (compress.MASK_OVERLAP): a surface's offset read holds its own side's clusters, which
-  // its footprint holds too (a); an offset that crossed a surface reads what p does not see (b)
+  // at p itself (b); seen = sum(a * min(b / 0.1, 1)) / sum(a) over the lookup's channels (the share of a's clusters
+  // that p sees too, compress.MASK_PRESENT); m = mix(b, a, s), s rising from 0 at seen 0.25 to 1 at 0.5
+  // (compress.MASK_OVERLAP): a surface's offset read holds its own side's clusters, which its footprint holds too
+  // (a); an offset that crossed a surface reads what p does not see (b)
   vec3 t1 = clamp((g + live * (uMaskOffset / uMaskS) * (n + giViewDir)) * uMaskS - 0.5, lo, hi);
   vec3 t0 = clamp(g * uMaskS - 0.5, lo, hi);
   vec3 tc1 = blk * uMaskT + (t1 - cell * uMaskS + uMaskLo) + 0.5;
@@ -85,8 +86,8 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
     b1 = texture(uMaskAtlas4567, tc0 / size1);
   }
 #endif
-  float both = dot(min(a0, b0) + min(a1, b1), vec4(1.0));
-  float s = clamp((both / max(dot(a0 + a1, vec4(1.0)), 1e-6) - 0.25) / 0.25, 0.0, 1.0);
+  float seen = dot(a0, min(b0 / 0.1, vec4(1.0))) + dot(a1, min(b1 / 0.1, vec4(1.0)));
+  float s = clamp((seen / max(dot(a0 + a1, vec4(1.0)), 1e-6) - 0.25) / 0.25, 0.0, 1.0);
   m0 = mix(b0, a0, s);
   m1 = mix(b1, a1, s);
 }

@@ -82,3 +82,44 @@ def unpack_atlas(atlas: np.ndarray, counts, n: int) -> np.ndarray:
     C = atlas.shape[-1]
     a = atlas.reshape(ny, n, nz, nx, n, C).transpose(2, 0, 3, 1, 4, 5)  # (nz, ny, nx, n, n, C)
     return np.ascontiguousarray(a.reshape(nx * ny * nz, n, n, C))
+
+
+def dilate_off(values: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, int]:
+    """Give OFF probes the values of their live neighbours (Unity Adaptive Probe Volumes' "dilation").
+
+    values : (nz, ny, nx, ...) float, a per-probe quantity (e.g. SH coefficients); off : (nz, ny, nx) bool. Layer
+    by layer over the 6-neighbours, every OFF probe next to a filled one takes the mean of its filled neighbours
+    (live probes, or OFF probes of an earlier layer), like texture padding. OFF probes in a region of the grid
+    without any live probe keep their value. Returns (a new array, number of probes filled).
+
+    Why: a probe inside a solid deeper than the relocation can move it (DDGI-P §5: 0.45 spacing) is OFF; its value
+    is 0, and the modes that interpolate a volume trilinearly without visibility (leaking SH, three.js's
+    LightProbeGrid) would blend that 0 into every cell it is a corner of, darkening the surfaces of the solid.
+    Modes that know the state (DDGI, mask, normalized mask) give OFF probes weight 0 and never read these values.
+    """
+    v = np.array(values, dtype=np.float64 if values.dtype.kind != "f" else values.dtype, copy=True)
+    off = np.asarray(off, bool).reshape(v.shape[:3])
+    filled = ~off
+    if filled.all() or not filled.any():
+        return v, 0
+    extra = (1,) * (v.ndim - 3)
+    n_filled = 0
+    while True:
+        acc = np.zeros_like(v, dtype=np.float64)
+        cnt = np.zeros(v.shape[:3], np.int64)
+        for axis in range(3):
+            for step in (1, -1):
+                src = np.roll(filled, step, axis=axis)
+                val = np.roll(v, step, axis=axis)
+                edge = [slice(None)] * 3                 # np.roll wraps: drop what came round the edge
+                edge[axis] = slice(0, 1) if step == 1 else slice(-1, None)
+                src[tuple(edge)] = False
+                acc += np.where(src.reshape(src.shape + extra), val, 0.0)
+                cnt += src
+        new = ~filled & (cnt > 0)
+        if not new.any():
+            break
+        v[new] = (acc[new] / cnt[new].reshape((-1,) + extra)).astype(v.dtype)
+        filled |= new
+        n_filled += int(new.sum())
+    return v, n_filled

@@ -9,7 +9,10 @@ few % through thin walls) and the bounce integrator :func:`workers.kernels.bounc
 DDGI-I eq 1 with α = 0 per bounce; E_indirect by the DDGI sampler, :class:`workers.kernels.gather.SamplerGather`).
 Bounces: a fixed count (``light.bounces``) or until the estimated light still to come
 (:mod:`workers.kernels.convergence`) is below ``light.tolerance`` at every probe that matters (capped at
-``light.max_bounces``; a bake that stops short carries the warning ``not_converged``). OFF probes stay at 0.
+``light.max_bounces``; a bake that stops short carries the warning ``not_converged``). OFF probes stay at 0 in
+``irradiance`` and ``probe_sh``; in the volumes the leaking mode samples without visibility (``sh_l1_*``, ``sh_l2``)
+they take their live neighbours' values (:func:`workers.kernels.grid.dilate_off`), so a solid's surfaces are not
+darkened by the 0 of the probes buried in it (stats ``off_dilated``).
 
 Outputs: ``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) float32 RGBA (rgb irradiance, a = 1),
 octahedral n×n per probe with its border (grid.pack_atlas); ``probe_sh`` (nz, ny, nx, 9|4, 3) float32
@@ -28,7 +31,7 @@ import numpy as np
 
 from workers.kernels.bounce import integrate_one
 from workers.kernels.gather import SamplerGather
-from workers.kernels.grid import OFF, pack_atlas, unpack_atlas
+from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
 from workers.kernels.materials import albedo_warnings
 from workers.kernels.probe_hits import hit_surfaces, probe_visibility
 from workers.kernels.sh import sh_l2_atlas, sh_project
@@ -77,6 +80,8 @@ def run_light(ctx: StageContext) -> StageOutput:
     sh = sh_project(dirs, radiance, order=sec.sh_order).astype(np.float32)     # (P, 9|4, 3)
     sh[states == OFF] = 0.0
     shv = sh.reshape(nz, ny, nx, sh.shape[1], 3)
+    # the runtime volumes (leaking samples them without visibility): OFF probes dilated from live neighbours
+    shv_rt, dilated = dilate_off(shv, (states == OFF).reshape(nz, ny, nx))
     rgba = np.concatenate([irr, np.ones(irr.shape[:-1] + (1,), np.float32)], axis=-1)
     active = states != OFF
     stats = {
@@ -85,6 +90,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         "residual_per_bounce": [r if math.isfinite(r) else None for r in residuals],
         "residual": (residuals[-1] if math.isfinite(residuals[-1]) else None) if residuals else 0.0,
         "converged": bool(residuals) and residuals[-1] < sec.tolerance,
+        "off_dilated": dilated,
         "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
@@ -109,10 +115,10 @@ def run_light(ctx: StageContext) -> StageOutput:
             Artifact("irradiance", pack_atlas(rgba, counts), description="octahedral probe irradiance with border",
                      meta={"tile": n2, "texels": sec.irradiance_texels}),
             Artifact("probe_sh", shv, format="npy", description="radiance SH per probe (three.js order), linear RGB"),
-            *[Artifact(f"sh_l1_{c}", np.ascontiguousarray(shv[..., :4, i]),
-                       description=f"L0 + L1 radiance SH of the {c} channel per probe")
+            *[Artifact(f"sh_l1_{c}", np.ascontiguousarray(shv_rt[..., :4, i]),
+                       description=f"L0 + L1 radiance SH of the {c} channel per probe (OFF probes dilated)")
               for i, c in enumerate("rgb")],
-            *([Artifact("sh_l2", sh_l2_atlas(shv), meta={"layout": "three.js LightProbeGrid", "texels": 7,
+            *([Artifact("sh_l2", sh_l2_atlas(shv_rt), meta={"layout": "three.js LightProbeGrid", "texels": 7,
                                                           "padding": 1},
                         description="L2 radiance SH per probe: 9 coefficients x rgb in 7 padded RGBA sub-volumes "
                                     "stacked along z (three.js LightProbeGrid layout)")]
