@@ -34,6 +34,8 @@ import math
 
 import numpy as np
 
+from workers.kernels.materials import double_sided_triangles
+
 __all__ = ["area_points", "camera_points", "check_point_set", "AXIS_NORMALS", "FREE_RAYS"]
 
 AXIS_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float64)
@@ -66,8 +68,7 @@ def _surfaces(scene, tri, bu, bv) -> dict:
 
 
 def _double_sided(scene) -> np.ndarray:
-    ds = np.array([bool(m.get("double_sided", False)) for m in scene.materials] or [False], bool)
-    return ds[np.asarray(scene.material, np.int64)] if scene.n_triangles else np.zeros(0, bool)
+    return double_sided_triangles(scene) if scene.n_triangles else np.zeros(0, bool)
 
 
 def area_points(scene, n: int, *, seed: int = 0, caster=None, eps: float | None = None,

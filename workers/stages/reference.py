@@ -26,7 +26,7 @@ What it computes
    batches of at most :data:`BATCH_POINTS` points (fewer at high path counts: memory); progress is reported per
    batch.
 5. **Previews** (needs EGL): for the first ``previews`` review cameras the G-buffer (:class:`workers.render.gbuffer.GBufferRenderer`)
-   and a ``preview_spp`` reference image (:func:`workers.kernels.pathtrace.reference_at_gbuffer`) — pictures
+   and a ``preview_spp`` reference image (:func:`workers.kernels.reference.reference_at_gbuffer`) — pictures
    only, no metric is computed from them. Without EGL the previews are skipped with a warning
    (``previews_unavailable``); the metrics do not need them.
 
@@ -44,7 +44,8 @@ import time
 
 import numpy as np
 
-from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, reference_at_gbuffer, scene_eps
+from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, scene_eps
+from workers.kernels.reference import reference_at_gbuffer
 from workers.kernels.shading import direct_irradiance
 from workers.kernels.surface_points import area_points, camera_points, check_point_set
 from workers.render.cameras import Camera, auto_cameras, default_camera, fit_clip_planes
