@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 from proto.models import BakeConfig
+from workers.kernels.point_modes import available_modes
 from workers.procedural import BAKE_BOXES
 from workers.render.context import RenderUnavailable, create_context
 from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode
 from workers.stages.base import LazyArtifacts, StageContext
-from workers.stages.evaluate import available_modes, run_evaluate
+from workers.stages.evaluate import run_evaluate
 from workers.stages.reference import run_reference
 
 from tests.workers.test_probes import bake_until
