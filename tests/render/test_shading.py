@@ -242,7 +242,7 @@ def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files, sh_order):
     from proto.models import BakeConfig
     from workers.prt_relight import PrtModel, relight
     from workers.stages.base import StageContext
-    from workers.stages.evaluate import _prt_resources
+    from workers.render.previews import prt_resources as _prt_resources
 
     prt_stage = pytest.importorskip("workers.stages.prt")
     scene, s = bake_until(tmp_path, scene_files["cornell"], PRT_CFG, "light")

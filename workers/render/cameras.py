@@ -35,7 +35,9 @@ diversity factor (distance to the chosen positions and angle to the chosen view 
 Everything is deterministic (fixed ray sets, ties to the lowest index). The target is the point at
 the median depth of the central rays; near/far come from the frustum's hit distances.
 
-Consumers: workers/render/gbuffer.py, the evaluate stage, the reference path tracer
+Review cameras (:func:`review_cameras`): the bake's own, else the glTF's, else auto-placed, else a default.
+
+Consumers: workers/render/gbuffer.py, the reference and evaluate stages, the reference path tracer
 (:mod:`workers.kernels.pathtrace`) through :meth:`Camera.pixel_rays`.
 """
 from __future__ import annotations
@@ -47,7 +49,8 @@ import numpy as np
 
 from workers.kernels.sampling import fibonacci_sphere
 
-__all__ = ["Camera", "auto_cameras", "camera_basis", "default_camera", "fit_clip_planes", "look_at", "perspective"]
+__all__ = ["Camera", "auto_cameras", "camera_basis", "camera_record", "default_camera", "fit_clip_planes", "look_at",
+           "perspective", "review_cameras"]
 
 DEFAULT_WIDTH = 512
 DEFAULT_HEIGHT = 384
@@ -386,3 +389,47 @@ def default_camera(bounds, *, width: int = DEFAULT_WIDTH, height: int = DEFAULT_
     pos = c + _unit([0.0, 0.35, 1.0]) * dist
     cam = Camera(pos, c, fov_y=fov_y, width=width, height=height, name="default")
     return replace(cam, near=max(1e-3 * (dist + r), dist - 1.5 * r), far=dist + 1.5 * r)
+
+
+def review_cameras(config, scene, caster) -> tuple[list[Camera], str]:
+    """The review cameras of a bake and where they come from: ``"config"``, ``"gltf"``, ``"auto"``, ``"default"``
+    or ``"none"``; names are unique and safe for artifact names.
+
+    ``config.evaluate.cameras`` when it is a list (the server puts the scene's stored review cameras there);
+    else the glTF's own cameras (``scene.cameras``, at most 16); else ``evaluate.cameras`` cameras placed by
+    :func:`auto_cameras` in free space inside the scene bounds; else :func:`default_camera` (an open scene).
+    ``caster`` fits the clip planes and places the automatic cameras.
+    """
+    ev = config.evaluate
+    kw = dict(width=int(ev.width), height=int(ev.height))
+    box = np.asarray(scene.bounds, np.float64)
+    specs, source = None, None
+    if isinstance(ev.cameras, (list, tuple)):
+        specs = [c.model_dump() if hasattr(c, "model_dump") else dict(c) for c in ev.cameras]
+        source = "config"
+    elif getattr(scene, "cameras", None) and int(ev.cameras) > 0:
+        specs, source = [dict(c) for c in scene.cameras][:16], "gltf"
+    if specs is not None:
+        out, taken = [], set()
+        for i, d in enumerate(specs):
+            name = d.get("name") or f"cam-{i}"
+            while name in taken:
+                name = f"{name[:28]}-{i}"
+            taken.add(name)
+            cam = Camera(d["position"], d["target"], fov_y=d.get("fov_y") or float(ev.fov_y), name=name, **kw)
+            out.append(fit_clip_planes(cam, caster, box))
+        return out, source
+    n = int(ev.cameras)
+    if n <= 0:
+        return [], "none"
+    cams = auto_cameras(caster, box, n, fov_y=float(ev.fov_y), **kw)
+    if cams:
+        return cams, "auto"
+    return [default_camera(box, fov_y=float(ev.fov_y), **kw)], "default"
+
+
+def camera_record(cam: Camera) -> dict:
+    """What the manifest records of a review camera (the ``evaluate`` stats' ``cameras``): name, position,
+    target (world space, metres), vertical fov (degrees), width, height (pixels)."""
+    return {"name": cam.name, "position": [float(x) for x in cam.position], "target": [float(x) for x in cam.target],
+            "fov": float(cam.fov_y), "width": cam.width, "height": cam.height}
