@@ -69,7 +69,7 @@ Sampling (the GLSL; :func:`sample_compressed` does the same in numpy)
 
 **Own-cell rule.** The texel coordinate is clamped to the point's own cell's S³ samples (as θ is read:
 :mod:`workers.kernels.samplers`), so the trilinear footprint never reaches a neighbouring cell. Channels of
-clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.masks.canonicalize`, so the
+clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.mask_fit.canonicalize`, so the
 shader skips them); filtering across a face would blend the free value into the neighbour, where the cluster
 may be present (with the earlier canonical 255: a bright line along a cell face of the two-rooms wall). :func:`sample_dense` reads the
 dense volume by the same rule, and dense texel d is block texel ``d − cell·S + lo``, so both filters read

@@ -63,7 +63,7 @@ homogeneous of degree 1, so scaling (normalization, masks) commutes with it, but
     along the normal (:data:`MASK_OFFSET_SAMPLES`, like DDGI-P eq 2's self-shadow bias) puts the footprint
     in front of the wall; the view term moves it towards the camera's side, away from a neighbouring wall
     at a corner (which the normal alone does not). Why the own cell: a channel is free (canonical 0,
-    :func:`workers.kernels.masks.canonicalize`) in a cell where its cluster has no probe; filtered across a
+    :func:`workers.kernels.mask_fit.canonicalize`) in a cell where its cluster has no probe; filtered across a
     face it would change that cluster's weight in the neighbour, where it is present. ``offset = 0`` reads
     at x.
     L2 (``cluster_sh_l2=``): E_k from ``cluster_sh_l2_{k}`` as :func:`leaking_l2` reads ``sh_l2``.
