@@ -25,8 +25,8 @@
 //                     linear L2 evaluation (sh.glsl shIrradianceL2Packed). uClusterSh is then not read.
 //   uClusterWeights   cluster_weights_0123 (+ _4567) stacked the same way, RGBA32F, LINEAR
 // Uniforms from the atlas meta: uMaskS (S, samples_per_cell), uMaskT (block_size), uMaskLo (border_lo);
-// uMaskOffset: refined samples (1, samplers.MASK_OFFSET_SAMPLES) the lookup moves along d = n + giViewDir, per axis
-// (g' = g + uMaskOffset·d/S on axes with more than one probe; compress.mask_lookup_texel), read from p's own cell's
+// uMaskOffset: refined samples (1, gi_modes.json mask_offset_samples) the lookup moves along d = n + giViewDir, per
+// axis (g' = g + uMaskOffset·d/S on axes with more than one probe; compress.mask_lookup_texel), read from p's own cell's
 // samples only. The normal term puts the footprint one sample in front of the surface: refined samples inside a
 // wall see no probe and hold masks filled from both sides, so a footprint half inside a thin wall weights the far
 // side's clusters by up to 1/2. The view term (DDGI-P eq 2's idea) moves it towards the camera's side, away from a

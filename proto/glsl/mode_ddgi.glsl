@@ -2,7 +2,7 @@
 // runtime twin of workers/kernels/ddgi.py sample_irradiance (without its offline `visible=` ray test: this
 // is pure DDGI). For point x, normal n, view direction ω_o (gi_view.glsl):
 //   1. self-shadow bias (DDGI-P eq 2): x_b = x + (0.2·n + 0.8·ω_o) · uDdgiBias, uDdgiBias = 0.75·D·B
-//      (D the smallest spacing, B = 0.3);
+//      (D the smallest spacing, B the bake's light.self_shadow_bias, 0.3 by default);
 //   2. the cage of x_b on the un-relocated grid: base = clamp(floor(g), 0, counts - 2), α = clamp(g - base, 0, 1);
 //   3. per corner probe i (OFF skipped), at its relocated position p_i:
 //      w = ((dot(normalize(p_i - x), n) + 1) / 2)² + 0.2                    (wrap backface, unbiased x)

@@ -85,17 +85,18 @@ from typing import Mapping
 
 import numpy as np
 
+from proto.gi_modes import MASK_OFFSET_SAMPLES
 from workers.kernels.compress import mask_lookup_texel
 from workers.kernels.grid import cage_indices, cell_coords
 from workers.kernels.sh import SH_L2_TEXELS, sh_irradiance, sh_irradiance_l1_nonlinear, sh_irradiance_l2
 
 __all__ = ["MODES", "Grid", "trilinear", "texel_fetch", "probe_uvw", "field_uvw", "field_samples_per_cell",
            "leaking", "leaking_l2", "visibility_weighted", "mask", "mask_normalized", "irradiance", "mask_values",
-           "probe_texel", "sh_l2_sample", "has_l2", "MASK_OFFSET_SAMPLES"]
+           "probe_texel", "sh_l2_sample", "has_l2"]
 
 MODES = ("leaking", "visibility_weighted", "mask", "mask_normalized")
-MASK_OFFSET_SAMPLES = 1.0
-"""Runtime default of the mask lookup's offset: refined samples (per axis) along n + v."""
+# MASK_OFFSET_SAMPLES (proto/gi_modes.json, one source with the viewer): the runtime default of the mask lookup's
+# offset, refined samples (per axis) along n + v
 
 
 class Grid:
