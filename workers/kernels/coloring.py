@@ -158,7 +158,7 @@ def coloring_loss(pairs, weights, g, regularization=0.0) -> tuple[float, float]:
     w = np.asarray(weights, np.float64)
     g = np.asarray(g).reshape(-1)
     same = g[pairs[:, 0]] == g[pairs[:, 1]]
-    return float(w[same].sum()), float(regularization) * float((~same).sum())
+    return float(w[same].sum()), float(regularization) * float((~same).sum())  # MD eq 7, eq 8
 
 
 def random_loss(pairs, weights, P: int, K: int, seed: int = 0, trials: int = 8) -> float:
@@ -176,7 +176,7 @@ def parity_coloring(counts) -> np.ndarray:
     nx, ny, nz = (int(v) for v in check_counts(counts))
     p = np.arange(nx * ny * nz)
     i, j, k = p % nx, (p // nx) % ny, p // (nx * ny)
-    return ((i & 1) | ((j & 1) << 1) | ((k & 1) << 2)).astype(np.int64)
+    return ((i & 1) | ((j & 1) << 1) | ((k & 1) << 2)).astype(np.int64)  # MD eq 4
 
 
 def convex_division(counts, K: int, spacing=None) -> np.ndarray:
@@ -211,7 +211,7 @@ def convex_division(counts, K: int, spacing=None) -> np.ndarray:
         split(lo, hi1, k0, k1)
         split(lo2, hi, k0 + k1, k - k1)
 
-    split([0, 0, 0], [nx, ny, nz], 0, K)
+    split([0, 0, 0], [nx, ny, nz], 0, K)  # MD §3.4.1 step 3: the initial g, a convex division
     return g.reshape(-1)
 
 
@@ -272,13 +272,13 @@ def _anneal_kernel(indptr, nbr, w, order, g, K, temps, seed, ei, ej, ew, lam, lo
                 acc[c] = 0.0
             for e in range(indptr[i], indptr[i + 1]):
                 acc[g[nbr[e]]] += w[e]
-            delta = acc[b] - acc[a]
+            delta = acc[b] - acc[a]  # change of MD eq 7 + eq 8 when i moves from a to b
             if delta > 0.0:
                 if T <= 0.0:
                     continue
                 state, r = _next(state)
                 u = np.float64(r >> _S11) * _INV53
-                if u >= math.exp(-delta / T):
+                if u >= math.exp(-delta / T):  # Metropolis acceptance (MD §3.3: simulated annealing)
                     continue
             g[i] = b
             cur += delta
@@ -366,7 +366,7 @@ def anneal(pairs, weights, P: int, K: int, *, sweeps: int = 1000, regularization
     # CSR adjacency, both directions, weights E − λ
     src = np.concatenate([pairs[:, 0], pairs[:, 1]])
     dst = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    ww = np.concatenate([w, w]) - lam
+    ww = np.concatenate([w, w]) - lam  # w_ij = E_ij − λ: MD eq 7 (same colour) against eq 8 (different)
     o = np.argsort(src, kind="stable")
     src, dst, ww = src[o], dst[o], ww[o]
     indptr = np.zeros(P + 1, np.int64)

@@ -126,7 +126,7 @@ def corner_weight(c, fx, fy, fz):
     wx = fx if c & 1 else 1.0 - fx
     wy = fy if (c >> 1) & 1 else 1.0 - fy
     wz = fz if (c >> 2) & 1 else 1.0 - fz
-    return wx * wy * wz
+    return wx * wy * wz  # φ_i(x) of MD eq 2-3
 
 
 @numba.njit(cache=True, inline="always")

@@ -81,7 +81,7 @@ def _fit_kernel(theta, dc, cx, cy, cz, tx, ty, tz, nx, ny, nz, g, off, K, out):
                     wts[k, cnt[k]] = ph
                     cnt[k] += 1
                 for k in range(K):
-                    # eq 5 per cluster: argmin_m Σ_{i: g_i = k} φ_i |θ_i − m|, the φ-weighted median
+                    # MD eq 5 per cluster: argmin_m Σ_{i: g_i = k} φ_i |θ_i − m|, the φ-weighted median
                     out[z, y, x, k] = _weighted_median(vals[k], wts[k], cnt[k]) if cnt[k] > 0 else 0.0
 
 
@@ -125,7 +125,7 @@ def _residual_kernel(theta, dc, cx, cy, cz, tx, ty, tz, nx, ny, nz, g, off, m):
                         continue
                     ph = corner_weight(c, tx[x], ty[y], tz[z])
                     th = theta[z, y, x, c] * (1.0 / 255.0)
-                    r += ph * abs(th - m[z, y, x, g[p]])  # eq 5
+                    r += ph * abs(th - m[z, y, x, g[p]])  # MD eq 5
                     mass += ph * th
     return r, mass
 
@@ -175,8 +175,8 @@ def _light_fit_kernel(theta, dc, cx, cy, cz, tx, ty, tz, nx, ny, nz, g, off, sh,
                     th = theta[z, y, x, c] * (1.0 / 255.0)
                     k = g[p]
                     for d in range(D):
-                        A[d, k] += ph * sh[p, d]        # cluster k's volume at x: Σ_i φ_i g_i^k P_i
-                        b[d] += th * ph * sh[p, d]      # eq 2
+                        A[d, k] += ph * sh[p, d]        # cluster k's volume at x: Σ_i φ_i g_i^k P_i (MD eq 3)
+                        b[d] += th * ph * sh[p, d]      # MD eq 2
                     wsum += th * ph
                 if wsum > 0.0:
                     for d in range(D):
@@ -184,7 +184,7 @@ def _light_fit_kernel(theta, dc, cx, cy, cz, tx, ty, tz, nx, ny, nz, g, off, sh,
                 else:
                     b[:] = 0.0
                 for k in range(K):
-                    pen[k] = 1.0 if m[z, y, x, k] == 0.0 else 0.0   # eq 9: channels 0 before the fit
+                    pen[k] = 1.0 if m[z, y, x, k] == 0.0 else 0.0   # MD eq 9: channels 0 before the fit
                     hk = 0.0
                     for d in range(D):
                         hk += A[d, k] * b[d]
@@ -218,6 +218,7 @@ def _light_fit_kernel(theta, dc, cx, cy, cz, tx, ty, tz, nx, ny, nz, g, off, sh,
 
 @numba.njit(cache=True, inline="always")
 def _objective(G, h, bb, mv, pen, lam_scaled, K):
+    """MD eq 9 at one sample: ‖A m − b‖² + λ'·Σ_k pen_k m_k, with G = AᵀA, h = Aᵀb, bb = ‖b‖²."""
     s = bb
     for k in range(K):
         s -= 2.0 * h[k] * mv[k]
@@ -406,7 +407,7 @@ def gaussian_filter(masks, sigma: float, *, keep_zeros: bool = True) -> np.ndarr
     k = _gauss_kernel(sigma)
     out = m.astype(np.float32)
     for axis in range(3):  # separable, clamp-to-edge ("nearest"); scipy's C loop, float32
-        out = correlate1d(out, k.astype(np.float32), axis=axis, mode="nearest")
+        out = correlate1d(out, k.astype(np.float32), axis=axis, mode="nearest")  # MD §3.4.1 step 6
     if keep_zeros:
         out[m == 0] = 0.0
     return np.clip(out, 0.0, 1.0, out=out)
@@ -445,7 +446,7 @@ def cluster_volumes(sh_l1, g, K: int, states=None) -> tuple[list[np.ndarray], np
     weights = np.zeros((P, int(K)), np.float32)
     weights[np.arange(P)[on], g[on]] = 1.0
     weights = weights.reshape(nz, ny, nx, int(K))
-    vols = [sh * weights[..., k][..., None, None] for k in range(int(K))]
+    vols = [sh * weights[..., k][..., None, None] for k in range(int(K))]  # g_i^k · P_i of MD eq 3
     return vols, weights
 
 
@@ -482,7 +483,7 @@ def canonicalize(q: np.ndarray, dont_care: np.ndarray, counts, S: int, g, K: int
     Z, Y, X = q.shape[:3]
     rel = relevant[np.arange(Z)[:, None, None] // S, np.arange(Y)[None, :, None] // S,
                    np.arange(X)[None, None, :] // S]                       # (Z, Y, X, K)
-    out = np.where(rel, q, np.uint8(0))
+    out = np.where(rel, q, np.uint8(0))  # m_k = 0 unmarks cluster k (MD §1: sample marked volumes only)
     dc = np.asarray(dont_care, bool).reshape(Z, Y, X)
     deep = dc & ~binary_dilation(~dc, structure=np.ones((3, 3, 3), bool))
     out[deep] = 0
