@@ -64,9 +64,9 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 cells = max(uGridCounts - 1.0, vec3(1.0));
   vec3 g = giGridCoord(p) + 0.5 * (1.0 - live);
   vec3 cell = clamp(floor(g), vec3(0.0), cells - 1.0);
-  g += live * (uMaskOffset / uMaskS) * (n + giViewDir);
+  g += live * (uMaskOffset / uMaskS) * (n + giViewDir);  // biased along n + v, the idea of DDGI-P eq 2
   vec3 t = clamp(g * uMaskS - 0.5, cell * uMaskS, cell * uMaskS + uMaskS - 1.0);
-  vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);
+  vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);  // the cell's cube (MD §3.4.2)
   vec3 tc = blk * uMaskT + (t - cell * uMaskS + uMaskLo) + 0.5;
   m0 = texture(uMaskAtlas0123, tc / vec3(textureSize(uMaskAtlas0123, 0)));
   m1 = vec4(0.0);
@@ -112,7 +112,7 @@ vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
   int list = 0;
   for (int k = 0; k < KILN_MASK_CLUSTERS; ++k) {
     float mk = k < 4 ? m0[k] : m1[k - 4];
-    if (k < uClusterCount && mk > 0.0) {
+    if (k < uClusterCount && mk > 0.0) {  // sample only the clusters whose masks are marked (MD §1)
       list |= k << (3 * count);
       count += 1;
     }
@@ -121,7 +121,7 @@ vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
   vec3 e = vec3(0.0);
   for (int i = 0; i < count; ++i) {
     int k = (list >> (3 * i)) & 7;
-    e += giClusterTerm(texel, k, slots, k < 4 ? m0[k] : m1[k - 4], n);
+    e += giClusterTerm(texel, k, slots, k < 4 ? m0[k] : m1[k - 4], n);  // m_x · (g ⊗ P)_x, MD eq 3
   }
   den = 1.0;
   if (normalized) {
