@@ -85,6 +85,7 @@ from typing import Mapping
 
 import numpy as np
 
+from proto import gi_modes
 from proto.gi_modes import MASK_OFFSET_SAMPLES
 from workers.kernels.compress import mask_lookup_texel
 from workers.kernels.grid import cage_indices, cell_coords
@@ -417,15 +418,11 @@ def mask_normalized(points, normals, masks, cluster_sh, cluster_weights, grid, o
 
 def has_l2(mode: str, arrays: Mapping) -> bool:
     """Whether the bake's arrays hold the L2 volumes ``mode`` reads (``sh_l2``; ``cluster_sh_l2_{k}`` for every
-    cluster of the mask modes)."""
-    if mode in ("leaking", "visibility_weighted"):
-        return "sh_l2" in arrays
-    if mode in ("mask", "mask_normalized"):
-        K = 0
-        while f"cluster_sh_{K}_r" in arrays:
-            K += 1
-        return K > 0 and all(f"cluster_sh_l2_{k}" in arrays for k in range(K))
-    return False
+    cluster of the mask modes): the mode's ``l2_needs`` in ``proto/gi_modes.json`` (visibility_weighted reads
+    leaking's volumes)."""
+    if mode not in MODES:
+        return False
+    return gi_modes.has_l2("leaking" if mode == "visibility_weighted" else mode, arrays)
 
 
 def irradiance(mode: str, arrays: Mapping, grid, points, normals,
