@@ -22,6 +22,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, field_validator, model_validator
 
+from proto.gi_modes import SELF_SHADOW_BIAS
+
 FORMAT_VERSION = 1
 """Bundle format version written into every manifest (see proto/bundle.md)."""
 
@@ -222,7 +224,8 @@ class LightSection(_Strict):
                                          "every probe")
     irradiance_texels: Int = Field(8, ge=4, le=32, description="octahedral irradiance map size per probe (+1 border)")
     sh_order: Literal[1, 2] = Field(2, description="spherical-harmonics order of the per-probe SH output")
-    self_shadow_bias: Float = Field(0.3, ge=0.0, le=2.0, description="B of DDGI-P eq 2")
+    self_shadow_bias: Float = Field(SELF_SHADOW_BIAS, ge=0.0, le=2.0,
+                                    description="B of DDGI-P eq 2")  # default: proto/gi_modes.json
 
     @field_validator("sh_order", mode="before")
     @classmethod

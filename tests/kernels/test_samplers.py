@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from workers.kernels import masks as M
+from workers.kernels import mask_fit as M
 from workers.kernels import samplers as SM
+from workers.kernels.coloring import parity_coloring
 from workers.kernels.sh import SH_C0, sh_irradiance, sh_irradiance_l1_nonlinear
 
 
@@ -174,7 +175,7 @@ def test_parity_masks_reproduce_visibility_weighting_at_samples():
     theta = rng.integers(0, 256, shape + (8,)).astype(np.uint8)
     theta[rng.random(shape + (8,)) < 0.4] = 0
     dc = rng.random(shape) < 0.1
-    gcol = M.parity_coloring(g.counts)
+    gcol = parity_coloring(g.counts)
     m = M.fit_masks(theta, dc, g.counts, S, gcol, 8)
     m, _ = M.fill_dont_care(m, dc)
     q = M.quantize(m)

@@ -70,7 +70,7 @@ Sampling (the GLSL; :func:`sample_compressed` does the same in numpy)
 
 **Own-cell rule.** The texel coordinate is clamped to the point's own cell's S³ samples (as θ is read:
 :mod:`workers.kernels.samplers`), so the trilinear footprint never reaches a neighbouring cell. Channels of
-clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.masks.canonicalize`, so the
+clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.mask_fit.canonicalize`, so the
 shader skips them); filtering across a face would blend the free value into the neighbour, where the cluster
 may be present (with the earlier canonical 255: a bright line along a cell face of the two-rooms wall). :func:`sample_dense` reads the
 dense volume by the same rule, and dense texel d is block texel ``d − cell·S + lo``, so both filters read
@@ -161,7 +161,7 @@ def _block_views(volume: np.ndarray, S: int, cells, lo: int, hi: int = 1) -> np.
     """Read-only view (cz, cy, cx, T, T, T, 4) of the blocks of an edge-padded volume: block texel a
     of cell c is dense sample ``clamp(c·S − lo + a)``, T = S + lo + hi."""
     padded = np.pad(volume, ((lo, hi), (lo, hi), (lo, hi), (0, 0)), mode="edge")
-    T = S + lo + hi
+    T = S + lo + hi  # MD §3.4.2: one cube per cell ("formed by 8 probes"), plus the layout's border
     cx, cy, cz = (int(c) for c in cells)
     sz, sy, sx, sc = padded.strides
     return np.lib.stride_tricks.as_strided(
@@ -200,7 +200,7 @@ def _unique_blocks(views: list[np.ndarray], cells) -> tuple[np.ndarray, np.ndarr
         row = of_cell[k].reshape(-1)
         for i in range(cy * cx):
             key = flat[i].tobytes()
-            u = index.get(key)
+            u = index.get(key)  # MD §3.4.2: cubes with the same mask data are merged
             if u is None:
                 u = index[key] = len(uniq)
                 uniq.append(flat[i])
@@ -313,7 +313,7 @@ def compress_masks(volumes, counts, S: int, tolerance: float = 0.0, layout: str 
     atlases = [np.ascontiguousarray(grid[v].reshape(bz * T, by * T, bx * T, 4)) for v in range(V)]
 
     s = slot_of_cell
-    indirection = np.zeros(of_cell.shape + (4,), np.uint8)
+    indirection = np.zeros(of_cell.shape + (4,), np.uint8)  # MD §3.4.2: one indirection volume indexes the cubes
     indirection[..., 0] = s % bx
     indirection[..., 1] = (s // bx) % by
     indirection[..., 2] = s // (bx * by)
@@ -359,7 +359,7 @@ def decompress(atlas: np.ndarray, indirection: np.ndarray, meta: dict) -> np.nda
             for i in range(cx):
                 x0, y0, z0 = b[k, j, i] * T + lo
                 out[k * S:(k + 1) * S, j * S:(j + 1) * S, i * S:(i + 1) * S] = \
-                    atlas[z0:z0 + S, y0:y0 + S, x0:x0 + S]
+                    atlas[z0:z0 + S, y0:y0 + S, x0:x0 + S]  # MD §3.4.2 undone: the cell's cube via the indirection
     return out
 
 
@@ -506,7 +506,8 @@ def sample_compressed(atlas: np.ndarray, indirection: np.ndarray, meta: dict, po
     one, f_s = dtype(1), dtype(S)
     ts, cell = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype)
     ci = cell.astype(np.int64)
-    blk = indirection[ci[:, 2], ci[:, 1], ci[:, 0], :3].astype(dtype)        # floor(texelFetch·255 + 0.5)
+    # floor(texelFetch·255 + 0.5): MD §3.4.2's "one additional sampling call" at run time
+    blk = indirection[ci[:, 2], ci[:, 1], ci[:, 0], :3].astype(dtype)
     inv_size = one / np.array(atlas.shape[2::-1], np.float64).astype(dtype)
     reads = []
     for t in ts:

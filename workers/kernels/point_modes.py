@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from proto.gi_modes import SELF_SHADOW_BIAS
 from workers.kernels import samplers as SM
 from workers.kernels.ddgi import cage_probes
 from workers.kernels.grid import OFF
@@ -58,8 +59,8 @@ class MaskArrays(dict):
 
 
 def _mask_sh_order(arrays, grid) -> int | None:
+    from proto.gi_modes import MAX_3D_TEXTURE_DEPTH, cluster_count
     from workers.kernels.sh import sh_l2_atlas_depth
-    from workers.render.shading import MAX_3D_TEXTURE_DEPTH, cluster_count
 
     K = cluster_count(arrays)
     nz = int(grid["counts"][2])
@@ -68,7 +69,7 @@ def _mask_sh_order(arrays, grid) -> int | None:
     return None
 
 
-def mode_irradiance(mode: str, arrays, grid, points, normals, views, *, self_shadow_bias: float = 0.3,
+def mode_irradiance(mode: str, arrays, grid, points, normals, views, *, self_shadow_bias: float = SELF_SHADOW_BIAS,
                     lights=(), caster=None, prt_model=None) -> np.ndarray:
     """(N, 3) float64 indirect irradiance of ``mode`` at ``points`` with unit ``normals`` (see the module doc).
 
