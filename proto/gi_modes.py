@@ -16,7 +16,7 @@ from collections.abc import Collection, Mapping
 from pathlib import Path
 
 __all__ = ["SPEC", "MODES", "MODE_IDS", "KINDS", "GRID_UNIFORMS", "SELF_SHADOW_BIAS", "BIAS_SPACING_FRACTION",
-           "MASK_OFFSET_SAMPLES", "MAX_LIGHTS", "PRT_MAX_GROUPS", "MAX_3D_TEXTURE_DEPTH", "MAX_TEXTURE_SIZE",
+           "MASK_OFFSET_SAMPLES", "MASK_SEEN_THRESHOLD", "MASK_BLEND", "MAX_LIGHTS", "PRT_MAX_GROUPS", "MAX_3D_TEXTURE_DEPTH", "MAX_TEXTURE_SIZE",
            "cluster_count", "expand", "has_l2", "texture_bindings", "mode_defines", "self_shadow_bias"]
 
 SPEC: dict = json.loads((Path(__file__).resolve().parent / "gi_modes.json").read_text(encoding="utf-8"))
@@ -32,6 +32,11 @@ BIAS_SPACING_FRACTION: float = float(_C["bias_spacing_fraction"])
 """The 0.75 of DDGI-P eq 2: the bias is 0.75·D·B metres, D the smallest probe spacing."""
 MASK_OFFSET_SAMPLES: float = float(_C["mask_offset_samples"])
 """uMaskOffset: refined samples (per axis) the mask lookup moves along n + v."""
+MASK_SEEN_THRESHOLD: float = float(_C["mask_seen_threshold"])
+"""uMaskSeen: a cluster's mask at the point from which it counts as seen there (the lookup's both-sides blend)."""
+MASK_BLEND: tuple[float, float] = tuple(float(x) for x in _C["mask_blend"])
+"""uMaskBlend: shares of the offset read's clusters seen at the point between which the lookup goes from the point's
+read to the offset read."""
 MAX_LIGHTS: int = int(_C["max_lights"])
 """Lights a shading pass takes (lights.glsl)."""
 PRT_MAX_GROUPS: int = int(_C["prt_max_groups"])

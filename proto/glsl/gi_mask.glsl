@@ -55,6 +55,8 @@ uniform float uMaskS;
 uniform float uMaskT;
 uniform float uMaskLo;
 uniform float uMaskOffset;
+uniform float uMaskSeen;   // proto/gi_modes.json mask_seen_threshold (0.1)
+uniform vec2 uMaskBlend;   // proto/gi_modes.json mask_blend (0.25, 0.5)
 
 // The compressed masks of clusters 0-3 (atlas 0) or 4-7 (atlas 1) at the mask lookup point of (p, n)
 // (workers/kernels/compress.py module doc, "Sampling"; mask_lookups): uMaskOffset samples along n + giViewDir, blended
@@ -68,9 +70,9 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 lo = cell * uMaskS, hi = cell * uMaskS + uMaskS - 1.0;
   vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);  // the cell's cube (MD §3.4.2)
   // both sides (compress.mask_lookups, lookup_blend): the read moved uMaskOffset samples along n + v (a) and the read
-  // at p itself (b); seen = sum(a * min(b / 0.1, 1)) / sum(a) over the lookup's channels (the share of a's clusters
-  // that p sees too, compress.MASK_PRESENT); m = mix(b, a, s), s rising from 0 at seen 0.25 to 1 at 0.5
-  // (compress.MASK_OVERLAP): a surface's offset read holds its own side's clusters, which its footprint holds too
+  // at p itself (b); seen = sum(a * min(b / uMaskSeen, 1)) / sum(a) over the lookup's channels (the share of a's
+  // clusters that p sees too); m = mix(b, a, s), s rising from 0 at seen uMaskBlend.x to 1 at uMaskBlend.y
+  // (compress.lookup_blend): a surface's offset read holds its own side's clusters, which its footprint holds too
   // (a); an offset that crossed a surface reads what p does not see (b)
   // t1 biased along n + v, the idea of DDGI-P eq 2
   vec3 t1 = clamp((g + live * (uMaskOffset / uMaskS) * (n + giViewDir)) * uMaskS - 0.5, lo, hi);
@@ -87,8 +89,8 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
     b1 = texture(uMaskAtlas4567, tc0 / size1);
   }
 #endif
-  float seen = dot(a0, min(b0 / 0.1, vec4(1.0))) + dot(a1, min(b1 / 0.1, vec4(1.0)));
-  float s = clamp((seen / max(dot(a0 + a1, vec4(1.0)), 1e-6) - 0.25) / 0.25, 0.0, 1.0);
+  float seen = dot(a0, min(b0 / uMaskSeen, vec4(1.0))) + dot(a1, min(b1 / uMaskSeen, vec4(1.0)));
+  float s = clamp((seen / max(dot(a0 + a1, vec4(1.0)), 1e-6) - uMaskBlend.x) / (uMaskBlend.y - uMaskBlend.x), 0.0, 1.0);
   m0 = mix(b0, a0, s);
   m1 = mix(b1, a1, s);
 }

@@ -101,6 +101,8 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from proto.gi_modes import MASK_BLEND, MASK_SEEN_THRESHOLD
+
 __all__ = ["CompressedMasks", "atlas_layout", "compress_masks", "decompress", "cells_of",
            "sample_dense", "sample_compressed", "texture_linear", "sample_error", "mask_lookup_texel", "mask_lookups", "lookup_blend", "MASK_OVERLAP", "MASK_PRESENT", "LAYOUTS",
            "PREFERRED_TEXELS",
@@ -431,11 +433,13 @@ def mask_lookup_texel(points, counts, origin, spacing, S: int, dirs=None, sample
     return t, cell
 
 
-MASK_PRESENT = 0.1
-"""A cluster whose mask at the point is at least this counts as fully seen there (:func:`lookup_blend`)."""
-MASK_OVERLAP = (0.25, 0.5)
+MASK_PRESENT = MASK_SEEN_THRESHOLD
+"""A cluster whose mask at the point is at least this counts as seen there (:func:`lookup_blend`;
+``proto/gi_modes.json`` ``mask_seen_threshold``, the GLSL's ``uMaskSeen``)."""
+MASK_OVERLAP = MASK_BLEND
 """The both-sides blend of a mask lookup (:func:`lookup_blend`): the offset read wins fully where the point sees at
-least ``MASK_OVERLAP[1]`` of its clusters, the read at the point where at most ``MASK_OVERLAP[0]``, linear between."""
+least ``MASK_OVERLAP[1]`` of its clusters, the read at the point where at most ``MASK_OVERLAP[0]``, linear between
+(``proto/gi_modes.json`` ``mask_blend``, the GLSL's ``uMaskBlend``)."""
 
 
 def mask_lookups(points, counts, origin, spacing, S: int, dirs=None, samples: float = 0.0,

@@ -52,7 +52,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from proto import gi_modes
-from proto.gi_modes import (KINDS, MASK_OFFSET_SAMPLES, MAX_3D_TEXTURE_DEPTH, MAX_LIGHTS, MAX_TEXTURE_SIZE, MODE_IDS,
+from proto.gi_modes import (KINDS, MASK_BLEND, MASK_OFFSET_SAMPLES, MASK_SEEN_THRESHOLD, MAX_3D_TEXTURE_DEPTH, MAX_LIGHTS, MAX_TEXTURE_SIZE, MODE_IDS,
                             PRT_MAX_GROUPS, SELF_SHADOW_BIAS)
 from proto.glsl_preprocess import ShaderSourceError, format_compile_errors, load_sources, preprocess
 from workers.kernels.ddgi import bias_scale
@@ -277,7 +277,8 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = SELF_SHAD
         S = int(mask_meta["samples_per_cell"])
         r.uniforms.update(uClusterCount=K, uMaskS=float(S),
                           uMaskT=float(mask_meta["block_size"]), uMaskLo=float(mask_meta["border_lo"]),
-                          uMaskOffset=float(mask_offset_samples))
+                          uMaskOffset=float(mask_offset_samples), uMaskSeen=MASK_SEEN_THRESHOLD,
+                          uMaskBlend=tuple(MASK_BLEND))
         r.info.update(clusters=K)
         return r
     # prt

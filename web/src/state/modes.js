@@ -114,10 +114,15 @@ export function maskParams({ names, info, bake, grid }) {
  * grid's own units.
  */
 export const MASK_OFFSET_SAMPLES = CONST.mask_offset_samples;
+/** uMaskSeen, uMaskBlend: the mask lookup's both-sides blend (proto/gi_modes.json mask_seen_threshold, mask_blend;
+ * workers/kernels/compress.py lookup_blend). */
+export const MASK_SEEN_THRESHOLD = CONST.mask_seen_threshold;
+export const MASK_BLEND = CONST.mask_blend;
 
 function maskUniforms(ctx) {
   const { S, T, lo } = maskParams(ctx);
-  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo, uMaskOffset: MASK_OFFSET_SAMPLES };
+  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo, uMaskOffset: MASK_OFFSET_SAMPLES,
+    uMaskSeen: MASK_SEEN_THRESHOLD, uMaskBlend: MASK_BLEND };
 }
 
 /** B of DDGI-P eq 2 where a bake does not give light.self_shadow_bias (proto/gi_modes.json self_shadow_bias). */
