@@ -33,8 +33,8 @@ class StageDef:
     parent: str | None = None
 
 
-REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "check_spp", "preview_spp", "bounces",
-                    "surface_points", "sampling", "points", "previews")
+REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "check_spp", "dark_spp", "preview_spp",
+                    "bounces", "surface_points", "sampling", "points", "previews")
 """The ``evaluate`` fields the ``reference`` stage reads (its cache key): not the modes, repeats or FLIP."""
 
 STAGES: tuple[StageDef, ...] = (

@@ -54,3 +54,26 @@ def test_irradiance_at_points_of_nothing():
     e_dir, e_ind, err, stats = irradiance_at_points(_far_triangle(), np.zeros((0, 3)), np.zeros((0, 3)),
                                                     np.zeros((0, 3)), report=seen.append)
     assert e_dir.shape == e_ind.shape == err.shape == (0, 3) and stats == {} and seen == [1.0]
+
+
+def test_refine_dark_pools_more_paths_where_the_reference_is_dark():
+    """Points at most DARK_FRACTION of the mean luminance get dark_spp - spp more paths, pooled by path count."""
+    from workers.kernels.reference import DARK_FRACTION, refine_dark
+
+    e = np.array([[1.0] * 3, [1.0] * 3, [0.05] * 3, [0.001] * 3])       # mean 0.51: 2 and 3 are dark
+    s = np.full((4, 3), 0.04)
+    asked = []
+
+    def trace(idx, n):
+        asked.append((idx.tolist(), n))
+        return np.full((len(idx), 3), 0.02), np.full((len(idx), 3), 0.01)
+
+    e2, s2, idx = refine_dark(trace, e, s, 64, 1024)
+    assert 0.05 <= DARK_FRACTION * 0.51 and asked == [([2, 3], 960)] and idx.tolist() == [2, 3]
+    np.testing.assert_allclose(e2[2], (64 * 0.05 + 960 * 0.02) / 1024)
+    np.testing.assert_allclose(e2[3], (64 * 0.001 + 960 * 0.02) / 1024)
+    np.testing.assert_allclose(s2[3], np.sqrt((64 * 0.04) ** 2 + (960 * 0.01) ** 2) / 1024)
+    np.testing.assert_array_equal(e2[:2], e[:2])
+    # nothing more when dark_spp <= spp, or nothing is dark
+    assert refine_dark(trace, e, s, 64, 64)[2].size == 0 and len(asked) == 1
+    assert refine_dark(trace, np.ones((3, 3)), s[:3], 64, 1024)[2].size == 0 and len(asked) == 1

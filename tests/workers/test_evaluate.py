@@ -140,7 +140,7 @@ def test_settings_of_records_the_evaluate_section():
     assert list(d) == list(SETTINGS)
     assert d == {"cameras": 3, "width": 160, "height": 120, "fov_y": 60.0, "spp": 64, "preview_spp": 4,
                  "bounces": None, "surface_points": 2048, "sampling": "cameras", "previews": 1, "modes": None,
-                 "repeats": 3, "flip": False}
+                 "repeats": 0, "flip": False}
     cam = settings_of(BakeConfig.model_validate({"evaluate": {"cameras": [{"position": [0, 1, 2],
                                                                           "target": [0, 1, 0]}]}}))["cameras"]
     assert cam == [{"position": (0.0, 1.0, 2.0), "target": (0.0, 1.0, 0.0)}]          # no fov_y, no name

@@ -13,10 +13,11 @@ import time
 
 import numpy as np
 
+from workers.kernels import metrics as MT
 from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, scene_eps
 from workers.kernels.shading import direct_irradiance
 
-__all__ = ["irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
+__all__ = ["refine_dark", "DARK_FRACTION", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
 
 
 def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), caster=None, eps=None, spp: int = 64,
@@ -110,3 +111,32 @@ def irradiance_at_points(scene, points, normals, geo_normals, lights=(), *, sky=
                  batches=int(math.ceil(n / batch_points)), rr_kills=int(res.stats["rr_kills"]),
                  vertices=int(res.stats["vertices"]), below_surface=int(res.stats["below_surface"]))
     return e_dir, e_ind, err, stats
+
+
+DARK_FRACTION = 2 * MT.LEAK_TAU
+"""Surface points whose reference luminance is at most this fraction of the mean get ``dark_spp`` paths
+(:func:`refine_dark`): twice the leak metric's threshold, so that points near it are refined too."""
+
+
+def refine_dark(trace, e_indirect, stderr, spp: int, dark_spp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """More paths where the reference is dark: the leak metrics (:mod:`workers.kernels.point_metrics`) are means over
+    the points whose reference is at most 5% of the mean, where its relative noise is largest.
+
+    ``trace(index, paths)`` path-traces the points ``index`` with ``paths`` more paths each (another seed) and
+    returns their ``(e_indirect, stderr)``; ``e_indirect``, ``stderr`` (N, 3): the first pass's ``spp`` paths.
+    Points with luminance at most :data:`DARK_FRACTION` of the mean get ``dark_spp − spp`` more; the two estimates
+    are pooled by path count: ``E = (n₁E₁ + n₂E₂)/(n₁ + n₂)``, ``s = sqrt(n₁²s₁² + n₂²s₂²)/(n₁ + n₂)``.
+    Returns the new (N, 3) arrays and the refined indices.
+    """
+    e = np.array(e_indirect, np.float64)
+    s = np.array(stderr, np.float64)
+    y = MT.luminance(e)
+    mean = float(y.mean()) if len(y) else 0.0
+    idx = np.flatnonzero(y <= DARK_FRACTION * mean) if mean > 0 else np.zeros(0, np.int64)
+    n1, n2 = int(spp), int(dark_spp) - int(spp)
+    if n2 <= 0 or idx.size == 0:
+        return e, s, np.zeros(0, np.int64)
+    e2, s2 = trace(idx, n2)
+    e[idx] = (n1 * e[idx] + n2 * np.asarray(e2, np.float64)) / (n1 + n2)
+    s[idx] = np.sqrt((n1 * s[idx]) ** 2 + (n2 * np.asarray(s2, np.float64)) ** 2) / (n1 + n2)
+    return e, s, idx

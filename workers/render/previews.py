@@ -5,7 +5,8 @@
   shadow masks the deferred pass needs.
 - :func:`mode_previews`: per stored preview camera, each GI mode's deferred pass (:mod:`workers.render.shading`,
   the proto/glsl mode shaders) on the reference's G-buffer: the tone-mapped image, its error heatmap (MD Fig 3
-  bottom row, :data:`HEATMAP_VMAX`), the pass's wall time (median of ``repeats``), image-space RMSE (MD §4.2),
+  bottom row, :data:`HEATMAP_VMAX`), the pass's wall time (median of ``repeats`` after a warm-up; with ``repeats``
+  0, the default, the wall time of the preview's second draw: no draw beyond the two pictures), image-space RMSE (MD §4.2),
   FLIP and leak against the preview reference, and a contact sheet.
 - :func:`prt_resources`: the PRT mode's textures and uniforms for the bake's lights.
 
@@ -15,6 +16,7 @@ and ``evaluate``.
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 
@@ -168,11 +170,17 @@ def mode_previews(ref, rdoc: dict, modes: list[str], resources: dict, lights, su
                 pictures.append(_picture(f"eval_{name}_reference", ref_ldr,
                                          f"path-traced preview reference ({ref.stats.get('preview_spp')} spp), {name}",
                                          {"camera": name, "exposure": k}))
-                timings = shader.time_passes(modes, cam.position, repeats, warmup=ci == 0)
+                # repeats 0 (the default): no extra draw; the pass time is that of the second draw below (the first
+                # one of a mode may include its shader's JIT compilation on llvmpipe)
+                timings = shader.time_passes(modes, cam.position, repeats, warmup=ci == 0) if repeats > 0 else {}
                 cm = {"camera": name, "pixels": int(sel.sum()), "exposure": k, "modes": {}}
                 for m in modes:
                     rad = shader.render(m, 0, cam.position)
-                    ind = shader.render(m, 1, cam.position)
+                    t0 = time.perf_counter()
+                    ind = shader.render(m, 1, cam.position)                      # draw + read back (= finish)
+                    if m not in timings:
+                        dt = time.perf_counter() - t0
+                        timings[m] = {"median_s": dt, "min_s": dt, "repeats": 1}
                     ldr = MT.tonemap(rad, k)
                     err = MT.pixel_error(ldr, ref_ldr)                           # MD §4.2 E(x)
                     fl = MT.flip_mean(ldr, ref_ldr, sel) if flip and sel.any() else None
