@@ -43,6 +43,7 @@ Consumers: workers/render/gbuffer.py, the reference and evaluate stages, the ref
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -315,33 +316,37 @@ def auto_cameras(caster, bounds, count: int = 3, *, candidates=None, per_axis: i
     gw, gh = 12, 9
     jj, ii = np.meshgrid((np.arange(gw) + 0.5) / gw * width, (np.arange(gh) + 0.5) / gh * height)
     centre = (np.abs(ii - height / 2) <= height / 4) & (np.abs(jj - width / 2) <= width / 4)
+    # the pixel directions of a view direction do not depend on the camera's position: one set for all candidates
+    rd = np.concatenate([Camera(np.zeros(3), v, fov_y=fov_y, width=width, height=height)
+                         .pixel_directions(ii.ravel(), jj.ravel()) for v in vd])            # (K·108, 3)
+    K, n_px = len(vd), gw * gh
+    hh = caster.intersect(np.repeat(cand, len(rd), axis=0), np.tile(rd, (len(cand), 1)))
+    front_all = (hh.hit & ~hh.backface).reshape(len(cand), K, n_px)
+    t_all = hh.t.reshape(len(cand), K, n_px).astype(np.float64)
+    bins_all = _normal_bins(tri_n[np.where(hh.hit, hh.tri, 0)]).reshape(len(cand), K, n_px)
+    rows = np.repeat(np.arange(K), n_px).reshape(K, n_px)
     best = []
-    for ci, p in enumerate(cand):
-        rd = np.concatenate([Camera(p, p + v, fov_y=fov_y, width=width, height=height)
-                             .pixel_directions(ii.ravel(), jj.ravel()) for v in vd])
-        hh = caster.intersect(np.broadcast_to(p, rd.shape), rd)
-        front = (hh.hit & ~hh.backface).reshape(len(vd), -1)
-        tt = hh.t.reshape(len(vd), -1).astype(np.float64)
-        bins = _normal_bins(tri_n[np.where(hh.hit, hh.tri, 0)]).reshape(len(vd), -1)
-        scores = np.zeros(len(vd))
-        meta = []
-        for k in range(len(vd)):
-            f = front[k]
-            cov = float(f.mean())
-            if f.sum() < 4:
-                meta.append((cov, 0.0, 0.0, math.inf, 0))
-                continue
-            spread = float(np.log(tt[k][f]).std())
-            med = float(np.median(tt[k][f]))
-            counts = np.bincount(bins[k][f], minlength=27)
-            surfaces = int((counts >= 0.05 * f.sum()).sum())
-            cmask = f & centre.ravel()
-            target_t = float(np.median(tt[k][cmask])) if cmask.any() else med
-            scores[k] = (cov * (0.25 + min(1.0, spread)) * min(1.0, med / (0.5 * far_free[ci]))
-                         * min(1.0, surfaces / 3.0))
-            meta.append((cov, spread, med, target_t, surfaces))
+    for ci in range(len(cand)):
+        f, tt = front_all[ci], t_all[ci]
+        nf = f.sum(axis=1)
+        cov = f.mean(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)                 # all-NaN rows: views with no front hit
+            spread = np.nanstd(np.where(f, np.log(np.where(f, tt, 1.0)), np.nan), axis=1)
+            med = np.nanmedian(np.where(f, tt, np.nan), axis=1)
+            cm = f & centre.ravel()[None]
+            target_t = np.where(cm.any(axis=1), np.nanmedian(np.where(cm, tt, np.nan), axis=1), med)
+        counts = np.zeros((K, 27), np.int64)
+        np.add.at(counts, (rows[f], bins_all[ci][f]), 1)
+        surfaces = (counts >= 0.05 * nf[:, None]).sum(axis=1)
+        ok = nf >= 4
+        scores = np.where(ok, cov * (0.25 + np.minimum(1.0, np.nan_to_num(spread)))
+                          * np.minimum(1.0, np.nan_to_num(med) / (0.5 * far_free[ci])) * np.minimum(1.0, surfaces / 3.0),
+                          0.0)
         k = int(np.argmax(scores))
-        best.append((scores[k] * centrality[ci] * enclosure[ci], vd[k], meta[k]))
+        meta = ((float(cov[k]), float(spread[k]), float(med[k]), float(target_t[k]), int(surfaces[k])) if ok[k]
+                else (float(cov[k]), 0.0, 0.0, math.inf, 0))
+        best.append((scores[k] * centrality[ci] * enclosure[ci], vd[k], meta))
 
     # 3. greedy diverse pick
     score = np.array([s for s, _, _ in best])
