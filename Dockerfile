@@ -19,6 +19,7 @@ WORKDIR /app
 # Only what the package needs (no .venv, tests or data in the image).
 COPY pyproject.toml ./
 COPY proto ./proto
+COPY persist ./persist
 COPY workers ./workers
 COPY server ./server
 RUN pip install --no-cache-dir . \

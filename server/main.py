@@ -13,9 +13,9 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
+from persist.store import Store
 from proto.stages import KILN_VERSION
-from proto.store import Store
 from server import queue
 from server.api import errors, openapi
 from server.api.guard import Guard

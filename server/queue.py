@@ -22,8 +22,8 @@ from rq.command import send_stop_job_command
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
 
+from persist.catalog import Catalog
 from proto import cost
-from proto.catalog import Catalog
 from proto.models import BakeConfig
 from proto.stages import dependencies, expand, plan
 

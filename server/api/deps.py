@@ -10,8 +10,8 @@ import hmac
 
 from fastapi import Request
 
-from proto.catalog import Catalog
-from proto.store import Store
+from persist.catalog import Catalog
+from persist.store import Store
 from server.api.errors import ApiError
 from server.config import OPEN_TEAM, Settings
 

@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 
 
 def _stage_pid(data, bake_id, stage, timeout=30.0):

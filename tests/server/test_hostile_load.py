@@ -32,8 +32,8 @@ import pytest
 from rq import Queue
 from rq.job import Job, JobStatus
 
+from persist.catalog import Catalog
 from proto import cost
-from proto.catalog import Catalog
 from proto.models import BakeConfig
 from server import queue as kq
 

@@ -16,11 +16,12 @@ from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
 from pydantic import BaseModel, ConfigDict, Field
 
+from persist.catalog import TERMINAL, Catalog
+from persist.export import export_bundle
+from persist.store import Store
 from proto import bundle, cost
-from proto.catalog import TERMINAL, Catalog
 from proto.models import BakeConfig, Manifest
-from proto.stages import collect_warnings, export_bundle, finalize_bake
-from proto.store import Store
+from proto.stages import collect_warnings, finalize_bake
 from server import queue
 from server.api import deps
 from server.api.errors import ApiError
@@ -228,7 +229,8 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
         for (name, _), rec in zip(stages, records):
             catalog.update_stage(bake_id, name, status="succeeded", progress=1.0, seconds=rec["seconds"],
                                  cached=True, stats=rec["stats"], started=time.time(), finished=time.time())
-        finalize_bake(catalog, store, catalog.get_bake(bake_id))
+        done = finalize_bake(catalog.get_bake(bake_id), scene, store)
+        catalog.mark_succeeded(bake_id, done.manifest, done.metrics)
     else:
         try:
             queue.enqueue_bake(request.app.state.redis, catalog.get_bake(bake_id), scene,

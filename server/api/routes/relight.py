@@ -49,11 +49,11 @@ from fastapi import APIRouter, Depends, Query
 from fastapi.responses import Response
 from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
+from persist.catalog import Catalog
+from persist.store import Store
 from proto import bundle
-from proto.catalog import Catalog
 from proto.models import ArtifactInfo, LightConfig, Manifest, SceneSummary, StageInfo
 from proto.stages import KILN_VERSION
-from proto.store import Store
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute

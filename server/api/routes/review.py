@@ -27,9 +27,9 @@ import re
 from fastapi import APIRouter, Depends
 from pydantic import BaseModel, ConfigDict, Field
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
+from persist.store import Store
 from proto.models import BakeConfig, CameraSpec
-from proto.store import Store
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute

@@ -8,8 +8,8 @@ from pathlib import Path
 
 from fastapi import APIRouter, Depends, Request, Response
 
-from proto.catalog import Catalog
-from proto.store import Store
+from persist.catalog import Catalog
+from persist.store import Store
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute

@@ -17,7 +17,7 @@ from __future__ import annotations
 from fastapi import APIRouter, Depends, Query
 from pydantic import BaseModel, ConfigDict, Field
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 from server import gates
 from server.api import deps
 from server.api.errors import ApiError
