@@ -14,6 +14,7 @@ from persist.catalog import Catalog
 from persist.store import Store
 from server.api.errors import ApiError
 from server.config import OPEN_TEAM, Settings
+from server.ingest_pool import IngestPool
 from workers.relight import RelightCache
 
 
@@ -31,6 +32,11 @@ async def store(request: Request) -> Store:
 
 async def redis_conn(request: Request):
     return request.app.state.redis
+
+
+async def ingest_pool(request: Request) -> IngestPool:
+    """The upload parser processes (``POST /v1/scenes``)."""
+    return request.app.state.ingest_pool
 
 
 async def relight_cache(request: Request) -> RelightCache:

@@ -32,26 +32,18 @@ from typing import Literal
 
 from fastapi import APIRouter, Depends, Query
 from fastapi.responses import Response
-from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
 from persist.catalog import Catalog
 from persist.store import Store
 from proto import bundle
-from proto.models import LightConfig
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
 from server.api.routes.bakes import _artifact_infos
-from server.api.schemas import RelightJSON, error_responses
+from server.api.schemas import RelightJSON, RelightRequest, error_responses
 from workers.relight import RelightCache, write_relit_bundle
 
 router = APIRouter(prefix="/v1/bakes", tags=["relight"], route_class=FiniteJSONRoute)
-
-
-class RelightRequest(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    lights: list[LightConfig] = Field(..., max_length=64, description="the lights to relight with")
-    lightmap: StrictBool = Field(True, description="also reconstruct the lightmap (when the bake has one)")
 
 
 @router.post("/{bake_id}/relight", summary="Relight a PRT bake: new lights -> probe SH volume and lightmap",
