@@ -22,7 +22,7 @@ COPY proto ./proto
 COPY persist ./persist
 COPY workers ./workers
 COPY server ./server
-RUN pip install --no-cache-dir . \
+RUN pip install --no-cache-dir ".[api,worker,render]" \
     && rm -rf build *.egg-info
 
 # Non-root; /data is created owned by that user so a fresh named volume mounted there inherits it.
