@@ -33,8 +33,6 @@ SHORT_QUEUE = "kiln-short"
 LONG_QUEUE = "kiln-long"
 QUEUES = (SHORT_QUEUE, LONG_QUEUE)
 """In the order workers listen to them: short first."""
-QUEUE_NAME = SHORT_QUEUE
-"""The queue of ``finish_bake`` and of short stages (kept under its old name for callers)."""
 LEGACY_QUEUE = "kiln"
 """The single queue of earlier versions: workers still drain it, nothing new goes there."""
 RETRIES = 2
