@@ -282,9 +282,13 @@ def test_a_parse_past_the_timeout_is_stopped(service, scene_files, monkeypatch):
     with app(service, ingest_timeout_s=2.0) as c:
         r = c.post("/v1/scenes", content=scene_files["cornell"].read_bytes(), headers={"X-Filename": "slow.glb"})
         assert r.status_code == 422 and r.json()["error"]["code"] == "ingest_timeout", r.text
-        assert c.app.state.ingest_pool.killed["timeout"] == 1     # stopped by the timeout, not finished
-        # the next upload gets a fresh parser
+        pool = c.app.state.ingest_pool
+        assert pool.killed["timeout"] == 1                         # stopped by the timeout, not finished
+        # the next upload gets a fresh parser; its own speed is not what is tested (a cold parser on a loaded
+        # machine can take 2 s), so it gets a generous timeout
+        pool.timeout_s = 120.0
         assert service.upload(scene_files["cornell"]).status_code == 201
+        assert pool.killed["timeout"] == 1
 
 
 def test_waiting_uploads_are_served_round_robin_by_team(service, scene_files, monkeypatch):
