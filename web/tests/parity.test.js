@@ -1,5 +1,5 @@
 // Cross-language parity: the JS KTX2 loader and the SH / octahedral math decode proto/fixtures (written by
-// proto/fixtures/make_fixtures.py from the Python kernels) to the same numbers.
+// tests/proto/make_fixtures.py from the Python kernels) to the same numbers.
 import { describe, expect, it } from 'vitest';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';

@@ -39,7 +39,7 @@ sys.path.insert(0, str(HERE))
 import make_references as MR  # noqa: E402
 from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
-from proto.store import Store  # noqa: E402
+from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.procedural import make_scene  # noqa: E402

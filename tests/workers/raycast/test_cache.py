@@ -8,7 +8,7 @@ import pytest
 
 from proto.models import BakeConfig
 from proto.stages import plan
-from proto.store import Store
+from persist.store import Store
 from tests.kernels.test_pathtrace import closed_box
 from tests.workers.test_materials import _screen_scene
 from workers import pipeline
