@@ -12,7 +12,7 @@ Measured at HEAD 6a4925b (numbers in each test's docstring; llvmpipe, this 2-cor
 1. normalized-mask speckle at the grid edge: not reproducible (0.0008 of the edge pixels: one), guarded.
 2. Cornell short-block seam (mask modes): reproduced, L2 SH ringing of the block's front probes, xfail.
 3. DDGI blotches at 8³ / 256 rays: reproduced, Monte Carlo noise of the probe rays (the point light's spot on
-   the panel), xfail.
+   the panel); fixed (the spot sampled from the light, workers/kernels/light_spots.py), tested.
 4. plain mask GI halo around a doorway: reproduced at coarse grids (the mask lookup's offset), xfail.
 5. PRT hotspot / near-black walls: reproduced, the linear transfer's generalization, xfail.
 6. found on the way: DDGI rendered 0 on grids whose atlas is wider than GL_MAX_TEXTURE_SIZE: fixed, tested.
@@ -177,26 +177,23 @@ def _blotch(p, v) -> float:
     return float(np.sqrt(np.mean((v - X @ c) ** 2)) / v.mean())
 
 
-@pytest.mark.xfail(strict=True, reason="Monte Carlo noise of the probe rays: the point light's 2,300-radiance spot on "
-                   "the panel (docstring)")
 def test_ddgi_no_blotches_at_8_cubed_probes(ctx, tmp_path, scene_files):
     """Artifact 3: DDGI blotches at 8³ probes / 256 rays (Cornell).
 
     Region: the back wall (z = 0.02) above the boxes, x in [0.4, 0.9], y in [0.65, 0.95]. Number: the blotch
-    measure (RMS about a cubic fit / mean). Measured: ddgi 0.117 at 256 rays (leaking 0.129, mask_normalized
-    0.121: every mode, so the probes' values, not the DDGI weights); 0.059 at 1024 rays: it halves for 4x the
-    rays, Monte Carlo noise. Source: the scene's 1 cd point light sits 1 cm under the emitter panel
-    (workers/procedural.py, "so its shadow rays do not start inside the panel"), so it lights a spot of ~2 cm on the
-    panel's underside to E ≈ 1 / 0.01² = 10⁴ lux, reflected radiance ≈ 2,300 — 230x the panel's own emission —, which
-    a probe's 256 rays hit or miss by chance: each probe's irradiance then depends on that luck, independently of its
-    neighbours. Without the point light (scene.use_scene_lights = false) the same grid and rays give 0.034; next-event
-    estimation of the panel's emission instead of its ray hits (prototyped) gives 0.125: the emitter is not the cause.
-    Correct behaviour of the estimator (each bounce the plain Monte Carlo of DDGI-I eq 1 over the cached probe rays,
-    α = 0, no filter) on a scene with a point light next to a surface. Fixes, none in this owner's files: more rays
-    (trace.rays_per_probe 1024: 0.059 — the default is the lead's call, 4x the trace), or variance reduction in the
-    light stage (workers/stages/light.py) for the first bounce of punctual lights, e.g. clamping a ray's radiance at
-    a multiple of the probe's mean (a firefly clamp: biased, loses the spot's energy), or moving the procedural
-    Cornell light further from the panel (workers/procedural.py; its numbers are asserted by tests).
+    measure (RMS about a cubic fit / mean). Before: ddgi 0.117 at 256 rays (leaking 0.129, mask_normalized
+    0.121: every mode, so the probes' values, not the DDGI weights). Cause: the scene's 1 cd point light sits 1 cm
+    under the emitter panel (workers/procedural.py), so it lights a spot of ~2 cm on the panel's underside to
+    E ≈ 1 / 0.01² = 10⁴ lux, reflected radiance ≈ 2,300 — 230x the panel's own emission — over ~10⁻³ sr from a
+    probe, which its 256 rays (0.05 sr each) hit or miss by chance, independently of its neighbours. Without the
+    point light the same grid and rays give 0.034. More rays from the probes do not cure it: uniform extra rays
+    for the noisy probes (4x / 8x their rays for the fixed term) gave 0.03-0.06 / 0.11 over seeds 0-3, 2,048 rays
+    0.096 — a 10⁻³ sr spot is hit 0-3 times either way.
+    Fix (workers/kernels/light_spots.py, light stage v3): the spot is sampled from the light's side — each point
+    light's direct irradiance above 32x its median at the probe-ray hits is left out of the rays and carried by
+    virtual point lights made from photons (instant radiosity), each tested against every probe with a shadow
+    ray; unbiased up to the photons' merging (tests/kernels/test_light_spots.py: 2% of the path integral).
+    After: 0.020 (seed 0; 0.020 at seed 3, where the rays alone gave 0.167).
     """
     cfg = {"place": {"counts": [8, 8, 8]}, "visibility": {"slabs": 1}}
     scene, s = bake_until(tmp_path, scene_files["cornell"], cfg, "light")
