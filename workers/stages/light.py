@@ -10,6 +10,8 @@ DDGI-I eq 1 with α = 0 per bounce; E_indirect by the DDGI sampler, :class:`work
 The hot spots a point / spot light makes on a surface next to it (direct irradiance above 32x the light's median at
 the hits) are sampled from the light (:mod:`workers.kernels.light_spots`): the rays carry the bounded part, virtual
 point lights the excess, added to every bounce's maps and to the SH (stats ``spot_lights``, ``spot_rays``).
+L2 deringing (:func:`workers.kernels.sh.sh_l2_floor`): each probe's L2 SH changed as little as possible so that its
+L2 irradiance is at least 0.75 of its own octahedral map at every texel direction (no change where L2 does not ring).
 Bounces: a fixed count (``light.bounces``) or until the estimated light still to come
 (:mod:`workers.kernels.convergence`) is below ``light.tolerance`` at every probe that matters (capped at
 ``light.max_bounces``; a bake that stops short carries the warning ``not_converged``). OFF probes stay at 0 in
@@ -38,7 +40,8 @@ from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
 from workers.kernels.light_spots import split_direct, spot_correction, spot_thresholds
 from workers.kernels.materials import albedo_warnings, double_sided_triangles
 from workers.kernels.probe_hits import hit_surfaces, probe_visibility
-from workers.kernels.sh import sh_l2_atlas, sh_project
+from workers.kernels.octahedral import oct_texel_directions
+from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project
 from workers.kernels.shading import direct_irradiance
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
@@ -91,7 +94,11 @@ def run_light(ctx: StageContext) -> StageOutput:
         tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps)
     t_bounces = time.perf_counter() - t1
 
-    sh = (sh_project(dirs, radiance, order=sec.sh_order) + dsh).astype(np.float32)     # (P, 9|4, 3)
+    sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
+    if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
+        n = sec.irradiance_texels
+        sh = sh_l2_floor(sh, oct_texel_directions(n).reshape(-1, 3), irr[:, 1:-1, 1:-1].reshape(len(sh), n * n, 3))
+    sh = sh.astype(np.float32)
     sh[states == OFF] = 0.0
     shv = sh.reshape(nz, ny, nx, sh.shape[1], 3)
     # the runtime volumes (leaking samples them without visibility): OFF probes dilated from live neighbours
