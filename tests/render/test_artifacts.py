@@ -234,6 +234,14 @@ def test_plain_mask_no_halo_around_the_doorway(tmp_path, scene_files):
     sample: 1.49x the reference away from the door). A fix needs the masks to answer for the surface, not a point in
     front of it: e.g. θ of the refined samples on a wall taken from the surface side (the visibility stage), or
     the lookup offset limited to the distance to the nearest don't-care sample.
+    Re-measured after the lookup's both-sides blend (HEAD 51cd8b5; light stage v4): 1.63 still, and split into its
+    two factors (mode / reference): mask ring 1.04, away 0.64 — the ring is right, the wall away from the door is
+    dark. The grid's layers straddle the wall (x = 3.61 in room A, 4.42 in room B): a point on the wall's room-B face
+    has trilinear weight 0.54 on room B's probes and 0.46 on room A's, which its masks rightly remove, and eq 3
+    does not renormalize (MD Fig 4's darkening); next to the door the offset read sees room A's clusters through
+    it and gets their weight back. The halo is eq 3's missing normalization, which is the plain mode's definition:
+    mask_normalized is its fix (ring 1.64, away 1.24 there: 1.32). Offsets 0 / 0.5 / 2 samples: 0.80 (but 2.7x the
+    reference away: the read inside the wall sees both rooms) / 1.45 / 2.07. Not fixed.
     """
     from workers.kernels import samplers as SM
     from workers.kernels.pathtrace import indirect_irradiance
