@@ -105,8 +105,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     report : callable or None
         ``report(fraction)`` after each bounce.
     correction : (P, n+2, n+2, 3·B) float32 or None
-        Added to every bounce's maps: the fixed term's estimate from more rays minus its estimate from the
-        cached ones (:func:`workers.kernels.extra_rays.fixed_correction`); the radiance handed to ``retire``
+        Added to every bounce's maps: light the cached rays do not carry (the point lights' hot spots sampled
+        from the light, :func:`workers.kernels.light_spots.spot_correction`); the radiance handed to ``retire``
         does not hold it.
     """
     P, R = miss.shape
