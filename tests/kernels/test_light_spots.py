@@ -99,3 +99,18 @@ def test_a_light_without_a_spot_changes_nothing():
     assert nv == 0 and rays == 0 and not dmaps.any() and not dsh.any()
     sun = {"type": "directional", "direction": [0.0, 0.0, -1.0], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}
     assert LS.spot_thresholds([e], [sun]) == [math.inf]
+
+
+def test_virtual_lights_are_capped_keeping_their_power(monkeypatch):
+    """More cells than MAX_VIRTUAL_LIGHTS: the cells double until they fit; the probe's spot light (L0 of its SH)
+    stays within 5% of the fine cells'."""
+    scene = _floor()
+    caster = RayCaster(scene.triangles)
+    light = {"type": "point", "position": [0.0, 0.0, 0.01], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}
+    x = np.array([[0.3, 0.1, 0.4]], np.float32)
+    args = (scene, caster, x, np.ones(1, bool), [light], [20.0], double_sided_triangles(scene), [0.2] * 3, 4, 1e-5)
+    _, fine, n_fine, _ = LS.spot_correction(*args)
+    monkeypatch.setattr(LS, "MAX_VIRTUAL_LIGHTS", 4)
+    _, coarse, n_coarse, _ = LS.spot_correction(*args)
+    assert n_fine > 4 >= n_coarse > 0
+    assert abs(coarse[0, 0, 0] / fine[0, 0, 0] - 1) < 0.05

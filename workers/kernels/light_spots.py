@@ -16,8 +16,9 @@ point lights (Keller 1997): photons leave the light in :data:`PHOTONS` Fibonacci
 front face y with flux ``Φ_i = I·A·4π/N`` (intensity I, spot attenuation A) of which the share
 ``max(0, 1 − c/Y(E_l(y)))`` is excess; reflected (albedo ρ) it makes y a Lambertian emitter of intensity
 ``ρ·Φ_ex·cos θ_y / π``. Photons are merged into cells of :data:`CELL_FRACTION` of the probe spacing (flux-weighted
-position, normal), each cell one virtual light, tested against each probe with a shadow ray; its irradiance at probe
-x for the octahedral texel direction n is ``E(n) = ρΦ_ex/π · cos θ_y · max(0, n·ω) / d²`` (d clamped below at
+position, normal; coarser cells beyond :data:`MAX_VIRTUAL_LIGHTS`), each cell one virtual light, tested against
+each probe with a shadow ray; its irradiance at probe x for the octahedral texel direction n is
+``E(n) = ρΦ_ex/π · cos θ_y · max(0, n·ω) / d²`` (d clamped below at
 :data:`MIN_DISTANCE_FRACTION` of the spacing), its radiance SH ``ρΦ_ex/π · cos θ_y / d² · Y_lm(ω)`` (a delta).
 :func:`spot_correction` returns these as corrections added to every bounce's maps and to the SH projection
 (:func:`workers.kernels.bounce.integrate` ``correction=``). A light with no spot (every surface it lights within
@@ -39,8 +40,8 @@ from workers.kernels.octahedral import add_border, oct_texel_directions
 from workers.kernels.sampling import fibonacci_sphere
 from workers.kernels.sh import _sh_basis
 
-__all__ = ["SPOT_FACTOR", "PHOTONS", "CELL_FRACTION", "MIN_DISTANCE_FRACTION", "spot_thresholds", "split_direct",
-           "spot_correction"]
+__all__ = ["SPOT_FACTOR", "PHOTONS", "CELL_FRACTION", "MAX_VIRTUAL_LIGHTS", "MIN_DISTANCE_FRACTION",
+           "spot_thresholds", "split_direct", "spot_correction"]
 
 SPOT_FACTOR = 32.0
 """c = this times the median luminance of a light's non-zero direct irradiance at the probe rays' hits."""
@@ -48,6 +49,8 @@ PHOTONS = 1 << 16
 """Photons per point / spot light."""
 CELL_FRACTION = 0.125
 """Photons are merged into cubic cells of this fraction of the smallest probe spacing (one virtual light each)."""
+MAX_VIRTUAL_LIGHTS = 1024
+"""Virtual lights per light at most (each costs a shadow ray per probe): the cells double until they fit."""
 MIN_DISTANCE_FRACTION = 0.25
 """A virtual light's distance to a probe is clamped below at this fraction of the smallest probe spacing."""
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
@@ -108,9 +111,12 @@ def _virtual_lights(scene, caster, light: dict, c: float, double_sided: np.ndarr
     flux = e * ((4.0 * math.pi / PHOTONS) * d2 / np.maximum(cos_l, 1e-6))[:, None]
     out = np.asarray(s["albedo"], np.float64) * flux * share[:, None] / math.pi          # ρΦ_ex/π
     y, n, out = y[keep], n[keep], out[keep]
-    key = np.floor(y / cell).astype(np.int64)
-    _, inv = np.unique(key, axis=0, return_inverse=True)
-    inv = inv.reshape(-1)
+    while True:                                         # at most MAX_VIRTUAL_LIGHTS cells: coarser ones if needed
+        _, inv = np.unique(np.floor(y / cell).astype(np.int64), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        if inv.max() < MAX_VIRTUAL_LIGHTS:
+            break
+        cell *= 2.0
     V = int(inv.max()) + 1
     w = _luma(out)
     wsum = np.bincount(inv, w, V)
