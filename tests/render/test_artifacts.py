@@ -14,7 +14,8 @@ Measured at HEAD 6a4925b (numbers in each test's docstring; llvmpipe, this 2-cor
    above 0.75 of each probe's own map, workers/kernels/sh.py sh_l2_floor), tested.
 3. DDGI blotches at 8³ / 256 rays: reproduced, Monte Carlo noise of the probe rays (the point light's spot on
    the panel); fixed (the spot sampled from the light, workers/kernels/light_spots.py), tested.
-4. plain mask GI halo around a doorway: reproduced at coarse grids (the mask lookup's offset), xfail.
+4. plain mask GI halo around a doorway: reproduced at coarse grids; re-measured, the ring is right and the wall
+   away from the door dark (eq 3 unnormalized, where the grid straddles the wall), xfail.
 5. PRT hotspot / near-black walls: reproduced, the linear transfer's generalization, xfail.
 6. found on the way: DDGI rendered 0 on grids whose atlas is wider than GL_MAX_TEXTURE_SIZE: fixed, tested.
 """
