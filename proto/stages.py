@@ -43,7 +43,9 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("place", 5, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
-    StageDef("light", 2, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
+    # against the probe's own map (workers/kernels/sh.py sh_l2_floor)
+    StageDef("light", 4, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     StageDef("anneal", 1, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),

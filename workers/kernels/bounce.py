@@ -73,7 +73,8 @@ class BounceLog:
 
 def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct: np.ndarray, dirs: np.ndarray,
               states: np.ndarray, n: int, gather, retire, *, emission: np.ndarray | None = None, sky=None,
-              bounces: int | None, max_bounces: int, tolerance: float, report=None) -> BounceLog:
+              bounces: int | None, max_bounces: int, tolerance: float, report=None,
+              correction: np.ndarray | None = None) -> BounceLog:
     """Sum the bounce series of B lighting configurations (module doc) over the same cached probe-ray hits.
 
     Parameters
@@ -103,6 +104,10 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         A fixed count; None: until the residual is below ``tolerance``, at most ``max_bounces``.
     report : callable or None
         ``report(fraction)`` after each bounce.
+    correction : (P, n+2, n+2, 3·B) float32 or None
+        Added to every bounce's maps: light the cached rays do not carry (the point lights' hot spots sampled
+        from the light, :func:`workers.kernels.light_spots.spot_correction`); the radiance handed to ``retire``
+        does not hold it.
     """
     P, R = miss.shape
     B, H = e_direct.shape[0], index.size
@@ -126,6 +131,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
             radiance[index] = base + rho * gather(maps)
         new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)    # DDGI-I eq 1, α = 0
+        if correction is not None:
+            new += correction                                                  # the fixed term over more rays
         nb = live.size
         step = np.abs(new - maps)
         # per probe and configuration: the light still to come (workers.kernels.convergence)
@@ -160,11 +167,13 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         base, rho = base[:, kc], rho[:, kc]
         radiance = np.ascontiguousarray(radiance[:, kc])
         maps = np.ascontiguousarray(maps[..., kc])
+        if correction is not None:
+            correction = np.ascontiguousarray(correction[..., kc])
     return log
 
 
 def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emission=None, sky=None,
-                  bounces: int | None, max_bounces: int, tolerance: float, report=None):
+                  bounces: int | None, max_bounces: int, tolerance: float, report=None, correction=None):
     """:func:`integrate` for one configuration: ``e_direct`` (H, 3). Returns ``(irradiance (P, n+2, n+2, 3),
     radiance (P, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float)."""
     out = {}
@@ -173,5 +182,6 @@ def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emi
         out["radiance"], out["maps"] = np.ascontiguousarray(radiance), np.ascontiguousarray(maps)
 
     log = integrate(index, miss, albedo, e_direct[None], dirs, states, n, gather, retire, emission=emission,
-                    sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report)
+                    sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report,
+                    correction=correction)
     return out["maps"], out["radiance"], log.change[0], log.residual[0]

@@ -63,6 +63,8 @@ __all__ = [
     "sh_l2_atlas",
     "sh_l2_from_atlas",
     "sh_l2_atlas_depth",
+    "SH_L2_FLOOR",
+    "sh_l2_floor",
 ]
 
 SH_C0 = 0.5 / np.sqrt(np.pi)  # 0.282095, Y00
@@ -286,3 +288,52 @@ def sh_l2_from_atlas(atlas) -> np.ndarray:
     sub = a.reshape(SH_L2_TEXELS, nz + 2, *a.shape[1:])[:, 1:-1]                 # (7, nz, ny, nx, 4)
     flat = sub.transpose(1, 2, 3, 0, 4).reshape(nz, *a.shape[1:3], 4 * SH_L2_TEXELS)
     return np.ascontiguousarray(flat[..., :27].reshape(nz, *a.shape[1:3], 9, 3))
+
+
+SH_L2_FLOOR = 0.75
+"""β of :func:`sh_l2_floor`: the L2 irradiance of a probe may fall at most this far below its octahedral map."""
+
+
+def sh_l2_floor(coeffs, dirs, floor, beta: float = SH_L2_FLOOR, iterations: int = 400) -> np.ndarray:
+    """Deringing of L2 radiance SH against each probe's own irradiance: the smallest change of the 9 coefficients
+    (in the irradiance norm ``∫ (E' − E)² dω = Σ_k Â_l(k)² (c'_k − c_k)²``) such that ``E'(n_t) ≥ β · floor(n_t)``
+    at every direction n_t.
+
+    A probe that sees a bright surface on one side and darkness on the other (the Cornell box's short block, lit
+    from behind, in front of the open side) has irradiance ~1% of its maximum on the dark side; L2's truncation rings
+    there to -1%..+0.5% (RH01's L2 is exact only for band-limited irradiance), a black seam in the modes that read
+    only such probes. Its octahedral map (DDGI-I eq 1, the same rays) holds the Monte Carlo value for every
+    direction; the constraint lifts the L2 where it falls below β of it, and changes nothing elsewhere (inactive:
+    Δc = 0). A quadratic programme per probe and channel, solved in its dual by projected gradient with Nesterov
+    momentum (``Δc = M⁻¹ Aᵀ λ``, ``λ ≥ 0``; ``A_tk = Â_l(k) Y_k(n_t)``, ``M = diag(Â²)``, so ``A M⁻¹ Aᵀ = Y Yᵀ``).
+
+    coeffs : (P, 9, C) radiance SH (module order); dirs : (T, 3) unit directions (the octahedral texel centres);
+    floor : (P, T, C) irradiance there (the probe's map). Returns (P, 9, C) float64.
+    """
+    c = np.array(coeffs, dtype=np.float64, copy=True)
+    d = np.asarray(dirs, np.float64)
+    f = np.asarray(floor, np.float64)
+    if c.ndim != 3 or c.shape[1] != 9:
+        raise ValueError(f"sh_l2_floor: coeffs must have shape (P, 9, C), got {c.shape}")
+    if d.ndim != 2 or d.shape[1] != 3 or f.shape != (c.shape[0], d.shape[0], c.shape[2]):
+        raise ValueError(f"sh_l2_floor: dirs (T, 3) and floor (P, T, C) must match, got {d.shape}, {f.shape}")
+    Y = _sh_basis(d, 9)                                                       # (T, 9)
+    A = Y * SH_BAND_CONVOLUTION[_BAND_OF_COEFF]                               # E(n_t) = A c
+    P, _, C = c.shape
+    flat = c.transpose(0, 2, 1).reshape(-1, 9)                                # (P·C, 9)
+    b = beta * f.transpose(0, 2, 1).reshape(-1, d.shape[0])                   # (P·C, T)
+    slack = b - flat @ A.T                                                    # > 0: violated
+    bad = np.flatnonzero((slack > 1e-12 * np.maximum(np.abs(b).max(axis=1, keepdims=True), 1e-30)).any(axis=1))
+    if bad.size == 0:
+        return c
+    Q = Y @ Y.T                                                               # A M⁻¹ Aᵀ, (T, T)
+    step = 1.0 / np.linalg.eigvalsh(Q).max()
+    r = slack[bad]                                                            # b − A c0
+    lam = np.zeros_like(r)
+    z = lam.copy()
+    for i in range(iterations):                                               # max_λ≥0 λᵀr − ½ λᵀQλ
+        new = np.maximum(0.0, z + step * (r - z @ Q))
+        z = new + (i / (i + 3.0)) * (new - lam)
+        lam = new
+    flat[bad] += (lam @ A) / SH_BAND_CONVOLUTION[_BAND_OF_COEFF] ** 2         # Δc = M⁻¹ Aᵀ λ
+    return flat.reshape(P, C, 9).transpose(0, 2, 1)

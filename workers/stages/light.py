@@ -7,6 +7,11 @@ An adapter: it reads the trace, relocate, place and ingest outputs and calls the
 few % through thin walls) and the bounce integrator :func:`workers.kernels.bounce.integrate_one` (radiance
 ``emission + albedo/π · (E_direct + E_indirect)`` at front-face hits, the sky at misses, 0 at back faces;
 DDGI-I eq 1 with α = 0 per bounce; E_indirect by the DDGI sampler, :class:`workers.kernels.gather.SamplerGather`).
+The hot spots a point / spot light makes on a surface next to it (direct irradiance above 32x the light's median at
+the hits) are sampled from the light (:mod:`workers.kernels.light_spots`): the rays carry the bounded part, virtual
+point lights the excess, added to every bounce's maps and to the SH (stats ``spot_lights``, ``spot_rays``).
+L2 deringing (:func:`workers.kernels.sh.sh_l2_floor`): each probe's L2 SH changed as little as possible so that its
+L2 irradiance is at least 0.75 of its own octahedral map at every texel direction (no change where L2 does not ring).
 Bounces: a fixed count (``light.bounces``) or until the estimated light still to come
 (:mod:`workers.kernels.convergence`) is below ``light.tolerance`` at every probe that matters (capped at
 ``light.max_bounces``; a bake that stops short carries the warning ``not_converged``). OFF probes stay at 0 in
@@ -32,9 +37,11 @@ import numpy as np
 from workers.kernels.bounce import integrate_one
 from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
-from workers.kernels.materials import albedo_warnings
+from workers.kernels.light_spots import split_direct, spot_correction, spot_thresholds
+from workers.kernels.materials import albedo_warnings, double_sided_triangles
 from workers.kernels.probe_hits import hit_surfaces, probe_visibility
-from workers.kernels.sh import sh_l2_atlas, sh_project
+from workers.kernels.octahedral import oct_texel_directions
+from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project
 from workers.kernels.shading import direct_irradiance
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
@@ -61,12 +68,22 @@ def run_light(ctx: StageContext) -> StageOutput:
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
     eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
     caster = caster_for_scene(scene)
-    e_direct = direct_irradiance(surf.position, surf.normal, lit["lights"], caster, eps)
+    per_light = [direct_irradiance(surf.position, surf.normal, [lt], caster, eps) for lt in lit["lights"]]
+    e_direct = sum(per_light[1:], per_light[0]) if per_light else np.zeros_like(surf.position)
     t_direct = time.perf_counter() - t0
     t0 = time.perf_counter()
     visible, vis_rays = probe_visibility(surf, grid, positions, states, caster, sec.self_shadow_bias)
     t_vis = time.perf_counter() - t0
     ctx.report(0.1)
+
+    t0 = time.perf_counter()        # point lights' hot spots sampled from the light (workers.kernels.light_spots)
+    c_spot = spot_thresholds(per_light, lit["lights"])
+    e_direct = split_direct(per_light, c_spot) if per_light else e_direct
+    dmaps, dsh, n_spots, spot_rays = spot_correction(
+        scene, caster, positions, states != OFF, lit["lights"], c_spot, double_sided_triangles(scene),
+        grid["spacing"], sec.irradiance_texels, eps, sec.sh_order)
+    del per_light
+    t_spots = time.perf_counter() - t0
 
     t1 = time.perf_counter()
     gather = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth,
@@ -74,10 +91,14 @@ def run_light(ctx: StageContext) -> StageOutput:
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
-        tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f))
+        tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps)
     t_bounces = time.perf_counter() - t1
 
-    sh = sh_project(dirs, radiance, order=sec.sh_order).astype(np.float32)     # (P, 9|4, 3)
+    sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
+    if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
+        n = sec.irradiance_texels
+        sh = sh_l2_floor(sh, oct_texel_directions(n).reshape(-1, 3), irr[:, 1:-1, 1:-1].reshape(len(sh), n * n, 3))
+    sh = sh.astype(np.float32)
     sh[states == OFF] = 0.0
     shv = sh.reshape(nz, ny, nx, sh.shape[1], 3)
     # the runtime volumes (leaking samples them without visibility): OFF probes dilated from live neighbours
@@ -94,6 +115,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
+        "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
     }
     warnings = albedo_warnings(scene, getattr(scene, "max_albedo", None), getattr(scene, "specular_gi", "metals"))

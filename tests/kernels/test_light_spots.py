@@ -1,0 +1,116 @@
+"""A point light's hot spot sampled from the light (workers/kernels/light_spots.py): the split is exact, the spot's
+virtual lights add the light the probe rays no longer carry, and a light without a spot changes nothing."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from workers.kernels import light_spots as LS
+from workers.kernels.materials import double_sided_triangles
+from workers.kernels.octahedral import oct_texel_directions
+from workers.kernels.shading import direct_irradiance
+from workers.raycast import RayCaster
+from workers.scene import NormalizedScene
+
+ALBEDO = 0.5
+
+
+def _floor(half=30.0):
+    """A floor [-half, half]² at z = 0 facing +z, albedo 0.5."""
+    h = half
+    q = np.array([[(-h, -h, 0), (h, -h, 0), (h, h, 0)], [(-h, -h, 0), (h, h, 0), (-h, h, 0)]], np.float32)
+    mat = {"name": "m", "base_color": [ALBEDO] * 3 + [1.0], "base_color_texture": None, "emissive": [0.0] * 3,
+           "emissive_texture": None, "double_sided": False, "metallic": 0.0, "roughness": 1.0}
+    return NormalizedScene(triangles=q, normals=np.tile(np.float32([0, 0, 1]), (2, 3, 1)),
+                           uv0=np.zeros((2, 3, 2), np.float32), material=np.zeros(2, np.int32), materials=[mat])
+
+
+def _truth(x, n, h, c):
+    """E(n) at x of the floor lit by a 1 cd point light at height h, reflected (albedo ρ): ∫ ρ/π·E_l(y)·max(0, n·ω)
+    cos θ_y / d² dA by polar quadrature about the light's foot; with c, only the excess E_l·max(0, 1 − c/E_l)."""
+    r = np.concatenate([np.geomspace(1e-5, 0.5, 3000), np.linspace(0.5, 30.0, 3000)[1:]])
+    a = np.linspace(0.0, 2.0 * np.pi, 721)[:-1] + np.pi / 720
+    rr, aa = np.meshgrid(0.5 * (r[1:] + r[:-1]), a, indexing="ij")
+    dA = (np.diff(r)[:, None] * rr) * (2.0 * np.pi / a.size)
+    y = np.stack([rr * np.cos(aa), rr * np.sin(aa), np.zeros_like(rr)], -1)
+    e = h / (rr ** 2 + h ** 2) ** 1.5                                            # I cos θ / d², I = 1
+    if c is not None:
+        e = e * np.maximum(0.0, 1.0 - c / e)
+    w = y - x
+    d = np.linalg.norm(w, axis=-1)
+    om = w / d[..., None]
+    g = np.maximum(om @ n, 0.0) * (x[2] / d) / d ** 2                           # cos θ_x, cos θ_y / d²
+    return float((ALBEDO / np.pi * e * g * dA).sum())
+
+
+def test_excess_plus_bounded_part_is_the_reflected_light():
+    """Light 1 cm above the floor (the Cornell box's case: ~10⁴ lux under it), probe 0.4 m up: the probe rays' bounded
+    part (R = 2¹⁸ rays, many more than a bake's) plus the spot's virtual lights give the path-integral's irradiance
+    for every texel facing the floor within 2%; the virtual lights alone give the excess within 2%."""
+    scene = _floor()
+    caster = RayCaster(scene.triangles)
+    h, c = 0.01, 20.0
+    light = {"type": "point", "position": [0.0, 0.0, h], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}
+    x = np.array([[0.3, 0.1, 0.4]], np.float32)
+    n = 4
+    dmaps, dsh, nv, rays = LS.spot_correction(scene, caster, x, np.ones(1, bool), [light], [c],
+                                              double_sided_triangles(scene), [0.2, 0.2, 0.2], n, 1e-5)
+    assert nv > 0 and rays == nv
+    from workers.kernels.sampling import fibonacci_sphere
+    R = 1 << 18
+    dirs = fibonacci_sphere(R).astype(np.float64)
+    down = dirs[:, 2] < 0
+    t = -x[0, 2] / dirs[down, 2]
+    y = x[0] + t[:, None] * dirs[down]
+    e = direct_irradiance(y, np.tile([0.0, 0.0, 1.0], (len(y), 1)), [light], None, 0.0)
+    bounded = LS.split_direct([e], [c])
+    assert np.all(bounded.mean(1) <= c * 1.0001)
+    texel = oct_texel_directions(n).reshape(-1, 3)
+    facing = np.flatnonzero(texel[:, 2] < -0.5)
+    assert facing.size >= 2
+    for k in facing:
+        nt = texel[k].astype(np.float64)
+        cosn = np.maximum(dirs[down] @ nt, 0.0)
+        e_rays = np.pi * (cosn * ALBEDO / np.pi * bounded[:, 0]).sum() / np.maximum(dirs @ nt, 0.0).sum()
+        spot = float(dmaps[0, 1:-1, 1:-1].reshape(-1, 3)[k, 0])
+        want_spot = _truth(x[0].astype(np.float64), nt, h, c)
+        want = _truth(x[0].astype(np.float64), nt, h, None)
+        assert abs(spot / want_spot - 1) < 0.02, (k, spot, want_spot)
+        assert abs((e_rays + spot) / want - 1) < 0.02, (k, e_rays + spot, want)
+        assert spot > 0.3 * want                                               # the spot is a large share
+
+
+def test_a_light_without_a_spot_changes_nothing():
+    """Light 1 m above the floor: no hit is 32x the median, so no excess, no virtual light, no correction."""
+    scene = _floor()
+    caster = RayCaster(scene.triangles)
+    light = {"type": "point", "position": [0.0, 0.0, 1.0], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}
+    from workers.kernels.sampling import fibonacci_sphere
+    dirs = fibonacci_sphere(256).astype(np.float64)
+    x = np.array([0.3, 0.1, 0.4])
+    down = dirs[:, 2] < 0
+    y = x + (-x[2] / dirs[down, 2])[:, None] * dirs[down]
+    e = direct_irradiance(y, np.tile([0.0, 0.0, 1.0], (len(y), 1)), [light], None, 0.0)
+    c = LS.spot_thresholds([e], [light])
+    assert math.isfinite(c[0]) and np.array_equal(LS.split_direct([e], c), e)
+    dmaps, dsh, nv, rays = LS.spot_correction(scene, caster, x[None].astype(np.float32), np.ones(1, bool), [light], c,
+                                              double_sided_triangles(scene), [0.2, 0.2, 0.2], 4, 1e-5)
+    assert nv == 0 and rays == 0 and not dmaps.any() and not dsh.any()
+    sun = {"type": "directional", "direction": [0.0, 0.0, -1.0], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}
+    assert LS.spot_thresholds([e], [sun]) == [math.inf]
+
+
+def test_virtual_lights_are_capped_keeping_their_power(monkeypatch):
+    """More cells than MAX_VIRTUAL_LIGHTS: the cells double until they fit; the probe's spot light (L0 of its SH)
+    stays within 5% of the fine cells'."""
+    scene = _floor()
+    caster = RayCaster(scene.triangles)
+    light = {"type": "point", "position": [0.0, 0.0, 0.01], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}
+    x = np.array([[0.3, 0.1, 0.4]], np.float32)
+    args = (scene, caster, x, np.ones(1, bool), [light], [20.0], double_sided_triangles(scene), [0.2] * 3, 4, 1e-5)
+    _, fine, n_fine, _ = LS.spot_correction(*args)
+    monkeypatch.setattr(LS, "MAX_VIRTUAL_LIGHTS", 4)
+    _, coarse, n_coarse, _ = LS.spot_correction(*args)
+    assert n_fine > 4 >= n_coarse > 0
+    assert abs(coarse[0, 0, 0] / fine[0, 0, 0] - 1) < 0.05

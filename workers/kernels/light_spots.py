@@ -1,0 +1,175 @@
+"""Light-side sampling of the hot spots punctual lights make on nearby surfaces (variance reduction for probes).
+
+Each bounce of :mod:`workers.kernels.bounce` estimates DDGI-I eq 1 from the trace stage's R cached rays per probe;
+a ray hitting a surface carries ``albedo/π · E_direct``. A point light a centimetre from a surface (the procedural
+Cornell box's, 1 cm under its panel) lights a spot of a few cm² to ~10⁴ lux: reflected radiance ~2,300, hundreds of
+times anything else, over a solid angle of ~10⁻³ sr from the probes. A probe's 256 rays (0.05 sr each) hit it or miss
+it by chance, each probe independently of its neighbours: DDGI's blotches. More rays from the probes do not cure it
+(8x the rays still hit a 10⁻³ sr spot 0-3 times); RTXGI's per-ray clamp removes the spot's light (biased).
+This module splits each point / spot light's direct irradiance at a surface into a bounded part and the excess:
+
+    E_l = E_l·min(1, c/Y(E_l)) + E_l·max(0, 1 − c/Y(E_l)),   c = :data:`SPOT_FACTOR` x median of Y(E_l) > 0
+
+over the probe rays' front-face hits (Y: luminance). The probe rays carry the bounded part (:func:`split_direct`,
+bounded radiance: low variance), and the excess is sampled from the light's side, as instant radiosity's virtual
+point lights (Keller 1997): photons leave the light in :data:`PHOTONS` Fibonacci directions, each landing at a
+front face y with flux ``Φ_i = I·A·4π/N`` (intensity I, spot attenuation A) of which the share
+``max(0, 1 − c/Y(E_l(y)))`` is excess; reflected (albedo ρ) it makes y a Lambertian emitter of intensity
+``ρ·Φ_ex·cos θ_y / π``. Photons are merged into cells of :data:`CELL_FRACTION` of the probe spacing (flux-weighted
+position, normal; coarser cells beyond :data:`MAX_VIRTUAL_LIGHTS`), each cell one virtual light, tested against
+each probe with a shadow ray; its irradiance at probe x for the octahedral texel direction n is
+``E(n) = ρΦ_ex/π · cos θ_y · max(0, n·ω) / d²`` (d clamped below at
+:data:`MIN_DISTANCE_FRACTION` of the spacing), its radiance SH ``ρΦ_ex/π · cos θ_y / d² · Y_lm(ω)`` (a delta).
+:func:`spot_correction` returns these as corrections added to every bounce's maps and to the SH projection
+(:func:`workers.kernels.bounce.integrate` ``correction=``). A light with no spot (every surface it lights within
+SPOT_FACTOR of its median) has no excess: nothing changes.
+
+Consumer: stages/light. Inverse: none.
+
+References
+----------
+.. [Keller97] A. Keller, "Instant Radiosity", SIGGRAPH 1997.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from workers.kernels.octahedral import add_border, oct_texel_directions
+from workers.kernels.sampling import fibonacci_sphere
+from workers.kernels.sh import _sh_basis
+
+__all__ = ["SPOT_FACTOR", "PHOTONS", "CELL_FRACTION", "MAX_VIRTUAL_LIGHTS", "MIN_DISTANCE_FRACTION",
+           "spot_thresholds", "split_direct", "spot_correction"]
+
+SPOT_FACTOR = 32.0
+"""c = this times the median luminance of a light's non-zero direct irradiance at the probe rays' hits."""
+PHOTONS = 1 << 16
+"""Photons per point / spot light."""
+CELL_FRACTION = 0.125
+"""Photons are merged into cubic cells of this fraction of the smallest probe spacing (one virtual light each)."""
+MAX_VIRTUAL_LIGHTS = 1024
+"""Virtual lights per light at most (each costs a shadow ray per probe): the cells double until they fit."""
+MIN_DISTANCE_FRACTION = 0.25
+"""A virtual light's distance to a probe is clamped below at this fraction of the smallest probe spacing."""
+_LUMA = np.array([0.2126, 0.7152, 0.0722])
+
+
+def _luma(e):
+    return np.asarray(e, np.float64) @ _LUMA
+
+
+def spot_thresholds(per_light: list[np.ndarray], lights: list) -> list[float]:
+    """c per light from its direct irradiance (H, 3) at the hits (module doc); inf for a light lighting no hit and
+    for a directional light (no 1/d²: no spot)."""
+    out = []
+    for e, light in zip(per_light, lights):
+        if light["type"] not in ("point", "spot"):
+            out.append(math.inf)
+            continue
+        y = _luma(e)
+        y = y[y > 0]
+        out.append(SPOT_FACTOR * float(np.median(y)) if y.size else math.inf)
+    return out
+
+
+def split_direct(per_light: list[np.ndarray], thresholds: list[float]) -> np.ndarray:
+    """(H, 3) float32: the bounded part ``Σ_l E_l·min(1, c_l/Y(E_l))`` of the direct irradiance (module doc)."""
+    out = np.zeros(per_light[0].shape if per_light else (0, 3), np.float64)
+    for e, c in zip(per_light, thresholds):
+        y = _luma(e)
+        out += np.asarray(e, np.float64) * np.minimum(1.0, c / np.maximum(y, 1e-30))[:, None]
+    return out.astype(np.float32)
+
+
+def _virtual_lights(scene, caster, light: dict, c: float, double_sided: np.ndarray, cell: float):
+    """The excess of one point / spot light as merged virtual lights: (position (V, 3), normal (V, 3), ρΦ_ex/π
+    (V, 3)) float64, the normal facing the light."""
+    from workers.kernels.shading import direct_irradiance, surface_at_hits
+    from workers.raycast.probes import trace_probes
+
+    p = np.asarray(light["position"], np.float64)
+    dirs = fibonacci_sphere(PHOTONS).astype(np.float64)
+    t, tri, u, v, back, _ = trace_probes(caster, p[None].astype(np.float32), dirs, double_sided)
+    front = np.flatnonzero((tri[0] >= 0) & ~back[0])
+    if front.size == 0:
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
+    s = surface_at_hits(scene, tri[0][front], u[0][front], v[0][front])
+    y = p + t[0][front, None].astype(np.float64) * dirs[front]
+    n = np.asarray(s["normal"], np.float64)
+    n = np.where((np.einsum("ij,ij->i", n, dirs[front]) > 0)[:, None], -n, n)      # facing the light
+    e = direct_irradiance(y, n, [light], None, 0.0).astype(np.float64)            # unshadowed: the first hit
+    ye = _luma(e)
+    share = np.maximum(0.0, 1.0 - c / np.maximum(ye, 1e-30))
+    keep = share > 0
+    if not keep.any():
+        return np.zeros((0, 3)), np.zeros((0, 3)), np.zeros((0, 3))
+    d2 = np.einsum("ij,ij->i", y - p, y - p)
+    cos_l = np.abs(np.einsum("ij,ij->i", n, dirs[front]))
+    # photon flux Φ_i = E·dA with dA = (4π/N)·d²/cos θ: the light's flux into the photon's solid angle
+    flux = e * ((4.0 * math.pi / PHOTONS) * d2 / np.maximum(cos_l, 1e-6))[:, None]
+    out = np.asarray(s["albedo"], np.float64) * flux * share[:, None] / math.pi          # ρΦ_ex/π
+    y, n, out = y[keep], n[keep], out[keep]
+    while True:                                         # at most MAX_VIRTUAL_LIGHTS cells: coarser ones if needed
+        _, inv = np.unique(np.floor(y / cell).astype(np.int64), axis=0, return_inverse=True)
+        inv = inv.reshape(-1)
+        if inv.max() < MAX_VIRTUAL_LIGHTS:
+            break
+        cell *= 2.0
+    V = int(inv.max()) + 1
+    w = _luma(out)
+    wsum = np.bincount(inv, w, V)
+    pos = np.stack([np.bincount(inv, w * y[:, k], V) for k in range(3)], 1) / np.maximum(wsum, 1e-30)[:, None]
+    nrm = np.stack([np.bincount(inv, w * n[:, k], V) for k in range(3)], 1)
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1, keepdims=True), 1e-30)
+    power = np.stack([np.bincount(inv, out[:, k], V) for k in range(3)], 1)
+    return pos, nrm, power
+
+
+def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, lights: list, thresholds: list[float],
+                    double_sided: np.ndarray, spacing, n: int, eps: float, sh_order: int = 2):
+    """The excess of every point / spot light at every live probe (module doc): ``(Δmaps (P, n+2, n+2, 3) float32,
+    ΔSH (P, 4|9, 3) float64, virtual lights, shadow rays)``.
+
+    positions : (P, 3) relocated probes, metres; live : (P,) bool (not OFF); lights, thresholds : the scene's
+    lights and :func:`spot_thresholds`; double_sided : (T,) bool; spacing : (3,) probe spacing, metres (0 on a
+    one-probe axis); n : octahedral interior texels; eps : shadow-ray offset, metres.
+    """
+    P = positions.shape[0]
+    K = (sh_order + 1) ** 2
+    dmaps = np.zeros((P, n, n, 3), np.float64)
+    dsh = np.zeros((P, K, 3), np.float64)
+    sp = np.asarray(spacing, np.float64)
+    h = float(sp[sp > 0].min()) if np.any(sp > 0) else 1.0
+    texel = oct_texel_directions(n).reshape(-1, 3).astype(np.float64)              # (n², 3)
+    idx = np.flatnonzero(live)
+    x = positions[idx].astype(np.float64)
+    n_vl = rays = 0
+    for light, c in zip(lights, thresholds):
+        if light["type"] not in ("point", "spot") or not math.isfinite(c):
+            continue
+        pos, nrm, power = _virtual_lights(scene, caster, light, c, double_sided, CELL_FRACTION * h)
+        n_vl += len(pos)
+        for y, ny, pw in zip(pos, nrm, power):
+            w = y - x                                                               # probe -> virtual light
+            d = np.linalg.norm(w, axis=1)
+            om = w / np.maximum(d, 1e-12)[:, None]
+            cos_y = -(om @ ny)                                                      # at y, toward the probe
+            ok = np.flatnonzero(cos_y > 0)
+            if ok.size == 0:
+                continue
+            o = (y + eps * ny)[None].repeat(ok.size, 0)
+            back = x[ok] - o
+            dist = np.linalg.norm(back, axis=1)
+            blocked = np.asarray(caster.occluded(o, back / dist[:, None], tfar=np.maximum(dist - 2 * eps, 0.0)), bool)
+            rays += ok.size
+            ok = ok[~blocked]
+            if ok.size == 0:
+                continue
+            g = cos_y[ok] / np.maximum(d[ok], MIN_DISTANCE_FRACTION * h) ** 2           # cos θ_y / d²
+            a = g[:, None] * pw[None]                                               # (k, 3) irradiance at normal ω
+            cosn = np.maximum(om[ok] @ texel.T, 0.0)                                # (k, n²)
+            dmaps[idx[ok]] += (cosn[..., None] * a[:, None, :]).reshape(-1, n, n, 3)   # E(n) per texel
+            dsh[idx[ok]] += _sh_basis(om[ok], K)[..., None] * a[:, None, :]         # radiance SH of a delta
+    return add_border(dmaps).astype(np.float32), dsh, n_vl, rays
