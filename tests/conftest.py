@@ -28,10 +28,10 @@ auth, events, the cache, exit codes) rather than about its quality: an automatic
 32 rays per probe, 2 visibility samples per cell, 10 annealing sweeps, no evaluation. The default config (an
 automatic grid of up to 24,000 probes, 256 rays, a path-traced reference) takes minutes of the CI's 2 cores."""
 
-SMALL_EVALUATE = {"enabled": True, "cameras": 1, "width": 32, "height": 24, "spp": 2, "check_spp": 16,
-                  "repeats": 1, "previews": 0, "surface_points": 32, "modes": ["direct", "leaking"]}
+SMALL_EVALUATE = {"enabled": True, "cameras": 1, "width": 32, "height": 24, "spp": 2, "repeats": 1, "previews": 0,
+                  "surface_points": 32, "modes": ["direct", "leaking"]}
 """An evaluate section for SMALL_BAKE where a test needs the reference and evaluate stages to run: one camera,
-32x24 pixels, 32 surface points at 2 paths (16 per check point), two modes, one timed repeat, no previews."""
+32x24 pixels, 32 surface points at 2 paths, two modes, one timed repeat, no previews."""
 
 
 def small_bake(**sections: dict) -> dict:
