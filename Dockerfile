@@ -19,9 +19,10 @@ WORKDIR /app
 # Only what the package needs (no .venv, tests or data in the image).
 COPY pyproject.toml ./
 COPY proto ./proto
+COPY persist ./persist
 COPY workers ./workers
 COPY server ./server
-RUN pip install --no-cache-dir . \
+RUN pip install --no-cache-dir ".[api,worker,render]" \
     && rm -rf build *.egg-info
 
 # Non-root; /data is created owned by that user so a fresh named volume mounted there inherits it.

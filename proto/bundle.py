@@ -26,7 +26,8 @@ from typing import Any, Literal
 
 import numpy as np
 
-from proto.ktx2 import KTX2Error, atomic_write_bytes, decode_ktx2, encode_ktx2
+from proto.atomic import atomic_write_bytes
+from proto.ktx2 import KTX2Error, decode_ktx2, encode_ktx2
 from proto.models import FORMAT_VERSION, ArtifactInfo, Manifest
 
 __all__ = [

@@ -26,7 +26,7 @@ prt        C × (M + N bounces) + lightmap texels         a batch × N + C × (P
 reference  (points × spp + preview px × preview_spp) × ~3  the preview G-buffers and reference images
            path vertices (path tracer, Russian roulette);
            check-point normals × check_spp paths
-evaluate   points × modes + preview px × modes × repeats  W × H per mode of the previews
+evaluate   points × modes + preview px × modes × draws    W × H per mode of the previews
 ========== ============================================= ===============================================
 
 The automatic grid (``place.counts`` and ``place.spacing`` both None) is estimated at its upper bound:
@@ -87,7 +87,7 @@ PRT_FIXED_MEM = 40 * MB       # the measurement points, the lightmap's atlas (xa
 PRT_MEM_PER_CONFIG_RAY = 88    # the batched bounce loop: a batch's configurations' radiance on every probe ray
 PRT_MEM_PER_CONFIG_TEXEL = 48  # every configuration's lightmap texels, and their fit (float64)
 PRT_MEM_PER_RAY = 256          # the DDGI sampler as a sparse matrix, a row per probe-ray hit
-PRT_BATCH_BYTES = 256 << 20    # workers.stages.prt.BATCH_BYTES: per-ray radiance of one batch of configurations
+PRT_BATCH_BYTES = 256 << 20    # kernels.prt_dataset.BATCH_BYTES: per-ray radiance of one batch of configurations
 EVAL_MEM_PER_PIXEL = 4600      # G-buffer, reference accumulators, every mode's image and FLIP, per pixel
 
 # -- seconds on this 2-core machine (fitted, see CALIBRATION) -------------------------------------------------
@@ -291,7 +291,7 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         L2 = prt.lightmap ** 2
         seconds = (C * N * B * PRT_SECONDS_PER_CONFIG_RAY_BOUNCE + C * L2 * PRT_SECONDS_PER_CONFIG_TEXEL
                    + C * M * PRT_SECONDS_PER_CONFIG_POINT * rays_scale / 0.5)
-        # configurations are solved in batches of at most 256 MB of per-ray radiance (workers/stages/prt.py)
+        # configurations are solved in batches of at most 256 MB of per-ray radiance (workers/kernels/prt_dataset.py)
         batch = min(C, max(1, min(64, PRT_BATCH_BYTES // max(N * 12, 1))))
         memory = (LIB_RAYS + PRT_FIXED_MEM + scene_mem + batch * N * PRT_MEM_PER_CONFIG_RAY
                   + C * L2 * PRT_MEM_PER_CONFIG_TEXEL + C * P * sh_k * 12 + N * PRT_MEM_PER_RAY)
@@ -305,7 +305,10 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         px = pv * ev.width * ev.height
         cpn = len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0   # check-point normals
         pts = ev.surface_points + cpn
-        paths = ev.surface_points * ev.spp + cpn * ev.effective_check_spp()
+        # dark surface points get dark_spp paths (reference.refine_dark): 5% of the points, an upper bound of what
+        # the scenes measured (two-rooms 2.6%)
+        paths = ev.surface_points * ev.spp + cpn * ev.effective_check_spp() + \
+            0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp)
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6
         lib = LIB_EVAL if px else LIB_RAYS                      # EGL only for the previews
@@ -313,8 +316,11 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
             * EVAL_SECONDS_PER_PATH_BOUNCE * rays_scale,
             lib + scene_mem + px * EVAL_MEM_PER_PIXEL + ev.surface_points * ev.spp * 64
             + min(cpn * ev.effective_check_spp(), PATH_CHUNK) * PATH_BYTES, 0, internal=pts * 108 + px * 120)
+        # draws per mode and preview: the image and E_indirect, plus a warm-up and `repeats` timed when repeats > 0;
+        # EVAL_SECONDS_PER_PIXEL_PASS was calibrated per timed repeat at repeats = 3 (6 draws): half of it a draw
+        draws = 2 + (ev.repeats + 1 if ev.repeats else 0)
         seconds = (0.5 * EVAL_FIXED_SECONDS if px else 0.0) + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
-            ev.repeats * EVAL_SECONDS_PER_PIXEL_PASS + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
+            draws * EVAL_SECONDS_PER_PIXEL_PASS / 2 + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
         add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * 64 + F * 9,
             px * 4 * (2 * modes + 2) + pts * modes * 24)
     else:

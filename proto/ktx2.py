@@ -28,10 +28,9 @@ from pathlib import Path
 from typing import Any, BinaryIO
 
 import numpy as np
-
-from proto.store import atomic_write_bytes
 import pyzstd
 
+from proto.atomic import atomic_write_bytes
 from proto.models import FORMAT_VERSION
 
 __all__ = [
@@ -39,7 +38,6 @@ __all__ = [
     "KTX2Error",
     "KTX2_IDENTIFIER",
     "VkFormatInfo",
-    "atomic_write_bytes",
     "decode_ktx2",
     "encode_ktx2",
     "format_for",

@@ -22,6 +22,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, Strict, StrictBool, field_validator, model_validator
 
+from proto.gi_modes import SELF_SHADOW_BIAS
+
 FORMAT_VERSION = 1
 """Bundle format version written into every manifest (see proto/bundle.md)."""
 
@@ -222,7 +224,8 @@ class LightSection(_Strict):
                                          "every probe")
     irradiance_texels: Int = Field(8, ge=4, le=32, description="octahedral irradiance map size per probe (+1 border)")
     sh_order: Literal[1, 2] = Field(2, description="spherical-harmonics order of the per-probe SH output")
-    self_shadow_bias: Float = Field(0.3, ge=0.0, le=2.0, description="B of DDGI-P eq 2")
+    self_shadow_bias: Float = Field(SELF_SHADOW_BIAS, ge=0.0, le=2.0,
+                                    description="B of DDGI-P eq 2")  # default: proto/gi_modes.json
 
     @field_validator("sh_order", mode="before")
     @classmethod
@@ -365,11 +368,16 @@ class EvaluateSection(_Strict):
     width: Int = Field(160, ge=16, le=4096, description="reference: preview width, pixels")
     height: Int = Field(120, ge=16, le=4096, description="reference: preview height, pixels")
     fov_y: Float = Field(60.0, gt=1.0, lt=179.0, description="reference: degrees, for auto-placed cameras")
-    spp: Int = Field(64, ge=1, le=65536, description="reference: paths per surface point")
+    spp: Int = Field(128, ge=1, le=65536, description="reference: paths per surface point")
     check_spp: Int | None = Field(None, ge=1, le=262144, description=(
         "reference: paths per check-point normal; default max(spp, 8192): check points are few and a level "
         "designer reads each one, so each gets a low-noise value (measured on two rooms: a region of a room lit "
         "only through a doorway scatters ±2% between seeds at 8192-16384 paths, up to 11% at 2048)"))
+    dark_spp: Int = Field(1024, ge=0, le=262144, description=(
+        "reference: paths per surface point whose reference is dark after the first spp paths (luminance at most "
+        "twice the leak metric's threshold, 10% of the mean): the leak metrics are computed there, where the "
+        "reference is least certain (two-rooms: 54 of 2048 points dark, 33% relative noise at 64 paths); "
+        "0 or <= spp: none"))
     preview_spp: Int = Field(4, ge=1, le=4096, description="reference: paths per preview pixel (pictures only, "
                                                            "never metrics)")
     bounces: Int | None = Field(None, ge=1, le=256, description="reference: path bounces; default 64 with "
@@ -385,7 +393,9 @@ class EvaluateSection(_Strict):
                                                       "EGL/Mesa, skipped with a warning without it)")
     modes: list[Literal["direct", "leaking", "ddgi", "mask", "mask_normalized", "prt"]] | None = Field(
         None, description="modes to evaluate; default: every mode the bake has data for")
-    repeats: Int = Field(3, ge=1, le=100, description="timed repeats of each shading pass (median reported)")
+    repeats: Int = Field(0, ge=0, le=100, description="timed repeats of each shading pass (median reported, after "
+                         "a warm-up draw); 0: the time of the preview's own second draw, one sample and no extra draw "
+                         "(tests/bench/bench_evaluate.py times with 7 for MD Table 1)")
     flip: Bool = Field(False, description="compute FLIP on the previews (about 0.1 s per mode and camera at "
                                           "160x120; against a low-spp preview reference)")
 

@@ -4,17 +4,17 @@ Shared by the API (which plans a bake and enqueues jobs by name) and the workers
 map each name to its function in :mod:`workers.pipeline`). A stage's cache key is the
 sha256 of its name and version, the config sections it reads, and the keys of the stages it
 reads (the first stage reads the scene id) — so keys are known before anything runs.
+
+Pure: nothing here writes. :func:`build_manifest` and :func:`finalize_bake` read finished stages' records
+through any :class:`StageRecords` (``persist.store.Store`` is one) and return what the caller writes.
 """
 from __future__ import annotations
 
 import hashlib
 from dataclasses import dataclass, replace
-from pathlib import Path
+from typing import Protocol
 
-from proto import bundle
 from proto.models import ArtifactInfo, BakeConfig, BakeWarning, Manifest, SceneSummary, StageInfo
-from proto.catalog import Catalog
-from proto.store import Store, atomic_write_bytes
 
 KILN_VERSION = "0.1.0"
 
@@ -33,8 +33,8 @@ class StageDef:
     parent: str | None = None
 
 
-REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "check_spp", "preview_spp", "bounces",
-                    "surface_points", "sampling", "points", "previews")
+REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "check_spp", "dark_spp", "preview_spp",
+                    "bounces", "surface_points", "sampling", "points", "previews")
 """The ``evaluate`` fields the ``reference`` stage reads (its cache key): not the modes, repeats or FLIP."""
 
 STAGES: tuple[StageDef, ...] = (
@@ -43,7 +43,7 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("place", 5, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
-    StageDef("light", 1, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    StageDef("light", 2, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     StageDef("anneal", 1, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),
@@ -170,13 +170,20 @@ def collect_warnings(stages: list[tuple[str, dict | None]], scene_warnings: list
     return unique
 
 
-def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_id: str | None = None,
+class StageRecords(Protocol):
+    """Where finished stages' records are read by cache key; ``persist.store.Store`` is one."""
+
+    def get_stage(self, cache_key: str) -> dict | None:
+        """The record ``{"seconds", "stats", "artifacts": [ArtifactInfo dicts]}`` of a finished stage, or None."""
+
+
+def build_manifest(records: StageRecords, scene_summary: dict, config: BakeConfig, bake_id: str | None = None,
                    cached: dict[str, bool] | None = None, namespace: str | None = None) -> Manifest:
     """The bundle manifest of a bake whose stages are all in the store, with every stage's and the scene's
     warnings collected into ``warnings`` (:func:`collect_warnings`). ``namespace``: as for :func:`plan`."""
     stages, artifacts, grid = [], [], {}
     for st, key in plan(scene_summary["id"], config, namespace):
-        rec = store.get_stage(key)
+        rec = records.get_stage(key)
         if rec is None:
             raise RuntimeError(f"stage {st.name} is not in the store")
         stages.append(StageInfo(name=st.name, seconds=rec["seconds"], cache_key=key,
@@ -193,33 +200,39 @@ def build_manifest(store: Store, scene_summary: dict, config: BakeConfig, bake_i
                     warnings=warnings)
 
 
-def finalize_bake(catalog: Catalog, store: Store, bake: dict) -> dict:
-    """Build the manifest of a bake whose stages are all stored, mark it succeeded; returns the manifest."""
-    config = BakeConfig.model_validate(bake["config"])
-    scene = catalog.get_scene(bake["team"], bake["scene_id"])
-    if scene is None:
-        raise RuntimeError(f"scene {bake['scene_id']} of bake {bake['id']} is not in the catalog")
-    summary = {k: scene[k] for k in ("id", "triangles", "bounds", "lights", "materials", "warnings")}
-    cached = {s["name"]: s["cached"] for s in bake.get("stages", [])}
-    manifest = build_manifest(store, summary, config, bake_id=bake["id"], cached=cached, namespace=bake["team"])
+def manifest_metrics(manifest: Manifest) -> dict[str, float]:
+    """The flat metrics the catalog keeps for a finished bake (dashboards, gates, quotas).
+
+    ``stage_seconds.<stage>`` per stage (seconds), ``artifact_bytes`` (the bundle's artifacts, bytes), and the
+    evaluate stage's finite quality metrics ``<mode>.<metric>`` as its stats hold them.
+    """
     metrics = {f"stage_seconds.{s.name}": s.seconds for s in manifest.stages}
     metrics["artifact_bytes"] = sum(a.bytes for a in manifest.artifacts)
     for s in manifest.stages:  # the evaluate stage's quality metrics: "<mode>.<metric>"
         if s.name == "evaluate":
             metrics.update({k: v for k, v in (s.stats.get("metrics") or {}).items()
                             if isinstance(v, (int, float)) and v == v})
-    catalog.set_metrics(bake["id"], metrics)
-    data = manifest.model_dump(mode="json")
-    catalog.set_bake_status(bake["id"], "succeeded", manifest=data)
-    return data
+    return metrics
 
 
-def export_bundle(store: Store, manifest: Manifest, out_dir: str | Path) -> Path:
-    """Write the bundle (manifest.json + one file per artifact) into ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    for a in manifest.artifacts:
-        data = store.read_bytes(a.sha256)
-        atomic_write_bytes(out / a.file, data)
-    bundle.write_manifest(out, manifest)
-    return out
+@dataclass(frozen=True)
+class Finalized:
+    """What finishing a bake writes to the catalog: its ``manifest`` (JSON-ready dict) and ``metrics``."""
+    manifest: dict
+    metrics: dict[str, float]
+
+
+def finalize_bake(bake: dict, scene: dict | None, records: StageRecords) -> Finalized:
+    """The manifest and metrics of a bake whose stages are all stored; writes nothing.
+
+    ``bake``: the catalog's bake (``id``, ``team``, ``scene_id``, ``config``, ``stages``); ``scene``: the
+    catalog's scene of that team (``None`` when it is gone: a RuntimeError). The caller records the result
+    (``persist.catalog.Catalog.mark_succeeded``).
+    """
+    config = BakeConfig.model_validate(bake["config"])
+    if scene is None:
+        raise RuntimeError(f"scene {bake['scene_id']} of bake {bake['id']} is not in the catalog")
+    summary = {k: scene[k] for k in ("id", "triangles", "bounds", "lights", "materials", "warnings")}
+    cached = {s["name"]: s["cached"] for s in bake.get("stages", [])}
+    manifest = build_manifest(records, summary, config, bake_id=bake["id"], cached=cached, namespace=bake["team"])
+    return Finalized(manifest=manifest.model_dump(mode="json"), metrics=manifest_metrics(manifest))

@@ -3,5 +3,5 @@
 # the API and page on http://127.0.0.1:8000 . Extra arguments go to `kiln serve`.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-bash scripts/setup.sh
+KILN_EXTRAS=${KILN_EXTRAS:-api,worker,render} bash scripts/setup.sh   # what serving needs (not the test tools)
 exec .venv/bin/kiln serve "$@"

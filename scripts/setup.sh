@@ -1,8 +1,11 @@
 #!/usr/bin/env bash
 # Idempotent setup: Debian packages (when root and missing), a venv in .venv, the project
 # and its test dependencies. Re-running it does nothing that is already done.
+# KILN_EXTRAS picks the pyproject extras: `test` (the default; it pulls api, worker and render) or, for
+# scripts/serve.sh, `api,worker,render` (what `kiln serve` runs: the API, the workers, the evaluate renderer).
 set -euo pipefail
 cd "$(dirname "$0")/.."
+EXTRAS=${KILN_EXTRAS:-test}
 
 # Debian packages Kiln needs at run time: a venv, OpenMP for embree, EGL + Mesa (llvmpipe) for the
 # headless moderngl renderer of the evaluate stage.
@@ -47,6 +50,7 @@ if [ ${#need_apt[@]} -gt 0 ]; then
 fi
 
 opt_missing=()
+case ",$EXTRAS," in *,test,*) ;; *) DEB_OPTIONAL="" ;; esac   # Chromium is for the browser tests only
 if command -v dpkg-query >/dev/null 2>&1; then
   for p in $DEB_OPTIONAL; do
     dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || opt_missing+=("$p")
@@ -72,11 +76,14 @@ if [ ! -x .venv/bin/python ]; then
 fi
 stamp=.venv/.kiln-installed
 want=$(cat pyproject.toml | sha256sum | cut -d' ' -f1)
-if [ ! -f "$stamp" ] || [ "$(cat "$stamp")" != "$want" ] || ! .venv/bin/python -c 'import server.cli' 2>/dev/null; then
-  log "installing Kiln and its dependencies into .venv"
+have=$(cat "$stamp" 2>/dev/null || true)
+# installed for this pyproject with these extras, or with `test` (a superset of every other extra)
+if { [ "$have" != "$want $EXTRAS" ] && [ "$have" != "$want test" ]; } ||
+   ! .venv/bin/python -c 'import server.cli, persist' 2>/dev/null; then
+  log "installing Kiln and its dependencies into .venv (extras: $EXTRAS)"
   .venv/bin/python -m pip install -q --upgrade pip >/dev/null
-  .venv/bin/python -m pip install -q -e ".[test]"
-  echo "$want" > "$stamp"
+  .venv/bin/python -m pip install -q -e ".[$EXTRAS]"
+  echo "$want $EXTRAS" > "$stamp"
 fi
 
 # The web viewer (web/): `npm ci` when the lock file changed, `npm run build` when any input of the build

@@ -129,8 +129,9 @@ def _default_cache() -> Path:
 
 
 def bake_local(args) -> int:
-    from proto.stages import expand, export_bundle
-    from proto.store import Store
+    from persist.export import export_bundle
+    from persist.store import Store
+    from proto.stages import expand
     from workers.gltf import IngestError, ingest_file
     from workers.pipeline import bake_local as run
     from workers.stages.base import StageError
@@ -305,7 +306,7 @@ def _extract(zpath: Path, out: Path) -> None:
             name = Path(m.filename)
             if name.is_absolute() or ".." in name.parts or len(name.parts) != 1:
                 raise CliError(EXIT_SERVER, f"the bundle holds an unexpected path {m.filename!r}")
-            from proto.store import atomic_write_bytes
+            from proto.atomic import atomic_write_bytes
             atomic_write_bytes(out / name.name, z.read(m))
 
 

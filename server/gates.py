@@ -83,7 +83,8 @@ def parse_gates(texts) -> list[Gate]:
 
 
 def manifest_metrics(manifest: dict) -> dict[str, float]:
-    """The flat metrics of a bake from its manifest, as ``proto.stages.finalize_bake`` records them."""
+    """The flat metrics of a bake from its manifest, as ``proto.stages.manifest_metrics`` gives them to the catalog
+    (here without infinities and booleans)."""
     out: dict[str, float] = {}
     for s in manifest.get("stages", []):
         out[f"stage_seconds.{s['name']}"] = float(s.get("seconds") or 0.0)

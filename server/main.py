@@ -13,9 +13,9 @@ from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 from fastapi_offline import FastAPIOffline
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
+from persist.store import Store
 from proto.stages import KILN_VERSION
-from proto.store import Store
 from server import queue
 from server.api import errors, openapi
 from server.api.guard import Guard
@@ -23,6 +23,7 @@ from server.api.jsonbody import FiniteJSONResponse
 from server.api.routes import bakes, compare, ops, relight, review, scenes, thresholds
 from server.config import Settings, get_settings
 from server.ingest_pool import IngestPool
+from workers.relight import RelightCache
 
 log = logging.getLogger("kiln.api")
 STATIC = Path(__file__).parent / "static"
@@ -58,6 +59,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.settings = settings
         app.state.catalog = Catalog(settings.data / "kiln.db")
         app.state.store = Store(settings.data / "store")
+        app.state.relight_cache = RelightCache()
         if not settings.redis_url:
             raise RuntimeError("REDIS_URL is not set (kiln serve starts an embedded Redis and sets it)")
         app.state.redis = queue.connect(settings.redis_url)

@@ -22,8 +22,8 @@ from rq.command import send_stop_job_command
 from rq.exceptions import InvalidJobOperation, NoSuchJobError
 from rq.job import Job, JobStatus
 
+from persist.catalog import Catalog
 from proto import cost
-from proto.catalog import Catalog
 from proto.models import BakeConfig
 from proto.stages import dependencies, expand, plan
 
@@ -33,8 +33,6 @@ SHORT_QUEUE = "kiln-short"
 LONG_QUEUE = "kiln-long"
 QUEUES = (SHORT_QUEUE, LONG_QUEUE)
 """In the order workers listen to them: short first."""
-QUEUE_NAME = SHORT_QUEUE
-"""The queue of ``finish_bake`` and of short stages (kept under its old name for callers)."""
 LEGACY_QUEUE = "kiln"
 """The single queue of earlier versions: workers still drain it, nothing new goes there."""
 RETRIES = 2

@@ -120,8 +120,10 @@ class Service:
         self.stop_workers()
         self.redis.stop()
 
-    def wait_bake(self, bake_id: str, timeout: float = 60.0, headers: dict | None = None,
+    def wait_bake(self, bake_id: str, timeout: float = 240.0, headers: dict | None = None,
                   until=("succeeded", "failed", "cancelled")) -> dict:
+        """The bake once its status is in ``until``. ``timeout`` (s) bounds a hang, it measures nothing: a default
+        config bake on a loaded 2-core machine takes minutes."""
         deadline = time.monotonic() + timeout
         while True:
             b = self.client.get(f"/v1/bakes/{bake_id}", headers=headers or {}).json()

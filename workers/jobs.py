@@ -38,10 +38,10 @@ import traceback
 from functools import lru_cache
 from pathlib import Path
 
-from proto.catalog import TERMINAL, Catalog
+from persist.catalog import TERMINAL, Catalog
+from persist.store import Store
 from proto.models import BakeConfig
 from proto.stages import finalize_bake
-from proto.store import Store
 from workers import pipeline
 from workers.stages.base import Cancelled, StageError
 
@@ -347,7 +347,8 @@ def finish_bake(bake_id: str) -> dict:
     if any(s["status"] != "succeeded" for s in bake["stages"]):
         # A stage did not finish (cancelled or lost): leave the bake to recovery.
         return {"incomplete": True}
-    finalize_bake(catalog, store, bake)
+    done = finalize_bake(bake, catalog.get_scene(bake["team"], bake["scene_id"]), store)
+    catalog.mark_succeeded(bake_id, done.manifest, done.metrics)
     return {"succeeded": True}
 
 

@@ -16,10 +16,10 @@ import time
 from pathlib import Path
 from typing import Callable
 
+from persist.store import Store
 from proto import bundle
 from proto.models import ArtifactInfo, BakeConfig, Manifest
 from proto.stages import STAGE_BY_NAME, build_manifest, plan
-from proto.store import Store
 from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput
 from workers.stages.anneal import run_anneal

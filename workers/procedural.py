@@ -99,7 +99,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from proto.store import atomic_write_bytes
+from proto.atomic import atomic_write_bytes
 
 __all__ = ["SCENES", "BAKE_BOXES", "MATERIAL_SCENES", "ALL_SCENES", "make_scene", "write_scene"]
 

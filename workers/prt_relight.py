@@ -1,13 +1,12 @@
 """Relighting a PRT bake: new lights -> the reconstructed indirect (probe SH volume, lightmap).
 
-Used by the API (``POST /v1/bakes/{id}/relight``, :mod:`server.api.routes.relight`) and by the evaluate
-stage. The math is :mod:`workers.kernels.prt` (PRT eq 10 + §4.2): direct vector x at the measurement
+Used by :mod:`workers.relight` (what ``POST /v1/bakes/{id}/relight`` runs) and by the evaluate stage. The math is :mod:`workers.kernels.prt` (PRT eq 10 + §4.2): direct vector x at the measurement
 points, then per colour channel ``u_c = T_c [x_c, ‖x_c‖]`` and ``y_c = Σ_j u_cj · slot_j``.
 
 The direct vector needs shadow rays. The choice made here: **trace them** (Embree, from the
-measurement samples to each light), with a ray caster built once per scene and cached in the process
-(:func:`get_caster`; a BVH build is ~65 ms for 58k triangles, the rays themselves ~M·S·lights, a few
-hundred, well under a millisecond). Precomputing visibility instead is not possible for arbitrary new
+measurement samples to each light), with a ray caster the caller builds once per scene and keeps
+(:class:`workers.relight.RelightCache`; a BVH build is ~65 ms for 58k triangles, the rays themselves
+~M·S·lights, a few hundred, well under a millisecond). Precomputing visibility instead is not possible for arbitrary new
 lights: it would need visibility from every measurement sample to every possible light position. Without
 shadows the direct vector of any light behind a wall would be wrong.
 
@@ -30,10 +29,7 @@ Outputs (float32, same layouts and names as the light stage's artifacts, proto/b
 from __future__ import annotations
 
 import math
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
-from typing import Callable
 
 import numpy as np
 
@@ -41,7 +37,7 @@ from workers.kernels import prt as kprt
 from workers.kernels.sh import sh_l2_atlas
 from workers.kernels.shading import direct_irradiance
 
-__all__ = ["PrtModel", "relight", "direct_vector", "get_caster"]
+__all__ = ["PrtModel", "relight", "direct_vector"]
 
 
 @dataclass
@@ -139,7 +135,7 @@ def relight(prt_arrays, lights: list[dict], caster=None, *, lightmap: bool = Tru
         Lights in the scene format (``proto.models.LightConfig.model_dump()`` works): type, position,
         direction, color, intensity, range, cone angles. An empty list gives zeros.
     caster : workers.raycast.RayCaster
-        For the shadow rays of the direct vector (:func:`get_caster` caches one per scene). Required
+        For the shadow rays of the direct vector (:class:`workers.relight.RelightCache` keeps one per scene). Required
         unless ``lights`` is empty.
     lightmap : bool
         Also reconstruct the lightmap (when the bake has one).
@@ -147,7 +143,7 @@ def relight(prt_arrays, lights: list[dict], caster=None, *, lightmap: bool = Tru
     model = prt_arrays if isinstance(prt_arrays, PrtModel) else PrtModel.from_arrays(prt_arrays)
     if lights and caster is None:
         raise ValueError("relight: a ray caster is needed for the shadow rays of the direct vector "
-                         "(workers.prt_relight.get_caster or workers.raycast.caster_for_scene(scene))")
+                         "(workers.raycast.caster_for_scene(scene))")
     x = direct_vector(model, list(lights), caster)
     nx, ny, nz = model.counts
     K = model.coefficients
@@ -164,29 +160,3 @@ def relight(prt_arrays, lights: list[dict], caster=None, *, lightmap: bool = Tru
         img[model.lm_texels, 3] = 1.0
         out["lightmap"] = img.reshape(res, res, 4)
     return out
-
-
-# ------------------------------------------------------------------------------------------ caster cache
-_CASTERS: "OrderedDict[str, object]" = OrderedDict()
-_CASTER_LOCK = threading.Lock()
-CASTER_CACHE_SIZE = 4
-"""Scenes whose ray caster (Embree BVH) stays in memory in one process."""
-
-
-def get_caster(key: str, scene: Callable[[], object]):
-    """The ray caster of scene ``key`` (:func:`workers.raycast.caster_for_scene`, cutouts included), built
-    once (``scene()`` gives the :class:`workers.scene.NormalizedScene`) and kept in a small LRU. Casters are
-    safe to query from several threads."""
-    from workers.raycast import caster_for_scene
-
-    with _CASTER_LOCK:
-        if key in _CASTERS:
-            _CASTERS.move_to_end(key)
-            return _CASTERS[key]
-    caster = caster_for_scene(scene())    # built outside the lock; a race builds twice, harmlessly
-    with _CASTER_LOCK:
-        _CASTERS[key] = caster
-        _CASTERS.move_to_end(key)
-        while len(_CASTERS) > CASTER_CACHE_SIZE:
-            _CASTERS.popitem(last=False)
-        return _CASTERS[key]

@@ -13,7 +13,7 @@ vec3 giGridCoord(vec3 p) {
 // centres: with LINEAR filtering this equals CLAMP_TO_EDGE, and it never reads outside the volume, so
 // several volumes can be stacked along z in one texture (giStackedUVW).
 vec3 giProbeTexel(vec3 p) {
-  return clamp(giGridCoord(p) + 0.5, vec3(0.5), uGridCounts - 0.5);
+  return clamp(giGridCoord(p) + 0.5, vec3(0.5), uGridCounts - 0.5);  // hardware trilinear: the φ_i of MD eq 2-3
 }
 
 // uvw in a 3D texture holding `count` probe volumes stacked along z (volume `slot` at z texels

@@ -25,8 +25,8 @@
 //                     linear L2 evaluation (sh.glsl shIrradianceL2Packed). uClusterSh is then not read.
 //   uClusterWeights   cluster_weights_0123 (+ _4567) stacked the same way, RGBA32F, LINEAR
 // Uniforms from the atlas meta: uMaskS (S, samples_per_cell), uMaskT (block_size), uMaskLo (border_lo);
-// uMaskOffset: refined samples (1, samplers.MASK_OFFSET_SAMPLES) the lookup moves along d = n + giViewDir, per axis
-// (g' = g + uMaskOffset·d/S on axes with more than one probe; compress.mask_lookup_texel), read from p's own cell's
+// uMaskOffset: refined samples (1, gi_modes.json mask_offset_samples) the lookup moves along d = n + giViewDir, per
+// axis (g' = g + uMaskOffset·d/S on axes with more than one probe; compress.mask_lookup_texel), read from p's own cell's
 // samples only. The normal term puts the footprint one sample in front of the surface: refined samples inside a
 // wall see no probe and hold masks filled from both sides, so a footprint half inside a thin wall weights the far
 // side's clusters by up to 1/2. The view term (DDGI-P eq 2's idea) moves it towards the camera's side, away from a
@@ -55,6 +55,8 @@ uniform float uMaskS;
 uniform float uMaskT;
 uniform float uMaskLo;
 uniform float uMaskOffset;
+uniform float uMaskSeen;   // proto/gi_modes.json mask_seen_threshold (0.1)
+uniform vec2 uMaskBlend;   // proto/gi_modes.json mask_blend (0.25, 0.5)
 
 // The compressed masks of clusters 0-3 (atlas 0) or 4-7 (atlas 1) at the mask lookup point of (p, n)
 // (workers/kernels/compress.py module doc, "Sampling"; mask_lookups): uMaskOffset samples along n + giViewDir, blended
@@ -66,11 +68,13 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 g = giGridCoord(p) + 0.5 * (1.0 - live);
   vec3 cell = clamp(floor(g), vec3(0.0), cells - 1.0);
   vec3 lo = cell * uMaskS, hi = cell * uMaskS + uMaskS - 1.0;
-  vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);
+  vec3 blk = floor(texelFetch(uMaskIndirection, ivec3(cell), 0).xyz * 255.0 + 0.5);  // the cell's cube (MD §3.4.2)
   // both sides (compress.mask_lookups, lookup_blend): the read moved uMaskOffset samples along n + v (a) and the read
-  // at p itself (b); overlap = sum(min(a, b)) / sum(a) over the lookup's channels; m = mix(b, a, s), s rising from 0
-  // at overlap 0.25 to 1 at 0.5 (compress.MASK_OVERLAP): a surface's offset read holds its own side's clusters, which
-  // its footprint holds too (a); an offset that crossed a surface reads what p does not see (b)
+  // at p itself (b); seen = sum(a * min(b / uMaskSeen, 1)) / sum(a) over the lookup's channels (the share of a's
+  // clusters that p sees too); m = mix(b, a, s), s rising from 0 at seen uMaskBlend.x to 1 at uMaskBlend.y
+  // (compress.lookup_blend): a surface's offset read holds its own side's clusters, which its footprint holds too
+  // (a); an offset that crossed a surface reads what p does not see (b)
+  // t1 biased along n + v, the idea of DDGI-P eq 2
   vec3 t1 = clamp((g + live * (uMaskOffset / uMaskS) * (n + giViewDir)) * uMaskS - 0.5, lo, hi);
   vec3 t0 = clamp(g * uMaskS - 0.5, lo, hi);
   vec3 tc1 = blk * uMaskT + (t1 - cell * uMaskS + uMaskLo) + 0.5;
@@ -85,8 +89,8 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
     b1 = texture(uMaskAtlas4567, tc0 / size1);
   }
 #endif
-  float both = dot(min(a0, b0) + min(a1, b1), vec4(1.0));
-  float s = clamp((both / max(dot(a0 + a1, vec4(1.0)), 1e-6) - 0.25) / 0.25, 0.0, 1.0);
+  float seen = dot(a0, min(b0 / uMaskSeen, vec4(1.0))) + dot(a1, min(b1 / uMaskSeen, vec4(1.0)));
+  float s = clamp((seen / max(dot(a0 + a1, vec4(1.0)), 1e-6) - uMaskBlend.x) / (uMaskBlend.y - uMaskBlend.x), 0.0, 1.0);
   m0 = mix(b0, a0, s);
   m1 = mix(b1, a1, s);
 }
@@ -128,7 +132,7 @@ vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
   int list = 0;
   for (int k = 0; k < KILN_MASK_CLUSTERS; ++k) {
     float mk = k < 4 ? m0[k] : m1[k - 4];
-    if (k < uClusterCount && mk > 0.0) {
+    if (k < uClusterCount && mk > 0.0) {  // sample only the clusters whose masks are marked (MD §1)
       list |= k << (3 * count);
       count += 1;
     }
@@ -137,7 +141,7 @@ vec3 giMaskSum(vec3 p, vec3 n, bool normalized, out float den) {
   vec3 e = vec3(0.0);
   for (int i = 0; i < count; ++i) {
     int k = (list >> (3 * i)) & 7;
-    e += giClusterTerm(texel, k, slots, k < 4 ? m0[k] : m1[k - 4], n);
+    e += giClusterTerm(texel, k, slots, k < 4 ? m0[k] : m1[k - 4], n);  // m_x · (g ⊗ P)_x, MD eq 3
   }
   den = 1.0;
   if (normalized) {

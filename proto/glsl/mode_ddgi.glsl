@@ -2,7 +2,7 @@
 // runtime twin of workers/kernels/ddgi.py sample_irradiance (without its offline `visible=` ray test: this
 // is pure DDGI). For point x, normal n, view direction ω_o (gi_view.glsl):
 //   1. self-shadow bias (DDGI-P eq 2): x_b = x + (0.2·n + 0.8·ω_o) · uDdgiBias, uDdgiBias = 0.75·D·B
-//      (D the smallest spacing, B = 0.3);
+//      (D the smallest spacing, B the bake's light.self_shadow_bias, 0.3 by default);
 //   2. the cage of x_b on the un-relocated grid: base = clamp(floor(g), 0, counts - 2), α = clamp(g - base, 0, 1);
 //   3. per corner probe i (OFF skipped), at its relocated position p_i:
 //      w = ((dot(normalize(p_i - x), n) + 1) / 2)² + 0.2                    (wrap backface, unbiased x)
@@ -33,7 +33,7 @@ uniform int uIrradianceColumns; // tiles per row of a wrapped irradiance atlas (
 uniform int uDepthColumns;      // the same for the depth atlas
 
 vec3 giIndirectIrradiance(vec3 x, vec3 n) {
-  vec3 bp = x + (n * 0.2 + giViewDir * 0.8) * uDdgiBias;
+  vec3 bp = x + (n * 0.2 + giViewDir * 0.8) * uDdgiBias;  // DDGI-P eq 2 (uDdgiBias = 0.75·D·B)
   vec3 g = giGridCoord(bp);
   vec3 hi = max(uGridCounts - 2.0, vec3(0.0));
   vec3 base = clamp(floor(g), vec3(0.0), hi);
@@ -54,7 +54,7 @@ vec3 giIndirectIrradiance(vec3 x, vec3 n) {
     float dl = length(t);
     float cosw = dl > 0.0 ? dot(t, n) / dl : 0.0;
     float wrap = (cosw + 1.0) * 0.5;
-    float w = wrap * wrap + 0.2;
+    float w = wrap * wrap + 0.2;  // smooth backface weight, wrap shading (DDGI-I §3.4.1)
     vec3 b = bp - p;
     float r = length(b);
     float cheb = 1.0;
@@ -64,16 +64,16 @@ vec3 giIndirectIrradiance(vec3 x, vec3 n) {
         float variance = abs(mom.x * mom.x - mom.y);
         float dv = r - mom.x;
         cheb = variance / (variance + dv * dv);
-        cheb = cheb * cheb * cheb;
+        cheb = cheb * cheb * cheb;  // Chebyshev moment visibility test, variance-biased (DDGI-I §3.4.1)
       }
     }
     w *= max(0.05, cheb);
     w = max(1e-6, w);
-    if (w < 0.2) w *= w * w * 25.0;  // 1 / 0.2²
+    if (w < 0.2) w *= w * w * 25.0;  // 1 / 0.2²: log perception weight, crush (DDGI-I §3.4.1)
     vec3 lerpw = mix(1.0 - alpha, alpha, vec3(off));
-    w *= max(0.001, lerpw.x) * max(0.001, lerpw.y) * max(0.001, lerpw.z);
+    w *= max(0.001, lerpw.x) * max(0.001, lerpw.y) * max(0.001, lerpw.z);  // trilinear weight (DDGI-I §3.4.1)
     acc += w * texture(uIrradianceAtlas, octAtlasUVWrapped(n, probe, counts, uIrradianceTexels, uIrradianceColumns, irrSize)).rgb;
     wsum += w;
   }
-  return wsum > 0.0 ? acc / wsum : vec3(0.0);
+  return wsum > 0.0 ? acc / wsum : vec3(0.0);  // the weighted blend of the 8-probe cage (DDGI-P §2.2)
 }

@@ -24,7 +24,7 @@ vec3 giIndirectIrradiance(vec3 p, vec3 n) {
   vec4 s4 = texture(uShL2, giPaddedStackedUVW(texel, 4.0, 7.0));
   vec4 s5 = texture(uShL2, giPaddedStackedUVW(texel, 5.0, 7.0));
   vec4 s6 = texture(uShL2, giPaddedStackedUVW(texel, 6.0, 7.0));
-  return max(shIrradianceL2Packed(s0, s1, s2, s3, s4, s5, s6, n), 0.0);
+  return max(shIrradianceL2Packed(s0, s1, s2, s3, s4, s5, s6, n), 0.0);  // P_x, MD eq 1
 }
 #else
 uniform highp sampler3D uShR;
@@ -33,6 +33,6 @@ uniform highp sampler3D uShB;
 
 vec3 giIndirectIrradiance(vec3 p, vec3 n) {
   vec3 uvw = probeGridUVW(p);
-  return max(shIrradianceL1(texture(uShR, uvw), texture(uShG, uvw), texture(uShB, uvw), n), 0.0);
+  return max(shIrradianceL1(texture(uShR, uvw), texture(uShG, uvw), texture(uShB, uvw), n), 0.0);  // P_x, MD eq 1
 }
 #endif

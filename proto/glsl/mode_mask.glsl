@@ -5,5 +5,5 @@
 
 vec3 giIndirectIrradiance(vec3 p, vec3 n) {
   float den;
-  return max(giMaskSum(p, n, false, den), 0.0);  // clamped at 0 like leaking (SH ringing)
+  return max(giMaskSum(p, n, false, den), 0.0);  // MD eq 3; clamped at 0 like leaking (SH ringing)
 }

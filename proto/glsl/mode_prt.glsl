@@ -37,7 +37,7 @@ vec3 giIndirectIrradiance(vec3 p, vec3 n) {
     vec4 cb = uPrtCoef[2 * KILN_PRT_MAX_GROUPS + g];
     for (int k = 0; k < KILN_PRT_COEFFS; ++k) {
       vec4 b = texture(uPrtBasis, giStackedUVW(texel, float(k * uPrtGroups + g), slots));
-      c[k] += vec3(dot(b, cr), dot(b, cg), dot(b, cb));
+      c[k] += vec3(dot(b, cr), dot(b, cg), dot(b, cb));  // y ≈ U_n u, u = M_n x: PRT eq 10
     }
   }
 #ifdef KILN_SH_L2

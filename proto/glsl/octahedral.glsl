@@ -1,4 +1,5 @@
-// Octahedral direction encoding with the fold on +Z (Cigolle et al. 2014; RTXGI DDGIGetOctahedralCoordinates).
+// Octahedral direction encoding with the fold on +Z (Cigolle et al. 2014: the probe maps of DDGI-I §3.1;
+// RTXGI DDGIGetOctahedralCoordinates).
 // Python reference: workers/kernels/octahedral.py (oct_encode, oct_decode); layout: proto/bundle.md 5.1.
 
 vec2 octSignNotZero(vec2 v) {

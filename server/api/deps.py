@@ -1,4 +1,4 @@
-"""Request dependencies: settings, catalog, store, Redis, and the caller's team (API-key auth).
+"""Request dependencies: settings, catalog, store, Redis, the relight cache, and the caller's team (API-key auth).
 
 They are ``async def`` on purpose: none of them blocks (they read ``app.state`` and a header), and FastAPI runs a
 sync dependency in its thread pool — four thread hops for ``GET /v1/bakes/{id}`` (50 clients polling: 130
@@ -10,10 +10,12 @@ import hmac
 
 from fastapi import Request
 
-from proto.catalog import Catalog
-from proto.store import Store
+from persist.catalog import Catalog
+from persist.store import Store
 from server.api.errors import ApiError
 from server.config import OPEN_TEAM, Settings
+from server.ingest_pool import IngestPool
+from workers.relight import RelightCache
 
 
 async def settings(request: Request) -> Settings:
@@ -30,6 +32,16 @@ async def store(request: Request) -> Store:
 
 async def redis_conn(request: Request):
     return request.app.state.redis
+
+
+async def ingest_pool(request: Request) -> IngestPool:
+    """The upload parser processes (``POST /v1/scenes``)."""
+    return request.app.state.ingest_pool
+
+
+async def relight_cache(request: Request) -> RelightCache:
+    """The app's unpacked PRT models and ray casters (``POST /v1/bakes/{id}/relight``), one per app."""
+    return request.app.state.relight_cache
 
 
 async def team(request: Request) -> str:

@@ -8,15 +8,19 @@ document the responses rather than reshape them; ``tests/server/test_schemathesi
 responses of a real server against them (a field the code adds and a model lacks fails it: the models forbid
 extra fields, so their schemas say ``additionalProperties: false``).
 
-Request bodies (``BakeCreate``, ``CamerasBody``, ``RelightRequest``) stay beside their routes.
+The request bodies are here too, in their resource's family: ``CamerasBody``, ``ThresholdsBody`` (scenes),
+``BakeCreate`` (bakes), ``RelightRequest`` (relight). FastAPI validates every request against them: an unknown
+or bad field is a 422 naming it. They have comments, not
+docstrings: a docstring would enter the OpenAPI document as the schema's description.
 """
 from __future__ import annotations
 
 from typing import Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, StrictBool
 
-from proto.models import BakeConfig, BakeWarning, Manifest
+from proto.models import BakeConfig, BakeWarning, CameraSpec, LightConfig, Manifest
+from server.gates import GRAMMAR
 
 
 class _Out(BaseModel):
@@ -112,6 +116,16 @@ class ScenesPublic(_Out):
     offset: int
 
 
+MAX_REVIEW_CAMERAS = 16
+"""Review cameras a scene keeps (web/src/view/reviewCameras.js has the same number)."""
+
+
+class CamerasBody(BaseModel):   # PUT /v1/scenes/{id}/cameras
+    model_config = ConfigDict(extra="forbid")
+    cameras: list[CameraSpec] = Field(..., max_length=MAX_REVIEW_CAMERAS,
+                                      description="review cameras (an empty list removes the stored ones)")
+
+
 class SceneCameras(_Out):
     """``source``: ``stored`` (PUT), ``gltf`` (the file's own cameras) or ``auto`` (placed by the scene's latest
     evaluated bake, ``from_bake``; none before the first)."""
@@ -120,6 +134,17 @@ class SceneCameras(_Out):
     source: Literal["stored", "gltf", "auto"]
     cameras: list[ReviewCamera]
     from_bake: str | None
+
+
+MAX_THRESHOLDS = 32
+"""Quality gates a scene keeps."""
+
+
+class ThresholdsBody(BaseModel):   # PUT /v1/scenes/{id}/thresholds
+    model_config = ConfigDict(extra="forbid")
+    thresholds: list[str] = Field(..., max_length=MAX_THRESHOLDS,
+                                  description=f"gates, {GRAMMAR} (an empty list removes the stored ones)",
+                                  examples=[["mask_normalized.leak > 0.05", "*.rmse >= 0.2"]])
 
 
 class ThresholdGate(_Out):
@@ -165,6 +190,12 @@ class SceneThresholds(_Out):
 
 BakeStatus = Literal["queued", "running", "succeeded", "failed", "cancelled"]
 StageStatus = Literal["pending", "running", "retrying", "succeeded", "failed", "cancelled"]
+
+
+class BakeCreate(BaseModel):   # POST /v1/bakes: a scene of the team and a config (every section optional, defaults filled)
+    model_config = ConfigDict(extra="forbid")
+    scene_id: str = Field(..., min_length=1, max_length=128)
+    config: BakeConfig = Field(default_factory=BakeConfig)
 
 
 class BakeLinks(_Out):
@@ -327,6 +358,12 @@ class BakeSnapshot(_Out):
 
 
 # --------------------------------------------------------------------------------------------- relight
+
+
+class RelightRequest(BaseModel):   # POST /v1/bakes/{id}/relight
+    model_config = ConfigDict(extra="forbid")
+    lights: list[LightConfig] = Field(..., max_length=64, description="the lights to relight with")
+    lightmap: StrictBool = Field(True, description="also reconstruct the lightmap (when the bake has one)")
 
 
 class RelightJSON(_Out):

@@ -26,7 +26,7 @@ import workers.jobs  # noqa: E402,F401  (the worker's imports, before forking)
 from proto import cost  # noqa: E402
 from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
-from proto.store import Store  # noqa: E402
+from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.procedural import write_scene  # noqa: E402

@@ -21,7 +21,13 @@ with a points file in tests/data/fidelity (:data:`DEFAULT_SCENES`). Per scene:
    stage's octahedral irradiance, the trace stage's depth moments, relocated probes, self-shadow bias of the config).
    The points are receivers in free space, so the view direction is taken equal to the normal (a viewer in front
    of a surface facing n);
-3. at the ``probes`` region (un-relocated positions, in free space, of the grid ``place.counts = [8, 8, 8]`` over
+3. at the probes of the default bake's OWN grid, where ``default-probes/<scene>.points.json`` has some (rows
+   ``probes-dark*``, ``probes-lit*``: un-relocated positions of the automatic grid's probes in two-rooms' dark and lit
+   rooms, their Cycles references made by ``tests/data/fidelity/make_probe_references.py``): the light stage's
+   stored values there (``probe_oct``, ``probe_sh`` as below) — issue 12's "stored probe values within 5% of Cycles at
+   the probe positions in a dark room next to a lit one, at the default spacing". When the default grid is no longer
+   the one recorded there, the table says so (regenerate the points and references);
+   and at the ``probes`` region (un-relocated positions, in free space, of the grid ``place.counts = [8, 8, 8]`` over
    the scene bounds, recorded in the points file) also the light stage's **stored** values of that very probe: its
    octahedral irradiance map (``probe_oct``, bilinear, the map DDGI samples) and its L2 SH (``probe_sh``, linear
    evaluation) — only for probes the relocation moved by less than :data:`MAX_PROBE_SHIFT` and that are not OFF.
@@ -71,7 +77,7 @@ sys.path.insert(0, str(ROOT))
 
 from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
-from proto.store import Store  # noqa: E402
+from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels import samplers as SM  # noqa: E402
@@ -200,6 +206,38 @@ def probe_values(recs: dict, cfg: BakeConfig, points: np.ndarray, dirs: np.ndarr
     return out, info
 
 
+def default_grid_probes(name: str, recs: dict, cfg: BakeConfig, dirs: np.ndarray) -> dict | None:
+    """The light stage's stored values at probes of the DEFAULT bake's own grid (issue 12 item 2), against the
+    Cycles references of ``default-probes/<scene>.*.cycles.json`` (made by make_probe_references.py).
+
+    None when the scene has no such points; ``{"note": ...}`` without values when the default grid is no longer the
+    one the points were taken from. Else ``values`` {probe_oct, probe_sh: (P, 6, 3)} (NaN where not compared),
+    ``regions``, ``refs`` {material: E_probe (P, 6, 3)}, ``probes`` (per point: index, shift, state)."""
+    path = DATA / "default-probes" / f"{name}.points.json"
+    if not path.is_file():
+        return None
+    pdoc = json.loads(path.read_text())
+    place = recs["place"].stats
+    g = pdoc["probe_grid"]
+    same = (list(place["counts"]) == list(g["counts"]) and np.allclose(place["origin"], g["origin"], atol=1e-6)
+            and np.allclose(place["spacing"], g["spacing"], atol=1e-6))
+    if not same:
+        return {"note": f"the default grid is now {place['counts']} (the points were taken from {g['counts']}): "
+                        "regenerate them with tests/data/fidelity/make_probe_references.py"}
+    refs = {}
+    for p in sorted(path.parent.glob(f"{name}.*.cycles.json")):
+        ref = json.loads(p.read_text())
+        if ref["points"] != pdoc["points"]:
+            return {"note": f"{p.name} was made for other points: regenerate it"}
+        refs[ref["material"]] = ref.get("E_probe_rgb", ref["E_indirect_rgb"])
+        sems = {f"{k}*": v for k, v in (ref.get("spread") or {}).get("region_rel_sem", {}).items()}
+    if not refs:
+        return {"note": f"no Cycles reference beside {path.name}: run make_probe_references.py"}
+    values, info = probe_values(recs, cfg, np.asarray(pdoc["points"], np.float64), dirs)
+    return {"values": values, "regions": pdoc["regions"], "refs": refs, "probes": info, "region_rel_sem": sems,
+            "compared": sum(1 for p in info if p.get("compared")), "of": len(info)}
+
+
 def compare(kiln: np.ndarray, ref: np.ndarray, idx: list[int]) -> dict:
     """kiln, ref (P, 6, 3); idx: the region's points. Ratio of region means (RGB mean and per channel) and the
     per-receiver relative RMS error (receivers with ref > 0)."""
@@ -324,6 +362,7 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
             full = np.full((P, D, 3), np.nan)
             full[probe_idx] = v
             probes[m] = full
+    default_probes = default_grid_probes(name, recs, cfg, dirs)
     place = recs["place"].stats
     lit = recs["ingest"]["lights"]
     out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times,
@@ -338,6 +377,7 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
            "light": {k: recs["light"].stats.get(k) for k in ("bounces", "converged", "mean_irradiance")},
            "probes_off": int((np.asarray(recs["trace"]["probe_states"]).reshape(-1) == OFF).sum()),
            "ingest_warnings": list(scene.warnings), "notes": notes, "probes": probe_info, "probe_bake": probe_bake,
+           "default_probes": default_probes and {k: v for k, v in default_probes.items() if k != "values"},
            "references": {}}
     for mat, ref in refs.items():
         target = np.asarray(ref.get("E_probe_rgb", ref["E_indirect_rgb"]), np.float64)
@@ -349,6 +389,16 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
                 if c:
                     row["modes"][m] = c
             regs[region] = row
+        if default_probes and default_probes.get("values") and mat in default_probes["refs"]:
+            # the default bake's own probes (default-probes/<scene>.points.json): stored values against their reference
+            dref = np.asarray(default_probes["refs"][mat], np.float64)
+            for region, idx in default_probes["regions"].items():
+                row = {"cycles_mean": float(dref[idx].mean()), "modes": {}}
+                for m, v in default_probes["values"].items():
+                    c = compare(v, dref, idx)
+                    if c:
+                        row["modes"][m] = c
+                regs[f"{region}*"] = row
         out["references"][mat] = {"regions": regs, "settings": ref["settings"], "seeds": ref["seeds"],
                                   "spread": ref.get("spread", {})}
     return out
@@ -367,7 +417,8 @@ def table(res: dict) -> list[str]:
                      + (" (+ the sky seen directly)" if max(sky) > 0 else ""))
         lines.append(f"{'region':<13}{'cycles W/m2':>12}" + "".join(f"{c:>11}" for c in
                      ("kiln_pt", "pt_diffuse", "leaking", "vis_wtd", "ddgi", "mask", "mask_norm", "probe_oct", "probe_sh")) + f"{'ref sem':>9}")
-        spr = (r.get("spread") or {}).get("region_rel_sem", {})
+        spr = {**(r.get("spread") or {}).get("region_rel_sem", {}),
+               **((res.get("default_probes") or {}).get("region_rel_sem") or {})}
         for region, row in regs.items():
             cells = []
             dark = row["cycles_mean"] < ZERO * top
@@ -407,6 +458,12 @@ def table(res: dict) -> list[str]:
             f"a second bake with {pb.get('config')} ({pb.get('seconds', 0):.1f} s; the default grid holds no such probe)"
         lines.append(f"probe_oct / probe_sh: stored values of {n_cmp}/{len(res['probes'])} probes of {src} "
                      f"(not OFF, relocated < {MAX_PROBE_SHIFT * 100:.0f} cm)")
+    dp = res.get("default_probes")
+    if dp:
+        lines.append("probes-dark* / probes-lit*: " + (dp["note"] if "note" in dp else
+                     f"stored values of {dp['compared']}/{dp['of']} probes of the DEFAULT bake's own grid at their "
+                     "un-relocated positions (default-probes/, not OFF, relocated < "
+                     f"{MAX_PROBE_SHIFT * 100:.0f} cm); the other columns there are empty"))
     for w in res["ingest_warnings"]:
         lines.append(f"ingest warning: {w}")
     for n in res["notes"]:

@@ -38,7 +38,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from proto.catalog import Catalog  # noqa: E402
+from persist.catalog import Catalog  # noqa: E402
 from server.supervisor import EmbeddedRedis, WorkerPool  # noqa: E402
 from tests.serve_process import free_port  # noqa: E402
 

@@ -23,7 +23,7 @@ sys.path.insert(0, str(ROOT))
 
 from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
-from proto.store import Store  # noqa: E402
+from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 

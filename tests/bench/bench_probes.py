@@ -36,7 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
-from proto.store import Store  # noqa: E402
+from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels.visibility import field_shape, sample_positions  # noqa: E402
@@ -105,7 +105,7 @@ def run_grid(scene, counts, rays, S, raw: RawEmbree) -> dict:
         out["stages"]["trace"] = {"seconds": times["trace"], "rays": tr.stats["rays"], "raw_rays_per_s": raw_trace,
                                   "ray_seconds": tr.stats["ray_seconds"]}
         # light: shadow rays toward the sun from the front-face hits
-        from workers.stages.light import hit_surfaces
+        from workers.kernels.probe_hits import hit_surfaces
         surf = hit_surfaces(scene, dirs, tr["ray_hits"], tr["ray_tri"])
         sun = -np.asarray(SUN["direction"], np.float64)
         sun /= np.linalg.norm(sun)

@@ -43,13 +43,15 @@ sys.path.insert(0, str(ROOT))
 from proto import bundle  # noqa: E402
 from proto.models import BakeConfig  # noqa: E402
 from proto.stages import plan  # noqa: E402
-from proto.store import Store  # noqa: E402
+from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers import prt_relight  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels import prt as kprt  # noqa: E402
+from workers.kernels.prt_scenario import random_light_configurations  # noqa: E402
 from workers.stages.base import StageContext  # noqa: E402
-from workers.stages.prt import light_stage_reference, prt_dataset, prt_output  # noqa: E402
+from workers.stages.prt import prt_dataset, prt_output  # noqa: E402
+from tests.workers.prt_reference import light_stage_reference  # noqa: E402
 
 SCENE_DIR = ROOT.parent / "shared" / "scenes" / "cornell-box-vinc3r"
 GLTF = "cornellBox-2.80-Eevee-gltf.gltf"
@@ -246,7 +248,7 @@ def main(argv=None) -> dict:
         sc = cfg.prt.scenario
         bounds = scene.bounds
         box = (sc.box.min, sc.box.max) if sc.box else (bounds[0], bounds[1])
-        held = kprt.random_light_configurations(rng, sc.model_dump(), args.heldout, box[0], box[1],
+        held = random_light_configurations(rng, sc.model_dump(), args.heldout, box[0], box[1],
                                                 inside=caster.inside_parity, target_box=(bounds[0], bounds[1]))
         t_ref = time.perf_counter()
         refs = [light_stage_reference(ds, L, cfg.light) for L in held]

@@ -34,7 +34,7 @@ import psutil
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
-from proto.catalog import Catalog  # noqa: E402
+from persist.catalog import Catalog  # noqa: E402
 from tests.serve_process import spawn_serve, stop_serve  # noqa: E402
 
 

@@ -1,8 +1,6 @@
 """DDGI irradiance sampler (workers/kernels/ddgi.py) against a slow, obviously-correct reference."""
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -268,19 +266,17 @@ def test_trilinear_interpolation_without_visibility_effects():
     np.testing.assert_allclose(e, np.repeat((x / 2.0)[:, None], 3, axis=1), rtol=1e-6)
 
 
-def test_speed_smoke():
-    """Not a benchmark: 200k points must take well under a second once compiled."""
-    import time
-
+def test_a_large_batch_equals_its_parts():
+    """200k float32 points in one call (the evaluate stage's size; speed is tests/bench's business): finite, and
+    each point's value independent of the batch it came in (the first 10 alone give the same numbers)."""
     rng = np.random.default_rng(9)
     counts, origin, spacing, pos, states, irr, dep = _random_volume(rng, counts=(8, 8, 8), p_off=0.1)
     pts, nrm, view = _random_queries(rng, counts, origin, spacing, 200_000)
     pts, nrm, view = (a.astype(np.float32) for a in (pts, nrm, view))
-    sample_irradiance(pts[:10], nrm[:10], view[:10], counts, origin, spacing, pos, states, irr, dep)
-    t = time.perf_counter()
-    sample_irradiance(pts, nrm, view, counts, origin, spacing, pos, states, irr, dep)
-    assert time.perf_counter() - t < 2.0
-    assert math.isfinite(t)
+    head = sample_irradiance(pts[:10], nrm[:10], view[:10], counts, origin, spacing, pos, states, irr, dep)
+    out = sample_irradiance(pts, nrm, view, counts, origin, spacing, pos, states, irr, dep)
+    assert out.shape == (200_000, 3) and np.isfinite(out).all()
+    np.testing.assert_array_equal(out[:10], head)
 
 
 @pytest.mark.parametrize("seed", range(3))

@@ -1,4 +1,4 @@
-"""The path-traced reference (workers/kernels/pathtrace.py) against closed forms, and against Cycles."""
+"""The path tracer (workers/kernels/pathtrace.py) against closed forms, and against Cycles."""
 from __future__ import annotations
 
 import json
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from tests.conftest import shared_path
-from workers.kernels.pathtrace import (cosine_directions, indirect_irradiance, scene_eps, texel_surfaces,
-                                       uniforms)
+from workers.kernels.pathtrace import indirect_irradiance, scene_eps
 from workers.kernels.shading import SRGB_TO_LINEAR_LUT, direct_irradiance, surface_at_hits
+from workers.kernels.texels import texel_surfaces
 from workers.raycast import RayCaster
 from workers.scene import NormalizedScene
 
@@ -48,22 +48,6 @@ def closed_box(albedo: float, emission: float, size: float = 1.0) -> NormalizedS
 
 BOX_POINTS = np.array([[0.5, 0.0, 0.5], [0.2, 0.3, 0.0], [1.0, 0.7, 0.4], [0.5, 1.0, 0.9]])
 BOX_NORMALS = np.array([[0, 1, 0], [0, 0, 1], [-1, 0, 0], [0, -1, 0]], float)
-
-
-# ----------------------------------------------------------------------------------- sampling
-def test_uniforms_and_cosine_directions():
-    u = uniforms(7, np.arange(200_000, dtype=np.uint64), 3, 1)
-    assert 0 <= u.min() and u.max() < 1
-    assert abs(u.mean() - 0.5) < 0.003 and abs(u.var() - 1 / 12) < 0.002
-    assert not np.array_equal(u, uniforms(7, np.arange(200_000, dtype=np.uint64), 3, 0))   # dims independent
-    n = np.tile([0.0, 0.0, -1.0], (200_000, 1))
-    d = cosine_directions(n, 3, np.arange(200_000, dtype=np.uint64), 0)
-    np.testing.assert_allclose(np.linalg.norm(d, axis=1), 1.0, atol=1e-12)
-    cos = -d[:, 2]
-    assert cos.min() >= 0
-    assert abs(cos.mean() - 2 / 3) < 0.003          # E[cos] under pdf cos/π
-    assert abs((cos ** 2).mean() - 0.5) < 0.003     # E[cos²]
-    assert abs(d[:, 0].mean()) < 0.005 and abs(d[:, 1].mean()) < 0.005
 
 
 # ----------------------------------------------------------------------------------- closed forms
@@ -210,19 +194,6 @@ def test_sealed_box_cavity_gets_no_light(scene_files):
     r_out = indirect_irradiance(s, outside, up[:9], s.lights, sky=(1, 1, 1), spp=32, bounces=3, seed=0,
                                 caster=caster)
     assert np.all(r_out.irradiance > 1.0)   # mostly open sky: close to π
-
-
-# ----------------------------------------------------------------------------------- lightmap texels
-def test_texel_surfaces_quad():
-    uv = np.array([[[0, 0], [1, 0], [1, 1]], [[0, 0], [1, 1], [0, 1]]], float)
-    tx = texel_surfaces(uv, 8, 4)
-    assert len(tx["rows"]) == 32          # every texel centre lies in exactly one of the two triangles
-    # map UV to positions x = u, z = v on a quad and check the barycentric interpolation
-    tris = np.concatenate([uv, np.zeros((2, 3, 1))], axis=2)[:, :, [0, 2, 1]]
-    s = _scene(tris, [_material(0.5)])
-    p = surface_at_hits(s, tx["tri"], tx["u"], tx["v"])["position"]
-    np.testing.assert_allclose(p[:, 0], (tx["cols"] + 0.5) / 8, atol=1e-6)
-    np.testing.assert_allclose(p[:, 2], (tx["rows"] + 0.5) / 4, atol=1e-6)
 
 
 def _vinc3r_zip(tmp_path):

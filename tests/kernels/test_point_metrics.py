@@ -45,3 +45,46 @@ def test_standard_errors_follow_the_reference_noise():
     r = PM.region_ratios(test.reshape(-1, 4, 3), ref.reshape(-1, 4, 3), 0.05 * ref.reshape(-1, 4, 3),
                          {"a": [0, 1, 2], "b": list(range(10, 60))})
     assert r["a"]["mean_ratio_stderr"] > r["b"]["mean_ratio_stderr"] > 0
+
+
+def _points(n=200, seed=3):
+    rng = np.random.default_rng(seed)
+    ind = rng.gamma(2.0, 1.0, (n, 1)) * np.array([1.0, 0.9, 0.8])
+    return {"position": rng.normal(size=(n, 3)), "e_direct": rng.uniform(0, 3, (n, 3)), "e_indirect": ind,
+            "stderr": 0.01 * ind, "albedo": np.full((n, 3), 0.5), "emission": np.zeros((n, 3))}
+
+
+def test_point_summary_of_the_reference_itself():
+    pts = _points()
+    recon = {"exact": pts["e_indirect"], "half": 0.5 * pts["e_indirect"]}
+    summary, per_mode = PM.point_summary(["exact", "half"], recon, pts, seed=0)
+    assert summary["exact.rmse"] == 0.0 and summary["exact.mean_ratio"] == pytest.approx(1.0)
+    assert summary["half.mean_ratio"] == pytest.approx(0.5) and summary["half.rmse"] > 0
+    assert summary["reference.mean_indirect"] == pytest.approx(MT.luminance(pts["e_indirect"]).mean())
+    assert set(per_mode) == {"exact", "half"} and "rmse_stderr" in per_mode["half"]
+    assert PM.point_summary(["exact"], {}, {"position": np.zeros((0, 3))}, 0) == ({}, {})
+
+
+def test_check_point_report_modes_and_regions():
+    """Each mode's values at the P·D check normals land as [point][normal] RGB; a region's mean ratio goes into
+    the summary."""
+    P, D = 2, 6
+    rng = np.random.default_rng(0)
+    ref = rng.uniform(0.5, 1.0, (P, D, 3))
+    doc = {"points": [[0, 0, 0], [1, 1, 1]], "normals": np.tile(np.eye(3).repeat(2, 0), (P, 1, 1)).tolist(),
+           "reference_direct": np.zeros((P, D, 3)).tolist(), "reference_indirect": ref.tolist(),
+           "reference_stderr": np.full((P, D, 3), 1e-3).tolist(), "regions": {"room": [0, 1]}}
+    calls = []
+
+    def values(mode, points, normals):
+        calls.append((mode, points.shape, normals.shape))
+        return ref.reshape(-1, 3) * (2.0 if mode == "double" else 1.0)
+
+    summary = {}
+    check = PM.check_point_report(doc, ["same", "double"], values, seed=0, summary=summary)
+    assert calls == [("same", (P * D, 3), (P * D, 3)), ("double", (P * D, 3), (P * D, 3))]
+    np.testing.assert_allclose(check["modes"]["double"], 2 * ref)
+    assert summary["same.region.room.mean_ratio"] == pytest.approx(1.0)
+    assert summary["double.region.room.mean_ratio"] == pytest.approx(2.0)
+    assert check["regions"]["room"]["points"] == [0, 1]
+    assert set(check["regions"]["room"]) == {"points", "same", "double"}

@@ -1,4 +1,4 @@
-"""PRT kernels (workers/kernels/prt.py): sample elimination, the fit (PRT eq 7-10, 14), packing, lightmap layout."""
+"""PRT kernels (workers/kernels/prt.py): the fit (PRT eq 7-10, 14), supersample means, packing."""
 from __future__ import annotations
 
 import math
@@ -8,80 +8,11 @@ import pytest
 
 from workers.kernels import prt as k
 
-UNIT_SQUARE = np.array([[[0, 0, 0], [1, 0, 0], [1, 0, 1]], [[0, 0, 0], [1, 0, 1], [0, 0, 1]]], np.float64)
-
-
-# ------------------------------------------------------------------------------------- sampling
-def test_area_samples_are_uniform_by_area():
-    tris = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]], [[0, 0, 0], [3, 0, 0], [0, 2, 0]]], np.float64)
-    rng = np.random.default_rng(0)
-    tri, u, v = k.area_samples(tris, 40000, rng)
-    assert np.all((u >= 0) & (v >= 0) & (u + v <= 1))
-    frac = np.mean(tri == 1)
-    assert abs(frac - 6 / 7) < 0.01                       # areas 0.5 and 3
-    b = np.stack([1 - u - v, u, v], 1)[tri == 0]
-    assert np.allclose(b.mean(axis=0), 1 / 3, atol=0.01)  # uniform on the triangle: mean barycentrics 1/3
-
-
-@pytest.mark.parametrize("seed", [0, 1, 2])
-def test_sample_elimination_spreads_points_more_than_a_random_pick(seed):
-    rng = np.random.default_rng(seed)
-    tri, u, v = k.area_samples(UNIT_SQUARE, 5 * 256, rng)
-    t = UNIT_SQUARE[tri]
-    pts = (1 - u - v)[:, None] * t[:, 0] + u[:, None] * t[:, 1] + v[:, None] * t[:, 2]
-    keep = k.sample_elimination(pts, 256, area=1.0)
-    assert keep.shape == (256,) and np.unique(keep).size == 256 and np.all(np.diff(keep) > 0)
-    random_pick = rng.choice(len(pts), 256, replace=False)
-    d_elim, d_rand = k.min_spacing(pts[keep]), k.min_spacing(pts[random_pick])
-    assert d_elim > 2 * d_rand
-    # Yuksel reports ~0.75 x the maximal Poisson-disk radius; allow some slack for 5x candidates
-    r_max = math.sqrt(1.0 / (2 * math.sqrt(3) * 256))
-    assert d_elim > 0.5 * r_max
-
-
-def test_sample_elimination_is_deterministic_and_keeps_all_when_asked():
-    pts = np.random.default_rng(3).random((500, 3))
-    assert np.array_equal(k.sample_elimination(pts, 100, 3.0), k.sample_elimination(pts, 100, 3.0))
-    assert np.array_equal(k.sample_elimination(pts, 500, 3.0), np.arange(500))
-    with pytest.raises(ValueError):
-        k.sample_elimination(pts, 501, 3.0)
-
 
 def test_group_mean():
     v = np.arange(12, dtype=float).reshape(6, 2)
     out = k.group_mean(v, np.array([0, 1, 4, 6]))
     assert np.allclose(out, [[0, 1], [4, 5], [9, 10]])
-
-
-def test_random_light_configurations_follow_the_scenario():
-    sc = {"types": ["point", "spot", "directional"], "count": 3, "color_min": (0.2, 0.5, 0.0),
-          "color_max": (0.4, 0.5, 1.0), "intensity_min": 2.0, "intensity_max": 4.0}
-    cfgs = k.random_light_configurations(np.random.default_rng(5), sc, 50, (0, 0, 0), (1, 2, 3))
-    again = k.random_light_configurations(np.random.default_rng(5), sc, 50, (0, 0, 0), (1, 2, 3))
-    assert cfgs == again and len(cfgs) == 50 and all(len(c) == 3 for c in cfgs)
-    lights = [light for c in cfgs for light in c]
-    assert {light["type"] for light in lights} == {"point", "spot", "directional"}
-    for light in lights:
-        assert 2 <= light["intensity"] <= 4
-        c = np.array(light["color"])
-        assert np.all(c >= [0.2, 0.5, 0.0]) and np.all(c <= [0.4, 0.5, 1.0])
-        if light["type"] in ("point", "spot"):
-            assert np.all(np.array(light["position"]) >= 0) and np.all(np.array(light["position"]) <= [1, 2, 3])
-        if light["type"] in ("spot", "directional"):
-            assert abs(np.linalg.norm(light["direction"]) - 1) < 1e-9
-        if light["type"] == "spot":
-            assert light["inner_cone_angle"] < light["outer_cone_angle"]
-
-
-def test_random_lights_are_redrawn_inside_geometry():
-    sc = {"types": ["point"], "count": 1, "color_min": (1, 1, 1), "color_max": (1, 1, 1),
-          "intensity_min": 1.0, "intensity_max": 1.0}
-
-    def inside(p):  # a solid filling x < 0.5
-        return p[:, 0] < 0.5
-
-    cfgs = k.random_light_configurations(np.random.default_rng(1), sc, 40, (0, 0, 0), (1, 1, 1), inside=inside)
-    assert all(c[0]["position"][0] >= 0.5 for c in cfgs)
 
 
 # ------------------------------------------------------------------------------------------ fit
@@ -176,42 +107,40 @@ def test_pack_unpack_rgba(n):
     assert np.array_equal(k.unpack_rgba(p, n), s)
 
 
-# --------------------------------------------------------------------------------------- lightmap
-def test_chart_layout_uniform_density_and_no_overlap():
-    # two charts with the same UV square but different world sizes, and a triangle without a chart
-    big = UNIT_SQUARE * 2.0
-    small = UNIT_SQUARE * 0.5 + [3, 0, 0]
-    tris = np.concatenate([big, small, UNIT_SQUARE[:1] + [9, 0, 0]])
-    uv = np.tile(np.array([[0, 0], [1, 0], [1, 1]], np.float64), (5, 1, 1))
-    uv[1] = uv[3] = [[0, 0], [1, 1], [0, 1]]
-    chart = np.array([0, 0, 5, 5, -1])
-    atlas, rho = k.chart_layout(tris, uv, chart, 64, padding=2)
-    assert rho > 0 and np.all(atlas[4] == 0)
-    assert np.all(atlas[:4] >= 0) and np.all(atlas[:4] <= 1)
-    box = lambda s: (atlas[s].reshape(-1, 2).min(0), atlas[s].reshape(-1, 2).max(0))  # noqa: E731
-    (a0, a1), (b0, b1) = box(slice(0, 2)), box(slice(2, 4))
-    assert np.any(a1 < b0) or np.any(b1 < a0)          # disjoint boxes
-    assert np.allclose((a1 - a0) / (b1 - b0), 4.0, rtol=0.05)   # same texels per metre: 2 m vs 0.5 m
-    tri_map, bary = k.rasterize(atlas, 64)
-    covered = tri_map >= 0
-    assert set(np.unique(tri_map[covered])) == {0, 1, 2, 3}
-    # texel centres map back into their triangle: barycentric reconstruction of the atlas uv
-    r, c = np.nonzero(covered)
-    t = tri_map[r, c]
-    b = np.stack([1 - bary[r, c, 0] - bary[r, c, 1], bary[r, c, 0], bary[r, c, 1]], 1)
-    uvc = np.einsum("nk,nkd->nd", b, atlas[t].astype(np.float64)) * 64
-    assert np.allclose(uvc, np.stack([c + 0.5, r + 0.5], 1), atol=1e-3)
+def test_sh_volumes_pack_four_slots_per_texel_mono_and_one_per_volume_multi():
+    counts, K, n = (3, 2, 4), 9, 6
+    P = 3 * 2 * 4
+    mono = np.random.default_rng(0).random((n, P * K)).astype(np.float32)
+    vols = k.sh_volumes(mono, "mono", counts, K)
+    assert len(vols) == K and all(len(g) == 2 for g in vols)               # ceil(6 / 4) slot groups
+    name, vol = vols[4][1]
+    assert name == "prt_sh_basis_c4_g1" and vol.shape == (4, 2, 3, 4)      # (nz, ny, nx, 4)
+    want = mono.reshape(n, 4, 2, 3, K)[4:, ..., 4]                         # slots 4, 5 of coefficient 4
+    assert np.array_equal(vol[..., 0], want[0]) and np.array_equal(vol[..., 1], want[1]) and not vol[..., 2:].any()
+    multi = np.random.default_rng(1).random((n, P * K, 3)).astype(np.float32)
+    vm = k.sh_volumes(multi, "multi", counts, K)
+    assert len(vm[0]) == n and vm[2][5][0] == "prt_sh_basis_c2_g5"
+    assert np.array_equal(vm[2][5][1][..., :3], multi.reshape(n, 4, 2, 3, K, 3)[5, ..., 2, :])
+    assert not vm[2][5][1][..., 3].any()
 
 
-def test_dilate_is_linear_and_fills_neighbours():
-    mask = np.zeros((8, 8), bool)
-    mask[3:5, 3:5] = True
-    rng = np.random.default_rng(0)
-    a, b = rng.random((8, 8)), rng.random((8, 8))
-    da, m = k.dilate(a * mask, mask, 2)
-    db, _ = k.dilate(b * mask, mask, 2)
-    dab, _ = k.dilate((2 * a + 3 * b) * mask, mask, 2)
-    assert np.allclose(dab, 2 * da + 3 * db, atol=1e-6)
-    assert m[1:7, 1:7].all() and not m[0].any()
-    assert np.allclose(da[mask], a[mask])
-    assert np.isclose(da[2, 2], a[3, 3])                 # a corner neighbour sees one filled texel
+def test_lm_textures_names_and_channels():
+    imgs = np.random.default_rng(2).random((5, 8, 8)).astype(np.float32)
+    mono = k.lm_textures(imgs, "mono")
+    assert [name for name, _ in mono] == ["prt_lm_basis_g0", "prt_lm_basis_g1"]
+    assert np.array_equal(mono[1][1][..., 0], imgs[4]) and mono[1][1].shape == (8, 8, 4)
+    rgb = np.random.default_rng(3).random((2, 8, 8, 3)).astype(np.float32)
+    multi = k.lm_textures(rgb, "multi")
+    assert len(multi) == 2 and np.array_equal(multi[1][1][..., :3], rgb[1]) and not multi[1][1][..., 3].any()
+
+
+def test_fit_stats_of_an_exact_fit():
+    x, y, _ = _linear_dataset()
+    f = k.fit(x, y, 80, ridge=0.0)            # enough basis: the data spans 3·24 (+ mean) dimensions
+    st = k.fit_stats(f, x, y)
+    assert st["columns"] == f.columns > 0 and st["outliers_dropped"] == 0
+    assert st["train_rmse"] < 1e-4 * st["train_rms"] and st["energy_kept"] == pytest.approx(1.0)
+    assert st["train_rms"] == pytest.approx(float(np.sqrt(np.mean(y ** 2))))
+    short = k.fit_stats(f.truncated(8), x, y)   # fewer slots: less energy, larger error
+    assert short["energy_kept"] < st["energy_kept"] and short["train_rmse"] > 100 * st["train_rmse"]
+    assert st["singular_values"] == f.singular[:min(64, f.singular.size)].tolist()

@@ -6,8 +6,9 @@ import math
 import numpy as np
 import pytest
 
-from workers.kernels import masks as M
+from workers.kernels import mask_fit as M
 from workers.kernels import samplers as SM
+from workers.kernels.coloring import parity_coloring
 from workers.kernels.sh import SH_C0, sh_irradiance, sh_irradiance_l1_nonlinear
 
 
@@ -174,7 +175,7 @@ def test_parity_masks_reproduce_visibility_weighting_at_samples():
     theta = rng.integers(0, 256, shape + (8,)).astype(np.uint8)
     theta[rng.random(shape + (8,)) < 0.4] = 0
     dc = rng.random(shape) < 0.1
-    gcol = M.parity_coloring(g.counts)
+    gcol = parity_coloring(g.counts)
     m = M.fit_masks(theta, dc, g.counts, S, gcol, 8)
     m, _ = M.fill_dont_care(m, dc)
     q = M.quantize(m)
@@ -320,15 +321,15 @@ def _wall_masks(in_wall):
 
 
 def test_mask_lookup_offset_does_not_step_through_a_wall_the_receiver_faces():
-    """A receiver 5 cm in front of a surface, facing it, with the runtime offset (1 sample along n + v = 2 samples,
-    25 cm): the offset read lands behind the surface, on clusters the receiver does not see (overlap 0.1 < 0.25), so
-    the lookup keeps the read at the point (godot-living-room 5 cm from its walls: normalized mask GI 0.84 -> 1.00
-    of Cycles, tests/bench/bench_fidelity.py)."""
+    """A receiver one sample (12.5 cm) in front of a surface, facing it, with the runtime offset (1 sample along
+    n + v = 2 samples, 25 cm): the offset read lands behind the surface, on clusters the receiver does not see, so
+    the lookup keeps the read at the point (godot-living-room 5 cm = 1 sample from its walls: normalized mask GI
+    0.84 -> 1.00 of Cycles, tests/bench/bench_fidelity.py)."""
     masks, g = _wall_masks((0.0, 1.0))
-    p, n = np.array([[0.45, 0.5, 0.5]]), np.array([[1.0, 0.0, 0.0]])
+    p, n = np.array([[0.375, 0.5, 0.5]]), np.array([[1.0, 0.0, 0.0]])
     at_point = SM.mask_values(masks, p, n, g, 0.0)[0, :2]
     offset_only = SM.mask_values(masks, p + 0.25 * n, n, g, 0.0)[0, :2]
-    np.testing.assert_allclose(at_point, [0.9, 0.1], atol=2e-3)
+    np.testing.assert_allclose(at_point, [1.0, 0.0], atol=2e-3)
     np.testing.assert_allclose(offset_only, [0.0, 1.0], atol=2e-3)          # what the offset alone read
     np.testing.assert_allclose(SM.mask_values(masks, p, n, g, 1.0, views=n)[0, :2], at_point, atol=1e-9)
 
@@ -344,14 +345,20 @@ def test_mask_lookup_offset_still_lifts_a_surface_off_its_wall():
 
 
 def test_lookup_blend_is_linear_between_the_overlap_bounds():
-    from workers.kernels.compress import MASK_OVERLAP, lookup_blend
+    from workers.kernels.compress import MASK_OVERLAP, MASK_PRESENT, lookup_blend
 
     lo, hi = MASK_OVERLAP
-    a = np.array([[1.0, 0.0], [1.0, 0.0], [1.0, 0.0]])
-    ov = np.array([lo, (lo + hi) / 2, hi])
-    b = np.stack([ov, 1.0 - ov], axis=1)                  # Σ min(a, b) / Σ a = ov
+    a = np.array([[0.5, 0.5, 0.0]] * 3)
+    seen = np.array([lo, (lo + hi) / 2, hi])              # share of a's clusters the point sees
+    b = np.stack([np.full(3, 1.0), 2 * seen - 1, np.zeros(3)], axis=1)
+    b[:, 1] = (2 * seen - 1) * MASK_PRESENT                # cluster 1 seen at that fraction of MASK_PRESENT
     got = lookup_blend([a, b])
     np.testing.assert_allclose(got[0], b[0])
     np.testing.assert_allclose(got[1], (a[1] + b[1]) / 2)
     np.testing.assert_allclose(got[2], a[2])
     np.testing.assert_array_equal(lookup_blend([b]), b)
+    # a cluster seen at MASK_PRESENT or more counts fully: a thin-walled room's corner keeps the offset read
+    far = np.array([[0.0, 1.0]])
+    np.testing.assert_allclose(lookup_blend([np.array([[1.0, 0.0]]), np.array([[MASK_PRESENT, 1 - MASK_PRESENT]])]),
+                               [[1.0, 0.0]])
+    np.testing.assert_allclose(lookup_blend([far, np.array([[0.99, 0.01]])]), [[0.99, 0.01]])

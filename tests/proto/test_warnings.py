@@ -8,7 +8,6 @@ import json
 from proto.bundle import read_manifest, write_manifest
 from proto.models import BakeConfig, BakeWarning, Manifest
 from proto.stages import build_manifest, collect_warnings, plan
-from proto.store import Store
 
 SCENE_ID = "ab" * 32
 SUMMARY = {"id": SCENE_ID, "triangles": 12, "bounds": [[0, 0, 0], [1, 1, 1]], "lights": 0, "materials": 1,
@@ -17,15 +16,24 @@ UNLIT = {"code": "unlit_scene", "message": "nothing lights the scene"}
 SLAB = {"code": "not_converged", "message": "slab warning"}
 
 
-def _store_with(tmp_path, config: BakeConfig, stats_by_stage: dict[str, dict]) -> Store:
-    """A store holding a record (no artifacts) for every planned stage, with the given stats."""
-    store = Store(tmp_path / "store")
+class Records(dict):
+    """Stage records by cache key in memory (a ``proto.stages.StageRecords``, as ``persist.store.Store`` is)."""
+
+    def get_stage(self, cache_key: str) -> dict | None:
+        return self.get(cache_key)
+
+
+def records_with(config: BakeConfig, stats_by_stage: dict[str, dict], seconds: float = 0.1,
+                 artifacts_by_stage: dict[str, list] | None = None) -> Records:
+    """A record for every planned stage of ``config`` (scene ``SCENE_ID``, no namespace), with the given stats."""
+    records = Records()
     for st, key in plan(SCENE_ID, config):
         stats = dict(stats_by_stage.get(st.name, {}))
         if st.name == "place":
             stats.update(counts=[2, 2, 2], origin=[0, 0, 0], spacing=[1, 1, 1])
-        store.put_stage(key, {"stage": st.name, "cache_key": key, "seconds": 0.1, "stats": stats, "artifacts": []})
-    return store
+        records[key] = {"stage": st.name, "cache_key": key, "seconds": seconds, "stats": stats,
+                        "artifacts": (artifacts_by_stage or {}).get(st.name, [])}
+    return records
 
 
 def test_build_manifest_collects_stage_and_scene_warnings(tmp_path):
@@ -41,8 +49,7 @@ def test_build_manifest_collects_stage_and_scene_warnings(tmp_path):
         "masks": {"warnings": ["a plain string"]},
         "anneal": {"warnings": []},
     }
-    store = _store_with(tmp_path, config, stats)
-    m = build_manifest(store, SUMMARY, config, bake_id="b1")
+    m = build_manifest(records_with(config, stats), SUMMARY, config, bake_id="b1")
     got = [(w.code, w.message, w.stage) for w in m.warnings]
     assert got == [
         ("scene", SUMMARY["warnings"][0], None),            # the scene's ingest warnings first
@@ -61,10 +68,9 @@ def test_build_manifest_collects_stage_and_scene_warnings(tmp_path):
     assert read_manifest(tmp_path / "bundle").warnings == m.warnings
 
 
-def test_no_warnings_is_an_empty_list_and_old_manifests_read(tmp_path):
+def test_no_warnings_is_an_empty_list_and_old_manifests_read():
     config = BakeConfig()
-    store = _store_with(tmp_path, config, {})
-    m = build_manifest(store, {**SUMMARY, "warnings": []}, config)
+    m = build_manifest(records_with(config, {}), {**SUMMARY, "warnings": []}, config)
     assert m.warnings == [] and m.model_dump(mode="json")["warnings"] == []
     old = m.model_dump(mode="json")
     del old["warnings"]  # a bundle written before warnings existed

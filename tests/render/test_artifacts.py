@@ -239,7 +239,7 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
 
     A point light 8 cm above the floor, (0.5, 0.1, 0.3), 1 cd, relit through the baked transfer
     (prt_relight.relight) against the light stage's own bounce loop for that light on the same probe rays
-    (stages.prt.light_stage_reference: what the transfer is fit to). Numbers at the probes, over the 6 axis normals
+    (prt_reference.light_stage_reference: what the transfer is fit to). Numbers at the probes, over the 6 axis normals
     (L2): the fraction of probe directions that the reference lights (> 0.2 x median) but PRT gives < 0.1 of it
     (near-black), and PRT's relative RMS error. Measured (64 configurations, basis 16): near-black 0.050, relative RMS
     0.55; at 128 configurations 0.16 and 1.4 (0.27-0.56 for lights 10-15 cm from a wall, 0.11 in the middle of the
@@ -256,6 +256,7 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     31x there, with relative RMS 0.84.
     """
     from proto.models import BakeConfig
+    from tests.workers.prt_reference import light_stage_reference
     from workers.kernels.sh import sh_irradiance_l2
     from workers.prt_relight import relight
     from workers.raycast import RayCaster
@@ -268,7 +269,7 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     ds = P.prt_dataset(ctx)
     arrays = {a.name: a.data for a in P.prt_output(ctx, ds).artifacts}
     lights = [{"type": "point", "position": [0.5, 0.1, 0.3], "intensity": 1.0, "color": [1.0, 1.0, 1.0]}]
-    ref, _ = P.light_stage_reference(ds, lights, bc.light, lightmap=False)
+    ref, _ = light_stage_reference(ds, lights, bc.light, lightmap=False)
     got = relight(arrays, lights, RayCaster(scene.triangles), lightmap=False)["probe_sh"]
     on = s["trace"]["probe_states"].reshape(-1) != 0
     axes = np.vstack([np.eye(3), -np.eye(3)])

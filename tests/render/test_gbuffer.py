@@ -8,7 +8,7 @@ import pytest
 
 from tests.conftest import shared_path
 from workers.gltf import ingest_file
-from workers.kernels.pathtrace import reference_at_gbuffer
+from workers.kernels.reference import reference_at_gbuffer
 from workers.kernels.shading import surface_at_hits
 from workers.raycast import RayCaster
 from workers.render.cameras import Camera, auto_cameras, default_camera, fit_clip_planes

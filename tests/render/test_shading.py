@@ -213,7 +213,7 @@ def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files, sh_order):
     from proto.models import BakeConfig
     from workers.prt_relight import PrtModel, relight
     from workers.stages.base import StageContext
-    from workers.stages.evaluate import _prt_resources
+    from workers.render.previews import prt_resources as _prt_resources
 
     prt_stage = pytest.importorskip("workers.stages.prt")
     scene, s = bake_until(tmp_path, scene_files["cornell"], PRT_CFG, "light")
@@ -265,3 +265,69 @@ def test_time_passes_interleaves_modes(ctx, two_rooms):
         assert np.array_equal(r.render("leaking", output=1), before)
     finally:
         r.release()
+
+
+def _synthetic_bake(K=5, l2=True, counts=(3, 2, 2)):
+    """Artifacts of every mode by name, random but of the stored shapes and dtypes (no bake needed)."""
+    nx, ny, nz = counts
+    P = nx * ny * nz
+    rng = np.random.default_rng(0)
+    vol = lambda d=4: rng.random((nz, ny, nx, d)).astype(np.float32)  # noqa: E731
+    a = {f"sh_l1_{c}": vol() for c in "rgb"}
+    a.update({"probe_positions_relocated": rng.random((P, 3)).astype(np.float32),
+              "probe_states": np.array([0] + [1] * (P - 1), np.uint8),
+              "irradiance": rng.random((ny * 8, nz * nx * 8, 4)).astype(np.float32),
+              "depth_moments": rng.random((ny * 16, nz * nx * 16, 2)).astype(np.float32),
+              "mask_indirection": rng.integers(0, 255, (1, 1, 2, 4)).astype(np.uint8),
+              "mask_atlas_0123": rng.integers(0, 255, (4, 4, 8, 4)).astype(np.uint8),
+              "mask_atlas_4567": rng.integers(0, 255, (4, 4, 8, 4)).astype(np.uint8),
+              "cluster_weights_0123": vol(), "cluster_weights_4567": vol()})
+    for k in range(K):
+        a.update({f"cluster_sh_{k}_{c}": vol() for c in "rgb"})
+        if l2:
+            a[f"cluster_sh_l2_{k}"] = rng.random((7 * (nz + 2), ny, nx, 4)).astype(np.float32)
+    if l2:
+        a["sh_l2"] = rng.random((7 * (nz + 2), ny, nx, 4)).astype(np.float32)
+    basis = [[f"prt_sh_basis_c{k}_g0"] for k in range(9 if l2 else 4)]
+    a.update({n: vol() for row in basis for n in row})
+    return a, basis
+
+
+@pytest.mark.parametrize("l2", [True, False])
+@pytest.mark.parametrize("K", [2, 5])
+def test_prepare_mode_binds_what_the_mode_table_says(l2, K):
+    """proto/gi_modes.json is the contract: prepare_mode binds exactly its textures (with its filters), sets exactly
+    its uniforms and defines (web/tests/parity.test.js checks the viewer's side against the same file)."""
+    from types import SimpleNamespace
+
+    from proto import gi_modes
+
+    arrays, basis = _synthetic_bake(K, l2)
+    grid = {"counts": [3, 2, 2], "origin": [0.0, 0.0, 0.0], "spacing": [0.5, 0.25, 1.0]}
+    meta = {"samples_per_cell": 2, "block_size": 2, "border_lo": 0}
+    model = SimpleNamespace(channels="mono", gamma=None, section={"sh": {"basis": basis}})
+    for mode in gi_modes.MODE_IDS:
+        spec = gi_modes.MODES[mode]
+        res = prepare_mode(mode, arrays, grid, mask_meta=meta, prt_model=model,
+                           prt_coefficients=np.ones((4, 3), np.float32))
+        order = res.info.get("sh_order", 1)
+        want = gi_modes.texture_bindings(mode, arrays, order, basis)
+        assert list(res.textures) == list(want), mode
+        for u, (_, kind) in want.items():
+            assert res.textures[u][1] == (gi_modes.KINDS[kind]["filter"] == "linear"), (mode, u)
+            assert res.textures[u][0].ndim == 1 + gi_modes.KINDS[kind]["dims"], (mode, u)
+        assert set(res.uniforms) == set(gi_modes.GRID_UNIFORMS) | set(spec["uniforms"]), mode
+        assert res.defines == gi_modes.mode_defines(mode, order, K), mode
+        if mode in ("leaking", "mask", "mask_normalized", "prt"):
+            assert order == (2 if l2 else 1), mode
+
+
+def test_ddgi_bias_is_the_bakes_b():
+    """uDdgiBias = 0.75 · D · B of DDGI-P eq 2 with B the bake's light.self_shadow_bias (the viewer's uniform for the
+    same bake: tests/web/test_viewer.py test_viewer_ddgi_bias_is_the_bakes)."""
+    arrays, _ = _synthetic_bake()
+    grid = {"counts": [3, 2, 2], "origin": [0.0, 0.0, 0.0], "spacing": [0.5, 0.25, 1.0]}
+    for B in (0.3, 0.8, 0.0):
+        assert prepare_mode("ddgi", arrays, grid, self_shadow_bias=B).uniforms["uDdgiBias"] == pytest.approx(
+            0.75 * 0.25 * B)
+    assert prepare_mode("ddgi", arrays, grid).uniforms["uDdgiBias"] == pytest.approx(0.75 * 0.25 * 0.3)

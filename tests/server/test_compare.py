@@ -10,7 +10,7 @@ import pytest
 from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 from server.api import errors
 from server.api.routes import compare
 from server.config import Settings

@@ -110,8 +110,10 @@ def test_dockerfile(dockerfile):
     for pkg in ("libegl1", "libgl1", "libgomp1"):
         assert re.search(rf"\b{pkg}\b", apt), pkg
     assert "rm -rf /var/lib/apt/lists/*" in apt
-    pip = [i for i, ln in enumerate(dockerfile) if re.search(r"\bpip install\b.*\s\.(\s|$)", ln)]
+    pip = [i for i, ln in enumerate(dockerfile) if re.search(r"\bpip install\b.*\s\"?\.(\[[a-z,]+\])?\"?(\s|$)", ln)]
     assert len(pip) == 1
+    extras = re.search(r"\.\[([a-z,]+)\]", dockerfile[pip[0]])        # what serving needs (pyproject extras)
+    assert extras and set(extras.group(1).split(",")) == {"api", "worker", "render"}, dockerfile[pip[0]]
     users = [i for i, op in enumerate(ops) if op == "USER"]
     assert users and users[-1] > pip[0]  # installs as root, runs as the user
     final_user = dockerfile[users[-1]].split()[1]
@@ -125,3 +127,23 @@ def test_dockerfile(dockerfile):
         if op.upper() == "COPY":
             for src in rest[0].split()[:-1]:
                 assert (ROOT / src).exists(), src
+
+
+def test_extras_hold_each_dependency_where_it_is_used():
+    """pyproject's extras: the test extra pulls what serving needs (so scripts/test.sh on a fresh checkout has it),
+    the dependencies only tests import sit in test alone, and the scripts install the right extras."""
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    assert set(extras) == {"api", "worker", "render", "test"}
+    assert "kiln-bake[api,worker,render]" in extras["test"]
+
+    def names(reqs):
+        return {re.match(r"[A-Za-z0-9_.-]+", r).group(0).lower() for r in reqs}
+    runtime = names(project["dependencies"]) | names(extras["api"]) | names(extras["worker"]) | names(extras["render"])
+    for test_only in ("trimesh", "psutil", "pyyaml", "pytest"):
+        assert test_only not in runtime and test_only in names(extras["test"]), test_only
+    assert "tomli-w" not in runtime | names(extras["test"])           # nothing imports it
+    setup = (ROOT / "scripts" / "setup.sh").read_text()
+    assert 'EXTRAS=${KILN_EXTRAS:-test}' in setup and 'pip install -q -e ".[$EXTRAS]"' in setup
+    assert "KILN_EXTRAS=${KILN_EXTRAS:-api,worker,render} bash scripts/setup.sh" in (ROOT / "scripts" / "serve.sh"
+                                                                                     ).read_text()

@@ -2,7 +2,7 @@
 takes, joined by a final job; 1 worker and 3 workers give bit-identical artifacts."""
 from __future__ import annotations
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 from tests.conftest import Service
 
 CONFIG = {"place": {"counts": [9, 4, 5], "box": {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}},

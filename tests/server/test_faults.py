@@ -9,7 +9,7 @@ import time
 
 import pytest
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 from tests.conftest import small_bake
 
 
@@ -82,7 +82,7 @@ def test_api_restart_with_queued_bakes(service, scene_files):
     redis.Redis.from_url(service.redis.url).flushall()
     service.start_workers(1)
     c = service.start_app()
-    b = service.wait_bake(bid, timeout=90)
+    b = service.wait_bake(bid)
     assert b["status"] == "succeeded", b
     assert c.get(f"/v1/scenes/{sid}").status_code == 200
 

@@ -29,14 +29,14 @@ def conn(tmp_path):
 
 def _conceded(conn):
     """Job B depends on A; A finishes and B is moved to ready, but (as when RQ concedes it) never enqueued."""
-    q = Queue(kq.QUEUE_NAME, connection=conn)
+    q = Queue(kq.SHORT_QUEUE, connection=conn)
     a = q.enqueue("workers.jobs.finish_bake", "bake-a", job_id="a-0-place")
     b = q.enqueue("workers.jobs.finish_bake", "bake-a", job_id="a-0-relocate", depends_on=a)
     assert b.get_status() == JobStatus.DEFERRED
     assert q.pop_job_id() == a.id
     a.set_status(JobStatus.FINISHED)
     moved = q.move_dependents_to_ready(a)
-    assert moved == {kq.QUEUE_NAME: [b.id]}
+    assert moved == {kq.SHORT_QUEUE: [b.id]}
     return q, b
 
 

@@ -79,6 +79,6 @@ def test_thresholds_round_trip_refusals_teams_and_per_bake_results(service, scen
 
 
 def _manifest(service, bake_id: str) -> dict:
-    from proto.catalog import Catalog
+    from persist.catalog import Catalog
 
     return Catalog(service.data / "kiln.db").get_bake(bake_id)["manifest"]

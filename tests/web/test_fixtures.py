@@ -16,6 +16,7 @@ from workers.kernels.sh import sh_irradiance, sh_irradiance_l1_nonlinear, sh_irr
 
 ROOT = Path(__file__).resolve().parents[2]
 FIX = ROOT / "proto" / "fixtures"
+GENERATOR = ROOT / "tests" / "proto" / "make_fixtures.py"
 
 
 def _expected(folder: Path = FIX) -> dict:
@@ -25,10 +26,10 @@ def _expected(folder: Path = FIX) -> dict:
 def test_fixtures_are_current(tmp_path):
     """Regenerating gives the same expected numbers and the same decoded textures (zstd bytes may differ
     between zstd versions, so textures are compared decoded)."""
-    r = subprocess.run([sys.executable, str(FIX / "make_fixtures.py"), "--out", str(tmp_path)], cwd=ROOT,
+    r = subprocess.run([sys.executable, str(GENERATOR), "--out", str(tmp_path)], cwd=ROOT,
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
-    assert _expected(tmp_path) == _expected(), "proto/fixtures is stale: run .venv/bin/python proto/fixtures/make_fixtures.py"
+    assert _expected(tmp_path) == _expected(), "proto/fixtures is stale: run .venv/bin/python tests/proto/make_fixtures.py"
     for f in sorted(FIX.glob("*.ktx2")):
         a, ia = read_ktx2(f)
         b, ib = read_ktx2(tmp_path / f.name)

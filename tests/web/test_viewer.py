@@ -505,3 +505,45 @@ def test_bake_warnings_on_the_card_the_dashboard_and_the_viewer(page, tmp_path, 
     assert (page.get_attribute("#viewer-warnings", "hidden") is not None) == (not lit["warnings"])
     assert "nothing lights the scene" not in page.inner_text("#page-viewer")
     assert not page.kiln_errors, page.kiln_errors
+
+
+def test_viewer_ddgi_bias_is_the_bakes(page, tmp_path, kiln_server):
+    """Change B (light.self_shadow_bias, DDGI-P eq 2) in a bake: the viewer's uDdgiBias, read back from the page, is
+    the one the evaluate pass binds for that bake (workers/render/shading.py prepare_mode on the bake's artifacts
+    with its config's B), and not the default B's. Both read proto/gi_modes.json; either ignoring the bake's B fails."""
+    import httpx
+
+    from proto import gi_modes
+    from proto.bundle import load_artifact
+    from proto.models import ArtifactInfo, BakeConfig
+    from workers.render.shading import prepare_mode
+
+    glb = _scene(tmp_path)
+    with open(glb, "rb") as f:
+        scene = kiln_server.api("/v1/scenes", "POST", files={"file": (glb.name, f, "model/gltf-binary")})
+    cfg = {"place": {"counts": [6, 3, 4]}, "trace": {"rays_per_probe": 32}, "light": {"self_shadow_bias": 0.8},
+           "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 10}, "evaluate": {"enabled": False}}
+    bake_id = kiln_server.api("/v1/bakes", "POST", json={"scene_id": scene["id"], "config": cfg})["id"]
+    bake = kiln_server.wait_bake(bake_id, timeout=150)
+    assert bake["status"] == "succeeded", bake.get("error")
+    B = BakeConfig.model_validate(bake["config"]).light.self_shadow_bias   # what the evaluate stage reads
+    assert B == 0.8
+    arts = {a["name"]: a for a in bake["artifacts"]}
+    place = next(st["stats"] for st in bake["stages"] if st["name"] == "place")
+    grid = {k: place[k] for k in ("counts", "origin", "spacing")}
+
+    def artifact(name):
+        r = httpx.get(f"{kiln_server.url}/v1/bakes/{bake_id}/artifacts/{name}", timeout=30)
+        r.raise_for_status()
+        return load_artifact(r.content, ArtifactInfo(**arts[name]))
+
+    arrays = {n: artifact(n) for n in ("irradiance", "depth_moments", "probe_positions_relocated", "probe_states")}
+    python = prepare_mode("ddgi", arrays, grid, self_shadow_bias=B).uniforms["uDdgiBias"]
+    default = prepare_mode("ddgi", arrays, grid).uniforms["uDdgiBias"]
+    assert python == pytest.approx(default * 0.8 / gi_modes.SELF_SHADOW_BIAS) and python > default
+
+    page.goto(f"/#/viewer/{bake_id}?mode=ddgi")
+    page.wait_for_selector("#viewer-canvas[data-ready-mode=ddgi]", timeout=60000)
+    viewer = page.evaluate("window.kiln.viewer.renderer.shared.uDdgiBias.value")
+    assert viewer == pytest.approx(python, rel=1e-6), (viewer, python, default)
+    assert not page.kiln_errors, page.kiln_errors

@@ -15,11 +15,12 @@ import numpy as np
 import pytest
 
 from proto.models import BakeConfig
+from workers.kernels.point_modes import available_modes
 from workers.procedural import BAKE_BOXES
 from workers.render.context import RenderUnavailable, create_context
 from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode
 from workers.stages.base import LazyArtifacts, StageContext
-from workers.stages.evaluate import available_modes, run_evaluate
+from workers.stages.evaluate import run_evaluate
 from workers.stages.reference import run_reference
 
 from tests.workers.test_probes import bake_until
@@ -128,3 +129,18 @@ def test_furnace_every_mode_near_zero_error(tmp_path, scene_files):
         r.release()
     out = _evaluate(scene, s, cfg, {**EVAL, "spp": 4})      # no surface in view: runs, zero error
     assert all(v == 0 for k, v in _stats(out).items() if k.endswith((".rmse", ".leak")))
+
+
+def test_settings_of_records_the_evaluate_section():
+    """What eval_metrics records as ``settings``: the section's fields in a fixed order, review cameras without
+    their unset optional fields."""
+    from workers.stages.evaluate import SETTINGS, settings_of
+
+    d = settings_of(BakeConfig())
+    assert list(d) == list(SETTINGS)
+    assert d == {"cameras": 3, "width": 160, "height": 120, "fov_y": 60.0, "spp": 128, "preview_spp": 4,
+                 "bounces": None, "surface_points": 2048, "sampling": "cameras", "previews": 1, "modes": None,
+                 "repeats": 0, "flip": False}
+    cam = settings_of(BakeConfig.model_validate({"evaluate": {"cameras": [{"position": [0, 1, 2],
+                                                                          "target": [0, 1, 0]}]}}))["cameras"]
+    assert cam == [{"position": (0.0, 1.0, 2.0), "target": (0.0, 1.0, 0.0)}]          # no fov_y, no name

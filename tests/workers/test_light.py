@@ -97,3 +97,28 @@ def test_sealed_box_no_leak_with_cells_straddling_the_walls(tmp_path, scene_file
     assert inside.sum() >= 8 and s["light"].stats["bounces"] >= 2
     assert e[outside].mean() > 0.1
     assert np.all(e[inside] < 1e-3 * e[outside].mean())
+
+
+def test_buried_probes_are_dilated_in_the_runtime_volumes(tmp_path, scene_files):
+    """sealed-box's floor slab is 10 cm thick: a grid whose bottom layer sits at its middle with 10 cm spacing cannot
+    move out (0.45 x spacing = 4.5 cm < 5 cm), so that layer is OFF. probe_sh keeps them at 0; the volumes leaking GI
+    samples (sh_l1_*, sh_l2) give each the value of the probe above it (its only live neighbour), so the floor is not
+    read half dark."""
+    from workers.kernels import samplers as SM
+
+    cfg = {"place": {"counts": [3, 3, 3], "box": {"min": [1.5, -0.05, 1.5], "max": [1.7, 0.15, 1.7]}},
+           "trace": {"rays_per_probe": 128}, "light": {"bounces": 2}}
+    _, s = bake_until(tmp_path, scene_files["sealed-box"], cfg, "light")
+    states = s["trace"]["probe_states"].reshape(3, 3, 3)
+    assert np.all(states[:, 0, :] == OFF) and np.all(states[:, 1:, :] != OFF)
+    assert s["light"].stats["off_dilated"] == 9
+    sh = s["light"]["probe_sh"].reshape(3, 3, 3, 9, 3)
+    assert np.all(sh[:, 0] == 0)
+    for c in "rgb":
+        v = s["light"][f"sh_l1_{c}"]
+        np.testing.assert_array_equal(v[:, 0], v[:, 1])
+    grid = {k: s["place"].stats[k] for k in ("counts", "origin", "spacing")}
+    p, n = np.array([[1.6, 0.01, 1.6]]), np.array([[0.0, 1.0, 0.0]])      # on the floor, facing up
+    e = SM.irradiance("leaking", {"sh_l2": s["light"]["sh_l2"]}, grid, p, n)
+    np.testing.assert_allclose(e, SM.leaking_l2(np.array([[1.6, 0.05, 1.6]]), n, s["light"]["sh_l2"], grid),
+                               rtol=1e-5)

@@ -7,9 +7,10 @@ import pytest
 
 from proto.bundle import load_artifact, write_artifact
 from proto.models import BakeConfig
-from workers.kernels import masks as M
 from workers.kernels import samplers as SM
+from workers.kernels.coloring import edge_loss
 from workers.kernels.grid import OFF
+from workers.kernels.mask_field import field_fractions, join_theta
 from workers.stages.anneal import run_anneal
 from workers.stages.base import LazyArtifacts, StageContext
 from workers.stages.masks import run_masks
@@ -76,8 +77,8 @@ def test_two_rooms_annealing_beats_random_and_is_seeded(tmp_path, scene_files, S
     # different samples: every such pair gets two colours
     states = s["trace"]["probe_states"].reshape(-1)
     pos = s["relocate"]["probe_positions_relocated"].reshape(-1, 3)
-    theta = M.join_theta(s["visibility"]["theta_0123"], s["visibility"]["theta_4567"])
-    pairs, w = M.edge_loss(theta, s["visibility"]["dont_care"], [9, 4, 5], S, states)
+    theta = join_theta(s["visibility"]["theta_0123"], s["visibility"]["theta_4567"])
+    pairs, w = edge_loss(theta, s["visibility"]["dont_care"], [9, 4, 5], S, states)
     pi, pj = pos[pairs[:, 0]], pos[pairs[:, 1]]
     across = ((pi[:, 0] < 4.0) & (pj[:, 0] > 4.05)) | ((pj[:, 0] < 4.0) & (pi[:, 0] > 4.05))
     away = (np.maximum(pi[:, 2], pj[:, 2]) < 1.5) | (np.minimum(pi[:, 2], pj[:, 2]) > 2.5)
@@ -159,9 +160,9 @@ def test_parity_masks_reproduce_visibility_weighting(tmp_path, scene_files, scen
     if scene_name == "sealed-box":
         assert dc.any()                                                   # the walls hold samples
     # bytes: channel k of a sample in a cell whose base corner has parity b is θ of corner k ^ b
-    theta = M.join_theta(arrays["theta_0123"], arrays["theta_4567"])
+    theta = join_theta(arrays["theta_0123"], arrays["theta_4567"])
     q = np.concatenate([arrays["masks_0123"], arrays["masks_4567"]], axis=3)
-    cx, cy, cz, *_ = M.field_fractions(counts, S)
+    cx, cy, cz, *_ = field_fractions(counts, S)
     b = (cx[None, None, :] & 1) | ((cy[None, :, None] & 1) << 1) | ((cz[:, None, None] & 1) << 2)
     for k in range(8):
         th = np.take_along_axis(theta, (k ^ b)[..., None], axis=3)[..., 0]
@@ -332,7 +333,7 @@ def test_two_rooms_mask_gi_at_a_corner_reads_the_camera_side(tmp_path, scene_fil
 
 def test_free_mask_channels_are_zero(tmp_path, scene_files):
     """A cluster with no (non-OFF) probe among a cell's corners has mask 0 at every sample of that cell, so
-    the shader's m_k > 0 test alone picks the clusters to sample (MD §1; masks.canonicalize)."""
+    the shader's m_k > 0 test alone picks the clusters to sample (MD §1; mask_fit.canonicalize)."""
     cfg = _two_rooms_cfg(4)
     scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
     a, m = _md(scene, s, cfg)

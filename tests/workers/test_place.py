@@ -1,43 +1,35 @@
-"""The ``place`` stage: probe grid by counts or spacing, over the bounds or a box."""
+"""The ``place`` stage: the grid of the config as a volume, its stats, and the probe limit."""
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from proto.models import PlaceSection
-from workers.stages.place import grid_layout, grid_positions
+from proto.models import MAX_PROBES, BakeConfig
+from workers.kernels.grid import grid_layout, grid_positions
+from workers.stages.base import LazyArtifacts, StageContext, StageError
+from workers.stages.place import run_place
 
-BOUNDS = np.array([[-1.0, 0.0, 2.0], [3.0, 2.0, 4.0]])
-
-
-def test_counts_span_the_bounds():
-    counts, origin, spacing = grid_layout(BOUNDS, PlaceSection(counts=(5, 3, 2)))
-    assert counts.tolist() == [5, 3, 2]
-    p = grid_positions(counts, origin, spacing)
-    assert p.shape == (2, 3, 5, 3) and p.dtype == np.float32
-    assert np.allclose(p[0, 0, 0], BOUNDS[0]) and np.allclose(p[-1, -1, -1], BOUNDS[1])
-    assert np.allclose(p[0, 0, 1] - p[0, 0, 0], [1, 0, 0])  # x fastest
-    assert np.allclose(p[0, 1, 0] - p[0, 0, 0], [0, 1, 0])
-    assert np.allclose(p[1, 0, 0] - p[0, 0, 0], [0, 0, 2])
+BOUNDS = [[-1.0, 0.0, 2.0], [3.0, 2.0, 4.0]]
 
 
-@pytest.mark.parametrize("s", [0.3, 0.5, 1.0, 7.0])
-def test_spacing_covers_and_centres(s):
-    counts, origin, spacing = grid_layout(BOUNDS, PlaceSection(spacing=s))
-    ext = BOUNDS[1] - BOUNDS[0]
-    assert np.all((counts - 1) * s >= ext - 1e-9)  # covers the box
-    assert np.all((counts - 2) * s < ext)           # with no spare row
-    centre = origin + spacing * (counts - 1) / 2
-    assert np.allclose(centre, BOUNDS.mean(axis=0))
+def _ctx(place: dict) -> StageContext:
+    def no_scene():
+        raise AssertionError("a grid by counts or spacing casts no rays")
+    return StageContext(BakeConfig.model_validate({"place": place}), no_scene,
+                        {"ingest": LazyArtifacts({"bounds": BOUNDS}, {})}, lambda f: None)
 
 
-def test_box_padding_and_flat_axes():
-    sec = PlaceSection(counts=(3, 3, 3), box={"min": (0, 0, 0), "max": (2, 2, 2)}, padding=0.5)
-    counts, origin, spacing = grid_layout(BOUNDS, sec)
-    assert np.allclose(origin, [-1, -1, -1]) and np.allclose(spacing, [2, 2, 2])
-    flat = np.array([[0.0, 1.0, 0.0], [4.0, 1.0, 4.0]])
-    counts, origin, spacing = grid_layout(flat, PlaceSection(spacing=1.0))
-    assert counts.tolist() == [5, 1, 5] and origin[1] == 1.0
-    counts, origin, spacing = grid_layout(flat, PlaceSection(counts=(2, 4, 2)))
-    p = grid_positions(counts, origin, spacing)
-    assert np.all(p[..., 1] == 1.0)
+def test_counts_grid_volume_and_stats():
+    out = run_place(_ctx({"counts": [5, 3, 2]}))
+    counts, origin, spacing = grid_layout(np.asarray(BOUNDS), BakeConfig.model_validate(
+        {"place": {"counts": [5, 3, 2]}}).place)
+    (art,) = out.artifacts
+    assert art.name == "probe_positions" and art.meta == {"counts": [5, 3, 2]}
+    np.testing.assert_array_equal(art.data, grid_positions(counts, origin, spacing))
+    assert out.stats == {"counts": [5, 3, 2], "origin": origin.tolist(), "spacing": spacing.tolist(), "probes": 30}
+
+
+def test_too_many_probes():
+    with pytest.raises(StageError) as e:
+        run_place(_ctx({"spacing": float(1.0 / np.cbrt(MAX_PROBES))}))      # 4 x 2 x 2 m: about 16x the limit
+    assert e.value.code == "too_many_probes"

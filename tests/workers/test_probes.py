@@ -6,7 +6,7 @@ import pytest
 
 from proto.models import BakeConfig
 from proto.stages import plan
-from proto.store import Store
+from persist.store import Store
 from workers import pipeline
 from workers.gltf import ingest_file
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, base_positions, unpack_atlas

@@ -3,7 +3,7 @@
 The stage is called with a hand-built StageContext on top of the real pipeline up to ``light``
 (``bake_until``), so these tests do not depend on the stage being registered in proto/stages.py.
 Reference results come from the light stage's own bounce loop (``light.integrate`` on the cached hits,
-emission excluded, sky 0) through :func:`workers.stages.prt.light_stage_reference`.
+emission excluded, sky 0) through :func:`tests.workers.prt_reference.light_stage_reference`.
 """
 from __future__ import annotations
 
@@ -17,11 +17,15 @@ from proto import bundle
 from proto.models import BakeConfig
 from tests.conftest import shared_path
 from tests.workers.gltf.builders import QUAD, QUAD_UV, Gltf, write_glb
+from tests.workers.prt_reference import light_stage_reference
 from tests.workers.test_probes import bake_until
 from workers import prt_relight
 from workers.gltf import ingest_file
 from workers.kernels import prt as kprt
+from workers.kernels import prt_scenario as scenario
 from workers.kernels.ddgi import sample_irradiance
+from workers.kernels.gather import ddgi_weights
+from workers.kernels.prt_dataset import USABLE_TEST_CONFIGS
 from workers.stages import prt as sprt
 from workers.stages.base import StageContext
 
@@ -58,11 +62,11 @@ def heldout(cornell):
     ctx, ds, _ = cornell
     sc = ctx.config.prt.scenario
     caster = ds.probes["caster"]
-    lights = kprt.random_light_configurations(np.random.default_rng(2024), sc.model_dump(), 16, sc.box.min,
+    lights = scenario.random_light_configurations(np.random.default_rng(2024), sc.model_dump(), 16, sc.box.min,
                                               sc.box.max, inside=caster.inside_parity,
                                               target_box=((0, 0, 0), (1, 1, 1)))
-    refs = [sprt.light_stage_reference(ds, L, ctx.config.light) for L in lights]
-    xs = [sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]) for L in lights]
+    refs = [light_stage_reference(ds, L, ctx.config.light) for L in lights]
+    xs = [scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]) for L in lights]
     return lights, xs, [r[0].reshape(-1, 3) for r in refs], [r[1] for r in refs]
 
 
@@ -77,11 +81,23 @@ def test_disabled_stage_returns_nothing(tmp_path, scene_files):
     assert out.artifacts == [] and out.stats == {"enabled": False}
 
 
+def test_a_dataset_too_large_is_refused(tmp_path, scene_files, monkeypatch):
+    from workers.kernels import prt_dataset
+    from workers.stages.base import StageError
+
+    monkeypatch.setattr(prt_dataset, "DATASET_BYTES", 1000)
+    ctx = _ctx(tmp_path, scene_files["cornell"], {**_config(configurations=4, measurement_points=8, lightmap=0),
+                                                   "place": {"counts": [2, 2, 2]}})
+    with pytest.raises(StageError) as e:
+        sprt.prt_dataset(ctx)
+    assert e.value.code == "prt_too_large" and "lower prt.configurations" in str(e.value)
+
+
 def test_ddgi_weights_reproduce_the_sampler(cornell):
     _, ds, _ = cornell
     pr, g = ds.probes, ds.probes["grid"]
     surf = pr["surf"]
-    W = sprt.ddgi_weights(surf.position, surf.normal, surf.view, g, pr["positions"], pr["states"], pr["depth"],
+    W = ddgi_weights(surf.position, surf.normal, surf.view, g, pr["positions"], pr["states"], pr["depth"],
                           pr["n"], pr["bias"], pr["visible"])
     assert W.shape == (surf.index.size, 64 * (pr["n"] + 2) ** 2) and W.nnz <= 32 * W.shape[0]
     maps = np.random.default_rng(0).random((64, pr["n"] + 2, pr["n"] + 2, 3)).astype(np.float32)
@@ -93,10 +109,10 @@ def test_ddgi_weights_reproduce_the_sampler(cornell):
 def test_dataset_equals_the_light_stage_for_its_configurations(cornell):
     ctx, ds, _ = cornell
     for k in (0, 5, 77):
-        sh, tex = sprt.light_stage_reference(ds, ds.configs[k], ctx.config.light)
+        sh, tex = light_stage_reference(ds, ds.configs[k], ctx.config.light)
         assert np.allclose(ds.sh[k], sh, rtol=1e-4, atol=1e-5 * np.abs(sh).max())
         assert np.allclose(ds.texels[k], tex, rtol=1e-4, atol=1e-5 * np.abs(tex).max())
-        assert np.allclose(ds.direct[k], sprt.measurement_direct(ds.points, ds.configs[k], ds.probes["caster"],
+        assert np.allclose(ds.direct[k], scenario.measurement_direct(ds.points, ds.configs[k], ds.probes["caster"],
                                                                  ds.probes["eps"]))
     assert ds.bounces.min() >= 2
 
@@ -107,13 +123,13 @@ def test_measurement_points_are_blue_noise_on_lit_surfaces(cornell):
     assert p["position"].shape == (256, 3) and np.array_equal(p["offsets"], np.arange(257))
     assert np.all(p["albedo"].max(axis=1) > 0)
     lit = np.zeros(256, bool)
-    for lights in ds.configs[:sprt.USABLE_TEST_CONFIGS]:
+    for lights in ds.configs[:USABLE_TEST_CONFIGS]:
         lit |= ds.direct[ds.configs.index(lights)].max(axis=1) > 0
     assert lit.all()                      # every point is lit by some configuration
-    tri, u, v = kprt.area_samples(ctx.scene.triangles, 256, np.random.default_rng(0))
+    tri, u, v = scenario.area_samples(ctx.scene.triangles, 256, np.random.default_rng(0))
     t = ctx.scene.triangles[tri].astype(np.float64)
     rand = (1 - u - v)[:, None] * t[:, 0] + u[:, None] * t[:, 1] + v[:, None] * t[:, 2]
-    assert kprt.min_spacing(p["position"]) > 2 * kprt.min_spacing(rand)
+    assert scenario.min_spacing(p["position"]) > 2 * scenario.min_spacing(rand)
 
 
 def test_artifacts_and_section(cornell):
@@ -218,11 +234,11 @@ def test_variants_round_trip_through_the_bundle_format(tmp_path, scene_files, pr
     sec = ctx.config.prt
     N, P, K = ds.sh.shape[:3]
     f = kprt.fit(ds.direct, ds.sh.reshape(N, P * K, 3), 6, sec.ridge, sec.gamma, sec.channels)
-    want = kprt.reconstruct(f, sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
+    want = kprt.reconstruct(f, scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
     assert np.allclose(a["probe_sh"].reshape(-1, 3), want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
     if ds.texels is not None:
         g = kprt.fit(ds.direct, ds.texels, 6, sec.ridge, sec.gamma, sec.channels)
-        want = kprt.reconstruct(g, sprt.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
+        want = kprt.reconstruct(g, scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
         got = a["lightmap"].reshape(-1, 4)[ds.lightmap["covered"].ravel(), :3]
         assert np.allclose(got, want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
     if prt.get("supersampling"):
@@ -286,6 +302,6 @@ def test_vinc3r_lightmap_uses_texcoord1_charts_and_xatlas(tmp_path):
             if a < b:
                 (a0, a1), (b0, b1) = boxes[a], boxes[b]
                 assert np.any(a1 <= b0) or np.any(b1 <= a0), (a, b)
-    sh, tex = sprt.light_stage_reference(ds, ds.configs[0], ctx.config.light)
+    sh, tex = light_stage_reference(ds, ds.configs[0], ctx.config.light)
     assert np.allclose(ds.texels[0], tex, rtol=1e-4, atol=1e-5 * np.abs(tex).max())
     assert np.abs(tex).max() > 0

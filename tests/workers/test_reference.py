@@ -9,7 +9,7 @@ import numpy as np
 
 from proto.models import BakeConfig
 from proto.stages import STAGE_BY_NAME, plan
-from proto.store import Store
+from persist.store import Store
 from workers import pipeline
 from workers.gltf import ingest_file
 

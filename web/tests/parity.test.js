@@ -1,5 +1,5 @@
 // Cross-language parity: the JS KTX2 loader and the SH / octahedral math decode proto/fixtures (written by
-// proto/fixtures/make_fixtures.py from the Python kernels) to the same numbers.
+// tests/proto/make_fixtures.py from the Python kernels) to the same numbers.
 import { describe, expect, it } from 'vitest';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
@@ -217,5 +217,53 @@ describe('mask atlas parameters (workers/kernels/compress.py layouts)', () => {
     expect(maskParams({ names: [], info: none, bake: bake({ block_size: 10, layout: 'bordered' }) })).toEqual({ S: 8, T: 10, lo: 1 });
     const masks = (n) => (n === 'masks_0123' ? { shape: [16, 24, 32, 4] } : undefined);
     expect(maskParams({ names: [], info: masks, grid: { counts: [5, 4, 3] } })).toEqual({ S: 8, T: 8, lo: 0 });
+  });
+});
+
+describe('the mode table is proto/gi_modes.json (one source with workers/render/shading.py prepare_mode)', () => {
+  const grid = { counts: [3, 2, 2], spacing: [0.5, 0.25, 1], origin: [0, 0, 0] };
+  const K = 5;
+  const names = ['sh_l1_r', 'sh_l1_g', 'sh_l1_b', 'sh_l2', 'mask_indirection', 'mask_atlas_0123', 'mask_atlas_4567',
+    'cluster_weights_0123', 'cluster_weights_4567', 'irradiance', 'depth_moments', 'probe_positions_relocated', 'probe_states',
+    ...Array.from({ length: K }, (_, k) => [`cluster_sh_${k}_r`, `cluster_sh_${k}_g`, `cluster_sh_${k}_b`, `cluster_sh_l2_${k}`]).flat()];
+  const artifacts = { irradiance: { width: 96, height: 16 }, depth_moments: { width: 192, height: 32 },
+    prt: { basis: 4, sh: { basis: Array.from({ length: 9 }, (_, k) => [`prt_sh_basis_c${k}_g0`]) } } };
+  const bake = (B) => ({ config: { light: { self_shadow_bias: B } },
+    stages: [{ name: 'compress', stats: { block_size: 2, layout: 'cell', border_lo: 0, border_hi: 0 } }] });
+
+  it('every mode binds the textures, uniforms and defines the table lists', async () => {
+    const { GI_MODES, MODE_SPECS, MODE_SAMPLERS, modeTextures, modeDefines } = await import('../src/state/modes.js');
+    const spec = (await import('../../proto/gi_modes.json')).default;
+    expect(GI_MODES.map((m) => m.id)).toEqual(spec.modes.map((m) => m.id));
+    for (const mode of GI_MODES) {
+      const table = MODE_SPECS[mode.id];
+      expect(mode.shader).toBe(table.shader);
+      const tex = modeTextures(mode, names, artifacts, { nz: 2 });
+      // the table's textures at SH order 2 (this bake has the L2 volumes), the second atlas and weights with K = 5
+      const want = table.textures.filter((t) => (t.sh_order ?? 2) === 2).map((t) => t.uniform);
+      expect(Object.keys(tex)).toEqual(want);
+      for (const t of table.textures.filter((x) => want.includes(x.uniform))) expect(tex[t.uniform][1]).toBe(t.kind);
+      for (const u of Object.keys(tex)) expect(MODE_SAMPLERS).toContain(u);
+      const uniforms = mode.uniforms ? Object.keys(mode.uniforms({ grid, names, bake: bake(0.3), info: () => undefined, artifacts })) : [];
+      // uPrtCoef: set by the viewer's relight on every light move (viewer.js relight)
+      expect([...uniforms, ...(mode.id === 'prt' ? ['uPrtCoef'] : [])].sort()).toEqual([...table.uniforms].sort());
+      expect(Object.keys(modeDefines(mode, names, artifacts, { nz: 2 })).sort()).toEqual(Object.keys(table.defines).sort());
+    }
+    expect(modeDefines(GI_MODES.find((m) => m.id === 'mask'), names, artifacts, { nz: 2 })).toEqual({ KILN_SH_L2: true, KILN_MASK_CLUSTERS: K });
+    expect(modeTextures(GI_MODES.find((m) => m.id === 'mask_normalized'), names, artifacts, { nz: 2 }).uClusterWeights)
+      .toEqual([['cluster_weights_0123', 'cluster_weights_4567'], 'stack']);
+  });
+
+  it("DDGI's B is the bake's light.self_shadow_bias (DDGI-P eq 2), the default only where a bake does not say", async () => {
+    const { modeById, ddgiBias, selfShadowBias, SELF_SHADOW_BIAS } = await import('../src/state/modes.js');
+    const ddgi = modeById('ddgi');
+    const u = (b) => ddgi.uniforms({ grid, names, bake: b, info: () => undefined, artifacts }).uDdgiBias;
+    expect(SELF_SHADOW_BIAS).toBe(0.3);
+    expect(u(bake(0.8))).toBeCloseTo(0.75 * 0.25 * 0.8, 12);      // workers/kernels/ddgi.bias_scale(spacing, 0.8)
+    expect(u(bake(0))).toBe(0);
+    expect(u({})).toBeCloseTo(0.75 * 0.25 * 0.3, 12);
+    expect(u(bake(0.8))).not.toBeCloseTo(u({}), 6);
+    expect(selfShadowBias({ config: { light: { self_shadow_bias: 1.5 } } })).toBe(1.5);
+    expect(ddgiBias([0, 2, 0.5], 1)).toBe(0.375);                   // D over axes with spacing > 0
   });
 });

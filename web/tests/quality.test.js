@@ -47,6 +47,11 @@ describe('chart scales', () => {
     expect(sc.x(2)).toBe(190);
     for (const v of [1, 1.5, 2.5, 4]) { expect(sc.y(v)).toBeGreaterThanOrEqual(10); expect(sc.y(v)).toBeLessThanOrEqual(90); }
     expect(sc.y(4)).toBeLessThan(sc.y(1));
+    // with times the x axis is time: a bake made long after the others stands apart
+    const t = chartScales([{ value: 1, time: 100 }, { value: 2, time: 110 }, { value: 3, time: 200 }], [], { width: 200, height: 100, pad: 10 });
+    expect(t.timed).toBe(true);
+    expect([t.x(0), t.x(1), t.x(2)]).toEqual([10, 28, 190]);
+    expect(chartScales([{ value: 1, time: 5 }, { value: 2, time: 5 }], [], { width: 200, pad: 10 }).x(1)).toBe(190);  // equal times: order
     const one = chartScales([{ value: 5 }], [], { width: 100 });
     expect(one.x(0)).toBe(50);
     expect(Number.isFinite(one.y(5))).toBe(true);

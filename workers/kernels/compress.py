@@ -70,7 +70,7 @@ Sampling (the GLSL; :func:`sample_compressed` does the same in numpy)
 
 **Own-cell rule.** The texel coordinate is clamped to the point's own cell's S³ samples (as θ is read:
 :mod:`workers.kernels.samplers`), so the trilinear footprint never reaches a neighbouring cell. Channels of
-clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.masks.canonicalize`, so the
+clusters absent from a cell are free there (canonical 0, :func:`workers.kernels.mask_fit.canonicalize`, so the
 shader skips them); filtering across a face would blend the free value into the neighbour, where the cluster
 may be present (with the earlier canonical 255: a bright line along a cell face of the two-rooms wall). :func:`sample_dense` reads the
 dense volume by the same rule, and dense texel d is block texel ``d − cell·S + lo``, so both filters read
@@ -79,14 +79,17 @@ grid box clamp to it. In float32 the two paths round the texel coordinate differ
 which is the only difference of a lossless atlas from the dense volume.
 
 **Both sides.** With an offset (the runtime's 1 sample along n + v), the lookup reads twice in the same cell: at the
-offset point (``a``) and at the point itself (``b``), and blends them by their overlap (:func:`lookup_blend`):
-``m = b + s·(a − b)``, ``s`` from 0 at ``Σ min(a, b) / Σ a = 0.25`` to 1 at 0.5. The offset lifts a surface's
+offset point (``a``) and at the point itself (``b``), and blends them by how much of ``a`` the point sees
+(:func:`lookup_blend`): ``m = b + s·(a − b)``, ``s`` from 0 where the point sees a quarter of the offset read's
+clusters to 1 where it sees half (a cluster counts as seen from a mask of 0.1 up). The offset lifts a surface's
 footprint off the wall it lies on (its far side's clusters, filled into the wall's don't-care samples, would get up
 to half the weight); the point's own read keeps a receiver that faces a surface closer than the offset from reading
 what lies behind that surface (godot-living-room, 5 cm in front of its walls: normalized mask GI 0.84 of Cycles with
 the offset alone, 1.00 with both; 10 cm: 0.90 → 1.00). On a surface, the offset read's clusters are the surface's
-own side, which the footprint holds at least half of (overlap ≥ ½: the offset read, as before); past a surface the
-offset read holds clusters the point does not see (overlap ~0: the point's read).
+own side, which the footprint holds too, if only a few % at a corner of a room whose walls are thinner than a sample
+(the offset read, as before: sealed-box's cavity at 4 samples a cell); past a surface the offset read holds clusters
+the point does not see (the point's read). A receiver within a fraction of a sample of a surface it faces sees the
+far side in its own footprint already: there the offset read still wins.
 
 Consumers: stages/compress; the viewer's mask shader (proto/glsl) via the meta of the artifacts.
 """
@@ -98,8 +101,10 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from proto.gi_modes import MASK_BLEND, MASK_SEEN_THRESHOLD
+
 __all__ = ["CompressedMasks", "atlas_layout", "compress_masks", "decompress", "cells_of",
-           "sample_dense", "sample_compressed", "texture_linear", "sample_error", "mask_lookup_texel", "mask_lookups", "lookup_blend", "MASK_OVERLAP", "LAYOUTS",
+           "sample_dense", "sample_compressed", "texture_linear", "sample_error", "mask_lookup_texel", "mask_lookups", "lookup_blend", "MASK_OVERLAP", "MASK_PRESENT", "LAYOUTS",
            "PREFERRED_TEXELS",
            "MAX_TEXELS"]
 
@@ -158,7 +163,7 @@ def _block_views(volume: np.ndarray, S: int, cells, lo: int, hi: int = 1) -> np.
     """Read-only view (cz, cy, cx, T, T, T, 4) of the blocks of an edge-padded volume: block texel a
     of cell c is dense sample ``clamp(c·S − lo + a)``, T = S + lo + hi."""
     padded = np.pad(volume, ((lo, hi), (lo, hi), (lo, hi), (0, 0)), mode="edge")
-    T = S + lo + hi
+    T = S + lo + hi  # MD §3.4.2: one cube per cell ("formed by 8 probes"), plus the layout's border
     cx, cy, cz = (int(c) for c in cells)
     sz, sy, sx, sc = padded.strides
     return np.lib.stride_tricks.as_strided(
@@ -197,7 +202,7 @@ def _unique_blocks(views: list[np.ndarray], cells) -> tuple[np.ndarray, np.ndarr
         row = of_cell[k].reshape(-1)
         for i in range(cy * cx):
             key = flat[i].tobytes()
-            u = index.get(key)
+            u = index.get(key)  # MD §3.4.2: cubes with the same mask data are merged
             if u is None:
                 u = index[key] = len(uniq)
                 uniq.append(flat[i])
@@ -310,7 +315,7 @@ def compress_masks(volumes, counts, S: int, tolerance: float = 0.0, layout: str 
     atlases = [np.ascontiguousarray(grid[v].reshape(bz * T, by * T, bx * T, 4)) for v in range(V)]
 
     s = slot_of_cell
-    indirection = np.zeros(of_cell.shape + (4,), np.uint8)
+    indirection = np.zeros(of_cell.shape + (4,), np.uint8)  # MD §3.4.2: one indirection volume indexes the cubes
     indirection[..., 0] = s % bx
     indirection[..., 1] = (s // bx) % by
     indirection[..., 2] = s // (bx * by)
@@ -356,7 +361,7 @@ def decompress(atlas: np.ndarray, indirection: np.ndarray, meta: dict) -> np.nda
             for i in range(cx):
                 x0, y0, z0 = b[k, j, i] * T + lo
                 out[k * S:(k + 1) * S, j * S:(j + 1) * S, i * S:(i + 1) * S] = \
-                    atlas[z0:z0 + S, y0:y0 + S, x0:x0 + S]
+                    atlas[z0:z0 + S, y0:y0 + S, x0:x0 + S]  # MD §3.4.2 undone: the cell's cube via the indirection
     return out
 
 
@@ -428,9 +433,13 @@ def mask_lookup_texel(points, counts, origin, spacing, S: int, dirs=None, sample
     return t, cell
 
 
-MASK_OVERLAP = (0.25, 0.5)
-"""The both-sides blend of a mask lookup (:func:`lookup_blend`): the offset read wins fully at an overlap of at least
-``MASK_OVERLAP[1]`` with the read at the point, the read at the point at most ``MASK_OVERLAP[0]``, linear between."""
+MASK_PRESENT = MASK_SEEN_THRESHOLD
+"""A cluster whose mask at the point is at least this counts as seen there (:func:`lookup_blend`;
+``proto/gi_modes.json`` ``mask_seen_threshold``, the GLSL's ``uMaskSeen``)."""
+MASK_OVERLAP = MASK_BLEND
+"""The both-sides blend of a mask lookup (:func:`lookup_blend`): the offset read wins fully where the point sees at
+least ``MASK_OVERLAP[1]`` of its clusters, the read at the point where at most ``MASK_OVERLAP[0]``, linear between
+(``proto/gi_modes.json`` ``mask_blend``, the GLSL's ``uMaskBlend``)."""
 
 
 def mask_lookups(points, counts, origin, spacing, S: int, dirs=None, samples: float = 0.0,
@@ -451,19 +460,20 @@ def lookup_blend(reads: list[np.ndarray]) -> np.ndarray:
     """Combine the reads of :func:`mask_lookups`, (N, C) each in [0, 1] (all the lookup's channels): one read is
     the value; of two, the offset read ``a`` and the read at the point ``b``,
 
-        overlap = Σ_c min(a_c, b_c) / Σ_c a_c,   s = clamp((overlap − lo) / (hi − lo), 0, 1),   m = b + s·(a − b)
+        seen = Σ_c a_c·min(1, b_c / τ) / Σ_c a_c,   s = clamp((seen − lo) / (hi − lo), 0, 1),   m = b + s·(a − b)
 
-    (``lo, hi`` = :data:`MASK_OVERLAP`; GLSL ``gi_mask.glsl`` ``giMasks``). A surface point's offset read sees the
-    clusters of its own side, which its own footprint (half in the wall it lies on) also holds: overlap ≥ ½, the
-    offset read. An offset that crossed a surface (a receiver facing a wall closer than the offset) reads the
-    clusters behind it, which the point does not see: overlap ~0, the read at the point.
+    (``τ`` = :data:`MASK_PRESENT`, ``lo, hi`` = :data:`MASK_OVERLAP`; GLSL ``gi_mask.glsl`` ``giMasks``): ``seen`` is
+    the share of the offset read's clusters that the point sees too. A surface point's offset read holds the clusters
+    of its own side, which its footprint (partly in the wall it lies on, partly beyond a wall thinner than a sample)
+    also holds, if only at a corner's few %: the offset read. An offset that crossed a surface (a receiver facing a
+    wall closer than the offset) reads the clusters behind it, which the point does not see (≲ 1%): the point's read.
     """
     if len(reads) == 1:
         return reads[0]
     a, b = reads
     lo, hi = MASK_OVERLAP
-    overlap = np.minimum(a, b).sum(axis=1) / np.maximum(a.sum(axis=1), 1e-6)
-    s = np.clip((overlap - lo) / (hi - lo), 0.0, 1.0)[:, None]
+    seen = (a * np.minimum(b / MASK_PRESENT, 1.0)).sum(axis=1) / np.maximum(a.sum(axis=1), 1e-6)
+    s = np.clip((seen - lo) / (hi - lo), 0.0, 1.0)[:, None]
     return b + s * (a - b)
 
 
@@ -500,7 +510,8 @@ def sample_compressed(atlas: np.ndarray, indirection: np.ndarray, meta: dict, po
     one, f_s = dtype(1), dtype(S)
     ts, cell = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype)
     ci = cell.astype(np.int64)
-    blk = indirection[ci[:, 2], ci[:, 1], ci[:, 0], :3].astype(dtype)        # floor(texelFetch·255 + 0.5)
+    # floor(texelFetch·255 + 0.5): MD §3.4.2's "one additional sampling call" at run time
+    blk = indirection[ci[:, 2], ci[:, 1], ci[:, 0], :3].astype(dtype)
     inv_size = one / np.array(atlas.shape[2::-1], np.float64).astype(dtype)
     reads = []
     for t in ts:

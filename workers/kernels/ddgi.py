@@ -55,13 +55,13 @@ import math
 import numpy as np
 from numba import njit
 
+from proto.gi_modes import BIAS_SPACING_FRACTION, SELF_SHADOW_BIAS
 from workers.kernels.grid import OFF
 
 __all__ = ["sample_irradiance", "cage_probes", "octahedral_bilinear", "bias_scale", "NORMAL_BIAS", "VIEW_BIAS"]
 
 NORMAL_BIAS = 0.2  # weight of n in the self-shadow bias direction (DDGI-P eq 2)
 VIEW_BIAS = 0.8  # weight of ω_o (DDGI-P eq 2)
-_BIAS_SPACING_FRACTION = 0.75  # the 0.75·D of DDGI-P eq 2
 _WRAP_OFFSET = 0.2  # wrap shading floor (RTXGI)
 _CHEBYSHEV_FLOOR = 0.05  # weight *= max(0.05, chebyshev) (RTXGI)
 _MIN_WEIGHT = 1e-6  # weight = max(1e-6, weight) (RTXGI)
@@ -149,12 +149,13 @@ def octahedral_bilinear(maps_with_border, probe, dirs) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------ the sampler
-def bias_scale(spacing, self_shadow_bias: float = 0.3) -> float:
-    """The scalar ``0.75 · D · B`` of DDGI-P eq 2 (metres): D = min spacing over axes with spacing > 0."""
+def bias_scale(spacing, self_shadow_bias: float = SELF_SHADOW_BIAS) -> float:
+    """The scalar ``0.75 · D · B`` of DDGI-P eq 2 (metres): D = min spacing over axes with spacing > 0; 0.75 and B's
+    default are ``proto/gi_modes.json``'s (one source with the viewer)."""
     s = np.asarray(spacing, np.float64)
     pos = s[s > 0]
     d = float(pos.min()) if pos.size else 0.0
-    return _BIAS_SPACING_FRACTION * d * float(self_shadow_bias)
+    return BIAS_SPACING_FRACTION * d * float(self_shadow_bias)  # DDGI-P eq 2
 
 
 @njit(cache=True, nogil=True)
@@ -281,7 +282,7 @@ def _float_rows(a, name: str, n: int | None = None) -> np.ndarray:
 
 
 def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe_positions, states, irradiance,
-                      depth, self_shadow_bias: float = 0.3, visible=None) -> np.ndarray:
+                      depth, self_shadow_bias: float = SELF_SHADOW_BIAS, visible=None) -> np.ndarray:
     """DDGI probe irradiance at surface points (DDGI-P §2.2 probe query, eq 2 bias; see module doc).
 
     Parameters
@@ -460,7 +461,7 @@ def _cage_kernel(points, normals, views, counts, origin, spacing, bias, biased, 
             cage[i, c] = gi + nx * (gj + ny * gk)
 
 
-def cage_probes(points, normals, view_dirs, counts, origin, spacing, self_shadow_bias: float = 0.3):
+def cage_probes(points, normals, view_dirs, counts, origin, spacing, self_shadow_bias: float = SELF_SHADOW_BIAS):
     """The biased points and their 8 cage probes exactly as :func:`sample_irradiance` picks them.
 
     Returns ``biased (N, 3) float64`` (x + eq-2 bias) and ``cage (N, 8) int64`` flattened probe indices

@@ -13,6 +13,8 @@ Atlases (proto/bundle.md): per-probe octahedral maps with borders, (P, n, n, C),
 """
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 OFF, ACTIVE, SLEEPING = 0, 1, 2
@@ -82,3 +84,76 @@ def unpack_atlas(atlas: np.ndarray, counts, n: int) -> np.ndarray:
     C = atlas.shape[-1]
     a = atlas.reshape(ny, n, nz, nx, n, C).transpose(2, 0, 3, 1, 4, 5)  # (nz, ny, nx, n, n, C)
     return np.ascontiguousarray(a.reshape(nx * ny * nz, n, n, C))
+
+
+def grid_layout(bounds, section) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Counts (3,) int64, origin (3,) float64 and spacing (3,) float64 (metres) of a regular probe grid.
+
+    bounds : (2, 3) world-space box (min, max), metres, used unless ``section.box`` (``.min``, ``.max``) is set.
+    ``section`` (:class:`proto.models.PlaceSection`): the box is padded by ``padding`` × its extent on each side;
+    ``counts`` puts the outermost probes on the faces of the padded box; else ``spacing`` uses
+    ``ceil(extent / spacing) + 1`` probes per axis, centred on it. An axis with zero extent (or one probe) gets
+    spacing 0 and its probes in the box's middle plane.
+    """
+    lo, hi = (np.asarray(section.box.min), np.asarray(section.box.max)) if section.box else (bounds[0], bounds[1])
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    pad = (hi - lo) * section.padding
+    lo, hi = lo - pad, hi + pad
+    extent = hi - lo
+    if section.counts is not None:
+        counts = np.asarray(section.counts, np.int64)
+        spacing = np.where(counts > 1, extent / np.maximum(counts - 1, 1), 0.0)
+        origin = np.where(counts > 1, lo, (lo + hi) / 2)
+    else:
+        s = float(section.spacing)
+        counts = np.array([math.ceil(e / s - 1e-9) + 1 if e > 0 else 1 for e in extent], np.int64)
+        spacing = np.where(counts > 1, s, 0.0)
+        origin = (lo + hi) / 2 - spacing * (counts - 1) / 2
+    return counts, origin, spacing
+
+
+def grid_positions(counts, origin, spacing) -> np.ndarray:
+    """(nz, ny, nx, 3) float32 world positions of the grid, metres: :func:`base_positions` as a volume (x fastest)."""
+    nx, ny, nz = (int(c) for c in counts)
+    return base_positions(counts, origin, spacing).reshape(nz, ny, nx, 3).astype(np.float32)
+
+
+def dilate_off(values: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, int]:
+    """Give OFF probes the values of their live neighbours (Unity Adaptive Probe Volumes' "dilation").
+
+    values : (nz, ny, nx, ...) float, a per-probe quantity (e.g. SH coefficients); off : (nz, ny, nx) bool. Layer
+    by layer over the 6-neighbours, every OFF probe next to a filled one takes the mean of its filled neighbours
+    (live probes, or OFF probes of an earlier layer), like texture padding. OFF probes in a region of the grid
+    without any live probe keep their value. Returns (a new array, number of probes filled).
+
+    Why: a probe inside a solid deeper than the relocation can move it (DDGI-P §5: 0.45 spacing) is OFF; its value
+    is 0, and the modes that interpolate a volume trilinearly without visibility (leaking SH, three.js's
+    LightProbeGrid) would blend that 0 into every cell it is a corner of, darkening the surfaces of the solid.
+    Modes that know the state (DDGI, mask, normalized mask) give OFF probes weight 0 and never read these values.
+    """
+    v = np.array(values, dtype=np.float64 if values.dtype.kind != "f" else values.dtype, copy=True)
+    off = np.asarray(off, bool).reshape(v.shape[:3])
+    filled = ~off
+    if filled.all() or not filled.any():
+        return v, 0
+    extra = (1,) * (v.ndim - 3)
+    n_filled = 0
+    while True:
+        acc = np.zeros_like(v, dtype=np.float64)
+        cnt = np.zeros(v.shape[:3], np.int64)
+        for axis in range(3):
+            for step in (1, -1):
+                src = np.roll(filled, step, axis=axis)
+                val = np.roll(v, step, axis=axis)
+                edge = [slice(None)] * 3                 # np.roll wraps: drop what came round the edge
+                edge[axis] = slice(0, 1) if step == 1 else slice(-1, None)
+                src[tuple(edge)] = False
+                acc += np.where(src.reshape(src.shape + extra), val, 0.0)
+                cnt += src
+        new = ~filled & (cnt > 0)
+        if not new.any():
+            break
+        v[new] = (acc[new] / cnt[new].reshape((-1,) + extra)).astype(v.dtype)
+        filled |= new
+        n_filled += int(new.sum())
+    return v, n_filled

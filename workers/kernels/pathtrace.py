@@ -13,7 +13,8 @@ At a point x with unit normal n (the side being lit), the irradiance splits as
   the two are comparable term by term.
 
 The exitant radiance of a Lambertian surface is ``L_out = Le + albedo/π · (E_direct + E_indirect)``
-(the light stage's ray shading, DDGI-I §3.4); :func:`exitant_radiance` forms it per pixel.
+(the light stage's ray shading, DDGI-I §3.4); :func:`workers.kernels.reference.exitant_radiance` forms it
+per pixel.
 
 Estimator
 ---------
@@ -57,7 +58,11 @@ directions are cosine-distributed about the shading normal, and a direction belo
 surface (possible where interpolated normals bend away) ends the path with 0 (counted in
 ``stats["below_surface"]``).
 
-Consumers: the evaluate stage (reference images), tests. Inverse: none.
+Modules: this one (the estimator and its wavefront loop), :mod:`workers.kernels.path_rng` (random numbers,
+cosine directions), :mod:`workers.kernels.emitters` (next-event estimation), :mod:`workers.kernels.reference`
+(at G-buffer pixels and surface points, with the direct light), :mod:`workers.kernels.texels` (lightmap texels).
+
+Consumers: the reference stage (through :mod:`workers.kernels.reference`), tests. Inverse: none.
 """
 from __future__ import annotations
 
@@ -68,77 +73,14 @@ from dataclasses import dataclass, field
 import numba
 import numpy as np
 
+from workers.kernels.emitters import Emitters
+from workers.kernels.materials import double_sided_triangles
+from workers.kernels.path_rng import _cosine_sample, _uniform, cosine_directions
 from workers.kernels.shading import direct_irradiance, surface_at_hits
 
-__all__ = ["PathTraceResult", "indirect_irradiance", "reference_at_gbuffer", "exitant_radiance",
-           "cosine_directions", "uniforms", "texel_surfaces", "scene_eps"]
+__all__ = ["PathTraceResult", "indirect_irradiance", "scene_eps", "DEFAULT_MAX_PATHS"]
 
 DEFAULT_MAX_PATHS = 1 << 18  # paths per wavefront chunk: bounds memory (~0.5 KB per path in flight)
-
-
-# ------------------------------------------------------------------------------------- RNG + sampling
-@numba.njit(cache=True, inline="always")
-def _mix64(z):
-    z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
-    z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
-    return z ^ (z >> np.uint64(31))
-
-
-@numba.njit(cache=True, inline="always")
-def _uniform(seed, path, vertex, dim):
-    h = _mix64(seed * np.uint64(0x9E3779B97F4A7C15) + _mix64(path))
-    h = _mix64(h + np.uint64(vertex) * np.uint64(16) + np.uint64(dim))
-    return np.float64(h >> np.uint64(11)) * (1.0 / 9007199254740992.0)  # [0, 1), 53 bits
-
-
-@numba.njit(cache=True, nogil=True)
-def _uniforms_kernel(seed, paths, vertex, dim, out):
-    for i in range(paths.shape[0]):
-        out[i] = _uniform(seed, paths[i], vertex, dim)
-
-
-@numba.njit(cache=True, nogil=True)
-def _cosine_kernel(normals, seed, paths, vertex, out):
-    for i in range(paths.shape[0]):
-        nx, ny, nz = normals[i, 0], normals[i, 1], normals[i, 2]
-        # orthonormal basis (Duff et al. 2017, "Building an Orthonormal Basis, Revisited")
-        s = 1.0 if nz >= 0.0 else -1.0
-        a = -1.0 / (s + nz)
-        b = nx * ny * a
-        t1x, t1y, t1z = 1.0 + s * nx * nx * a, s * b, -s * nx
-        t2x, t2y, t2z = b, s + ny * ny * a, -ny
-        u1 = _uniform(seed, paths[i], vertex, 0)
-        u2 = _uniform(seed, paths[i], vertex, 1)
-        r = math.sqrt(u1)
-        phi = 2.0 * math.pi * u2
-        x = r * math.cos(phi)
-        y = r * math.sin(phi)
-        z = math.sqrt(max(0.0, 1.0 - u1))
-        out[i, 0] = x * t1x + y * t2x + z * nx
-        out[i, 1] = x * t1y + y * t2y + z * ny
-        out[i, 2] = x * t1z + y * t2z + z * nz
-
-
-def uniforms(seed: int, paths, vertex: int, dim: int) -> np.ndarray:
-    """(N,) float64 uniforms in [0, 1) for path ids ``paths`` (uint64) at ``vertex`` and ``dim``."""
-    p = np.ascontiguousarray(paths, np.uint64)
-    out = np.empty(p.shape[0], np.float64)
-    _uniforms_kernel(np.uint64(seed), p, int(vertex), int(dim), out)
-    return out
-
-
-def cosine_directions(normals, seed: int, paths, vertex: int) -> np.ndarray:
-    """(N, 3) float64 unit directions, cosine-distributed about the unit ``normals`` (pdf cos θ / π).
-
-    Deterministic per (seed, path id, vertex); uses dimensions 0 and 1 of :func:`uniforms`.
-    """
-    n = np.ascontiguousarray(normals, np.float64)
-    p = np.ascontiguousarray(paths, np.uint64)
-    if n.shape != (p.shape[0], 3):
-        raise ValueError(f"cosine_directions: normals {n.shape} do not match {p.shape[0]} paths")
-    out = np.empty((p.shape[0], 3), np.float64)
-    _cosine_kernel(n, np.uint64(seed), p, int(vertex), out)
-    return out
 
 
 def scene_eps(scene) -> float:
@@ -249,9 +191,8 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     geo = _unit_rows(geo)
     mean = np.zeros((n, 3), np.float64)
     m2 = np.zeros((n, 3), np.float64)
-    ds = np.array([bool(m.get("double_sided", False)) for m in scene.materials] or [False], bool)
-    tri_ds = ds[np.asarray(scene.material, np.int64)] if scene.n_triangles else np.zeros(1, bool)
-    emitters = _Emitters(scene) if emitter_sampling else None
+    tri_ds = double_sided_triangles(scene) if scene.n_triangles else np.zeros(1, bool)
+    emitters = Emitters(scene) if emitter_sampling else None
     stats = {"paths": n * spp, "below_surface": 0, "backface_ends": 0, "rr_kills": 0, "vertices": 0,
              "emitters": int(emitters.tri.size) if emitters is not None else 0}
     t0 = time.perf_counter()
@@ -322,21 +263,8 @@ def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emissi
         thr[i, 0] = t0
         thr[i, 1] = t1
         thr[i, 2] = t2
-        # cosine direction about the shading normal (same construction as _cosine_kernel)
-        nx, ny, nz = ns[i, 0], ns[i, 1], ns[i, 2]
-        s = 1.0 if nz >= 0.0 else -1.0
-        a = -1.0 / (s + nz)
-        b = nx * ny * a
-        u1 = _uniform(seed, pid[i], vertex, 0)
-        u2 = _uniform(seed, pid[i], vertex, 1)
-        r = math.sqrt(u1)
-        phi = 2.0 * math.pi * u2
-        x = r * math.cos(phi)
-        y = r * math.sin(phi)
-        z = math.sqrt(max(0.0, 1.0 - u1))
-        dx = x * (1.0 + s * nx * nx * a) + y * b + z * nx
-        dy = x * (s * b) + y * (s + ny * ny * a) + z * ny
-        dz = x * (-s * nx) + y * (-ny) + z * nz
+        # cosine direction about the shading normal (pdf cos θ / π)
+        dx, dy, dz, z = _cosine_sample(ns[i, 0], ns[i, 1], ns[i, 2], seed, pid[i], vertex)
         if dx * ng[i, 0] + dy * ng[i, 1] + dz * ng[i, 2] <= 0.0:
             counts[1] += 1
             continue
@@ -348,144 +276,6 @@ def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emissi
         for c in range(3):
             new_o[i, c] = pos[i, c] + eps * ng[i, c]
 
-
-# ------------------------------------------------------------------------------------- emitter sampling
-@numba.njit(cache=True, nogil=True)
-def _nee_kernel(pos, ns, pid, seed, vertex, cdf, em_tri, tris, ngeo, dsided, tri_pmf, area,
-                out_tri, out_u, out_v, out_dir, out_dist, out_w):
-    """Pick an emissive triangle (pmf ∝ area × max emissive factor) and a uniform point on it per shading
-    point; out_w = cos θ · w_light / p_light (solid-angle pdf, power heuristic against the cosine pdf),
-    0 when the point is behind the shading point or sees the back of a single-sided emitter."""
-    n_em = em_tri.shape[0]
-    for i in range(pos.shape[0]):
-        out_w[i] = 0.0
-        xi = _uniform(seed, pid[i], vertex, 3)
-        lo, hi = 0, n_em - 1
-        while lo < hi:  # first cdf entry > xi
-            mid = (lo + hi) // 2
-            if cdf[mid] > xi:
-                hi = mid
-            else:
-                lo = mid + 1
-        t = em_tri[lo]
-        su = math.sqrt(_uniform(seed, pid[i], vertex, 4))
-        u = _uniform(seed, pid[i], vertex, 5) * su
-        b0 = 1.0 - su
-        v = 1.0 - b0 - u
-        out_tri[i] = t
-        out_u[i] = u
-        out_v[i] = v
-        dx = b0 * tris[t, 0, 0] + u * tris[t, 1, 0] + v * tris[t, 2, 0] - pos[i, 0]
-        dy = b0 * tris[t, 0, 1] + u * tris[t, 1, 1] + v * tris[t, 2, 1] - pos[i, 1]
-        dz = b0 * tris[t, 0, 2] + u * tris[t, 1, 2] + v * tris[t, 2, 2] - pos[i, 2]
-        d2 = dx * dx + dy * dy + dz * dz
-        if not d2 > 0.0:
-            continue
-        dist = math.sqrt(d2)
-        dx /= dist
-        dy /= dist
-        dz /= dist
-        cos_s = dx * ns[i, 0] + dy * ns[i, 1] + dz * ns[i, 2]
-        if cos_s <= 0.0:
-            continue
-        cos_e = -(dx * ngeo[t, 0] + dy * ngeo[t, 1] + dz * ngeo[t, 2])
-        if cos_e <= 0.0:
-            if not dsided[t]:
-                continue
-            cos_e = -cos_e
-        if cos_e < 1e-9:
-            continue
-        p_l = tri_pmf[t] * d2 / (area[t] * cos_e)
-        p_b = cos_s / math.pi
-        out_dir[i, 0] = dx
-        out_dir[i, 1] = dy
-        out_dir[i, 2] = dz
-        out_dist[i] = dist
-        out_w[i] = cos_s * p_l / (p_l * p_l + p_b * p_b)  # cos · w_l / p_l, w_l = p_l² / (p_l² + p_b²)
-
-
-class _Emitters:
-    """Emissive triangles of a scene, for next-event estimation (area sampling with MIS)."""
-
-    def __init__(self, scene):
-        mats = scene.materials
-        T = scene.n_triangles
-        mat = np.asarray(scene.material, np.int64)
-        emis = np.array([m.get("emissive", [0, 0, 0])[:3] for m in mats] or [[0, 0, 0]], np.float64).reshape(-1, 3)
-        tex = np.array([m.get("emissive_texture") is not None for m in mats] or [False], bool)
-        ds = np.array([bool(m.get("double_sided", False)) for m in mats] or [False], bool)
-        tris = np.asarray(scene.triangles, np.float64).reshape(T, 3, 3)
-        cr = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0]) if T else np.zeros((0, 3))
-        ln = np.linalg.norm(cr, axis=1)
-        self.area = 0.5 * ln
-        self.ngeo = np.divide(cr, ln[:, None], out=np.zeros_like(cr), where=ln[:, None] > 0)
-        self.tris = np.ascontiguousarray(tris)
-        self.double_sided = ds[mat] if T else np.zeros(0, bool)
-        self.factor = emis[mat] if T else np.zeros((0, 3))
-        power = self.area * (self.factor.max(axis=1) if T else np.zeros(0))
-        self.tri = np.flatnonzero(power > 0)
-        self.textured = bool(T and np.any(tex[mat][self.tri]))
-        total = float(power[self.tri].sum())
-        self.tri_pmf = np.zeros(T)
-        if self.tri.size:
-            self.tri_pmf[self.tri] = power[self.tri] / total
-            self.cdf = np.cumsum(self.tri_pmf[self.tri])
-            self.cdf[-1] = 1.0
-        else:
-            self.cdf = np.ones(0)
-        self.total_area = float(self.area[self.tri].sum())
-
-    def __bool__(self) -> bool:
-        return bool(self.tri.size)
-
-    def bsdf_weights(self, tri, t, d, prev_cos) -> np.ndarray:
-        """MIS weights (power heuristic) of emission found by cosine-sampled rays: (L,) float64."""
-        w = np.ones(tri.shape[0])
-        pmf = self.tri_pmf[tri]
-        e = np.flatnonzero(pmf > 0)
-        if e.size:
-            cos_e = np.abs(np.einsum("ij,ij->i", self.ngeo[tri[e]], d[e]))
-            p_l = pmf[e] * t[e].astype(np.float64) ** 2 / np.maximum(self.area[tri[e]] * cos_e, 1e-300)
-            p_b = prev_cos[e] / math.pi
-            w[e] = p_b * p_b / (p_b * p_b + p_l * p_l)
-        return w
-
-    def irradiance(self, scene, caster, pos, ns, ng, pid, seed, vertex, eps) -> np.ndarray:
-        """(L, 3) MIS-weighted one-sample estimate of the emitted irradiance arriving at the points."""
-        L = pos.shape[0]
-        out = np.zeros((L, 3))
-        if L == 0:
-            return out
-        tri = np.empty(L, np.int64)
-        u = np.empty(L)
-        v = np.empty(L)
-        d = np.zeros((L, 3))
-        dist = np.zeros(L)
-        w = np.empty(L)
-        _nee_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(ns), pid, np.uint64(seed), int(vertex), self.cdf,
-                    self.tri, self.tris, self.ngeo, self.double_sided, self.tri_pmf, self.area, tri, u, v, d, dist, w)
-        ok = np.flatnonzero((w > 0) & (dist > 2 * eps))
-        if ok.size == 0:
-            return out
-        # the shadow ray runs from the offset origin to the sampled point itself (a ray along d from the
-        # offset origin would meet a large emitter's plane early at grazing angles)
-        o = pos[ok] + eps * ng[ok]
-        seg = pos[ok] + d[ok] * dist[ok, None] - o
-        length = np.linalg.norm(seg, axis=1)
-        far = length > 2 * eps
-        blocked = np.zeros(ok.size, bool)
-        if far.any():
-            blocked[far] = np.asarray(caster.occluded(o[far], seg[far] / length[far, None],
-                                                      tfar=length[far] - 2 * eps), bool)
-        ok = ok[~blocked]
-        if ok.size == 0:
-            return out
-        if self.textured:
-            le = surface_at_hits(scene, tri[ok], u[ok], v[ok])["emission"].astype(np.float64)
-        else:
-            le = self.factor[tri[ok]]
-        out[ok] = le * w[ok, None]
-        return out
 
 
 def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, bounces, seed, rr_depth, eps, stats,
@@ -564,109 +354,3 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, boun
     return acc.reshape(m, spp, 3)
 
 
-# ------------------------------------------------------------------------------------- G-buffer pixels
-def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), caster=None, eps=None, spp: int = 64,
-                         bounces: int = 4, seed: int = 0, rr_depth: int | None = None,
-                         max_paths: int = DEFAULT_MAX_PATHS, emitter_sampling: bool = True, report=None) -> dict:
-    """Direct and path-traced indirect irradiance at every shaded pixel of a G-buffer.
-
-    Returns ``{"e_direct", "e_indirect", "stderr", "radiance"}`` (H, W, 3) float32 images (0 outside
-    ``gbuffer.shaded``) and ``"stats"``. ``radiance`` = :func:`exitant_radiance`.
-    """
-    from workers.raycast import caster_for_scene
-
-    caster = caster_for_scene(scene) if caster is None else caster
-    eps = scene_eps(scene) if eps is None else float(eps)
-    H, W = gbuffer.shape
-    sel = gbuffer.shaded.ravel()
-    pts = gbuffer.position.reshape(-1, 3)[sel].astype(np.float64)
-    nrm = gbuffer.normal.reshape(-1, 3)[sel].astype(np.float64)
-    geo = gbuffer.geo_normal.reshape(-1, 3)[sel].astype(np.float64)
-    t0 = time.perf_counter()
-    e_dir = np.zeros((H * W, 3), np.float32)
-    if lights:
-        # shadow rays start at x + eps·n (shading normal, facing the camera), as in the light stage
-        e_dir[sel] = direct_irradiance(pts, nrm, list(lights), caster, eps)
-    t_direct = time.perf_counter() - t0
-    res = indirect_irradiance(scene, pts, nrm, lights, sky=sky, spp=spp, bounces=bounces, seed=seed,
-                              rr_depth=rr_depth, caster=caster, eps=eps, geo_normals=geo, max_paths=max_paths,
-                              emitter_sampling=emitter_sampling, report=report)
-    e_ind = np.zeros((H * W, 3), np.float32)
-    err = np.zeros((H * W, 3), np.float32)
-    e_ind[sel] = res.irradiance
-    err[sel] = res.stderr
-    e_dir, e_ind, err = (a.reshape(H, W, 3) for a in (e_dir, e_ind, err))
-    stats = dict(res.stats, direct_seconds=t_direct, pixels=int(sel.sum()))
-    return {"e_direct": e_dir, "e_indirect": e_ind, "stderr": err,
-            "radiance": exitant_radiance(gbuffer, e_dir, e_ind), "stats": stats}
-
-
-def exitant_radiance(gbuffer, e_direct, e_indirect) -> np.ndarray:
-    """(H, W, 3) float32 ``emission + albedo/π · (E_direct + E_indirect)`` on shaded pixels, 0 elsewhere
-    (back faces of single-sided surfaces, uncovered pixels)."""
-    e = np.asarray(e_direct, np.float32) + np.asarray(e_indirect, np.float32)
-    out = gbuffer.emission + gbuffer.albedo / np.float32(math.pi) * e
-    return np.where(gbuffer.shaded[..., None], out, 0.0).astype(np.float32)
-
-
-# ------------------------------------------------------------------------------------- lightmap texels
-@numba.njit(cache=True)
-def _raster_uv(uv, width, height, owner, bu, bv):
-    T = uv.shape[0]
-    for t in range(T):
-        x0, y0 = uv[t, 0, 0] * width, uv[t, 0, 1] * height
-        x1, y1 = uv[t, 1, 0] * width, uv[t, 1, 1] * height
-        x2, y2 = uv[t, 2, 0] * width, uv[t, 2, 1] * height
-        den = (y1 - y2) * (x0 - x2) + (x2 - x1) * (y0 - y2)
-        if abs(den) < 1e-20:
-            continue
-        cmin = max(0, int(math.floor(min(x0, x1, x2) - 0.5)))
-        cmax = min(width - 1, int(math.ceil(max(x0, x1, x2) - 0.5)))
-        rmin = max(0, int(math.floor(min(y0, y1, y2) - 0.5)))
-        rmax = min(height - 1, int(math.ceil(max(y0, y1, y2) - 0.5)))
-        for r in range(rmin, rmax + 1):
-            py = r + 0.5
-            for c in range(cmin, cmax + 1):
-                if owner[r, c] >= 0:
-                    continue
-                px = c + 0.5
-                w0 = ((y1 - y2) * (px - x2) + (x2 - x1) * (py - y2)) / den
-                w1 = ((y2 - y0) * (px - x2) + (x0 - x2) * (py - y2)) / den
-                w2 = 1.0 - w0 - w1
-                if w0 >= -1e-9 and w1 >= -1e-9 and w2 >= -1e-9:
-                    owner[r, c] = t
-                    bu[r, c] = w1
-                    bv[r, c] = w2
-
-
-def texel_surfaces(uv, width: int, height: int, triangle_ids=None) -> dict:
-    """The surface point under each texel centre of a UV atlas (e.g. UV1 lightmap texels).
-
-    Texel (row r, col c) of a ``height`` x ``width`` map is centred at ``u = (c + 0.5)/width``,
-    ``v = (r + 0.5)/height`` (glTF: v = 0 on the first row). Each centre inside a triangle's UV
-    footprint gets that triangle (the first one in order where footprints overlap) and its
-    barycentrics in the convention of :class:`workers.raycast.Hits` (x = (1-u-v)·v0 + u·v1 + v·v2).
-
-    Parameters
-    ----------
-    uv : (T, 3, 2) float
-        Per-triangle texture coordinates (``scene.uv1`` or a subset).
-    triangle_ids : (T,) int, optional
-        The scene triangle index of each row of ``uv`` (default 0 … T-1).
-
-    Returns
-    -------
-    dict with ``rows``, ``cols`` (K,) int64 texel indices, ``tri`` (K,) int64 scene triangles, ``u``,
-    ``v`` (K,) float64 barycentrics — feed ``tri, u, v`` to :func:`shading.surface_at_hits`.
-    """
-    a = np.ascontiguousarray(uv, np.float64)
-    if a.ndim != 3 or a.shape[1:] != (3, 2):
-        raise ValueError(f"texel_surfaces: uv must be (T, 3, 2), got {a.shape}")
-    owner = np.full((int(height), int(width)), -1, np.int64)
-    bu = np.zeros(owner.shape)
-    bv = np.zeros(owner.shape)
-    _raster_uv(a, int(width), int(height), owner, bu, bv)
-    rows, cols = np.nonzero(owner >= 0)
-    t = owner[rows, cols]
-    ids = np.arange(a.shape[0]) if triangle_ids is None else np.asarray(triangle_ids, np.int64)
-    return {"rows": rows, "cols": cols, "tri": ids[t], "u": bu[rows, cols], "v": bv[rows, cols]}

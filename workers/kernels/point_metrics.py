@@ -33,6 +33,9 @@ it (they are fixed per scene).
 
 Regions (:func:`region_ratios`): for named groups of check points, the ratio of the group's mean luminance to
 the reference's, with its bootstrap standard error the same way.
+
+The evaluate stage's summaries: :func:`point_summary` (every mode over the surface points),
+:func:`check_point_report` (every mode at the check points, per region).
 """
 from __future__ import annotations
 
@@ -42,7 +45,8 @@ import numpy as np
 
 from workers.kernels import metrics as MT
 
-__all__ = ["point_metrics", "metrics_with_stderr", "region_ratios", "radiance", "METRICS", "REPLICAS"]
+__all__ = ["point_metrics", "metrics_with_stderr", "region_ratios", "radiance", "point_summary", "check_point_report",
+           "METRICS", "REPLICAS"]
 
 METRICS = ("rmse", "indirect_relative_rmse", "leak", "indirect_excess", "mean_ratio")
 REPLICAS = 64
@@ -142,3 +146,56 @@ def region_ratios(test, ref, err, regions: dict, *, replicas: int = REPLICAS, se
                      "mean": float(yt.mean()), "reference_mean": mr,
                      "reference_mean_stderr": float(np.sqrt(np.sum((ss @ MT.REC709) ** 2)) / len(yr))}
     return out
+
+
+def point_summary(modes, recon: dict, pts: dict, seed: int) -> tuple[dict, dict]:
+    """Flat ``{"<mode>.<metric>": value}`` (and ``_stderr``) over the surface points, and per mode the dicts of
+    :func:`metrics_with_stderr`; plus ``reference.mean_indirect`` (lux) and its standard error.
+
+    ``recon[mode]`` (N, 3): the mode's indirect irradiance at the points; ``pts``: the reference's column groups
+    (:func:`workers.kernels.reference_layout.point_columns`). The exposure is the reference's (module doc).
+    """
+    summary, per_mode = {}, {}
+    if len(pts["position"]) == 0:
+        return summary, per_mode
+    exposure = MT.exposure_for(radiance(pts["e_direct"], pts["e_indirect"], pts["albedo"],
+                                        pts["emission"]).reshape(-1, 1, 3))
+    for m in modes:
+        r = metrics_with_stderr(recon[m], pts["e_indirect"], pts["stderr"], pts["e_direct"], pts["albedo"],
+                                pts["emission"], seed=seed, exposure=exposure)
+        per_mode[m] = r
+        for k, v in r.items():
+            if v is not None and math.isfinite(v):
+                summary[f"{m}.{k}"] = float(v)
+    lum = MT.luminance(pts["e_indirect"])
+    summary["reference.mean_indirect"] = float(lum.mean())
+    summary["reference.mean_indirect_stderr"] = float(np.sqrt(np.sum((pts["stderr"] @ MT.REC709) ** 2)) / len(lum))
+    return summary, per_mode
+
+
+def check_point_report(doc: dict, modes, mode_values, seed: int, summary: dict) -> dict:
+    """The ``check_points`` document: the reference's check points ``doc`` (points (P, 3), normals (P, D, 3),
+    reference_direct / _indirect / _stderr [point][normal] RGB, regions {name: [point index]}) with each mode's
+    values, ``mode_values(mode, points (P·D, 3), normals (P·D, 3)) -> (P·D, 3)``; with regions, per region and
+    mode :func:`region_ratios`, and ``<mode>.region.<name>.mean_ratio`` (and ``_stderr``) added to ``summary``."""
+    cp = np.asarray(doc["points"], np.float64)
+    cn = np.asarray(doc["normals"], np.float64)                       # (P, D, 3)
+    P, D = cn.shape[:2]
+    cpts, cnrm = np.repeat(cp, D, axis=0), cn.reshape(-1, 3)
+    check = {k: doc[k] for k in ("points", "normals", "reference_direct", "reference_indirect", "reference_stderr")}
+    check["modes"] = {}
+    cref = np.asarray(doc["reference_indirect"], np.float64)
+    cerr = np.asarray(doc["reference_stderr"], np.float64)
+    for m in modes:
+        v = mode_values(m, cpts, cnrm).reshape(P, D, 3)
+        check["modes"][m] = v.tolist()
+        if doc.get("regions"):
+            for name, r in region_ratios(v, cref, cerr, doc["regions"], seed=seed).items():
+                for k in ("mean_ratio", "mean_ratio_stderr"):
+                    if r[k] is not None and math.isfinite(r[k]):
+                        summary[f"{m}.region.{name}.{k}"] = float(r[k])
+    if doc.get("regions"):
+        check["regions"] = {name: {"points": idx, **{m: region_ratios(
+            np.asarray(check["modes"][m]), cref, cerr, {name: idx}, seed=seed)[name]
+            for m in modes}} for name, idx in doc["regions"].items()}
+    return check

@@ -1,7 +1,8 @@
 """Each runtime GI mode's indirect irradiance at arbitrary points, on the CPU (the evaluate stage's metrics).
 
 The Python twins of the GLSL modes (``proto/glsl``), fed from the bake's artifacts by name, so the metrics need
-no OpenGL and are computed at the reference's points (:mod:`workers.stages.reference`):
+no OpenGL and are computed at the reference's points (:mod:`workers.stages.reference`); also which modes a bake
+has (:func:`available_modes`) and each mode's GI texture fetches per pixel (:func:`gi_fetches`):
 
 =================== ===========================================================================================
 ``direct``          0 (no indirect light)
@@ -23,9 +24,12 @@ from __future__ import annotations
 
 import numpy as np
 
+from proto.gi_modes import SELF_SHADOW_BIAS
 from workers.kernels import samplers as SM
+from workers.kernels.ddgi import cage_probes
+from workers.kernels.grid import OFF
 
-__all__ = ["mode_irradiance", "MaskArrays"]
+__all__ = ["mode_irradiance", "MaskArrays", "available_modes", "gi_fetches"]
 
 
 class MaskArrays(dict):
@@ -55,8 +59,8 @@ class MaskArrays(dict):
 
 
 def _mask_sh_order(arrays, grid) -> int | None:
+    from proto.gi_modes import MAX_3D_TEXTURE_DEPTH, cluster_count
     from workers.kernels.sh import sh_l2_atlas_depth
-    from workers.render.shading import MAX_3D_TEXTURE_DEPTH, cluster_count
 
     K = cluster_count(arrays)
     nz = int(grid["counts"][2])
@@ -65,7 +69,7 @@ def _mask_sh_order(arrays, grid) -> int | None:
     return None
 
 
-def mode_irradiance(mode: str, arrays, grid, points, normals, views, *, self_shadow_bias: float = 0.3,
+def mode_irradiance(mode: str, arrays, grid, points, normals, views, *, self_shadow_bias: float = SELF_SHADOW_BIAS,
                     lights=(), caster=None, prt_model=None) -> np.ndarray:
     """(N, 3) float64 indirect irradiance of ``mode`` at ``points`` with unit ``normals`` (see the module doc).
 
@@ -105,3 +109,49 @@ def mode_irradiance(mode: str, arrays, grid, points, normals, views, *, self_sha
         raise ValueError(f"unknown mode {mode!r}")
     out = np.asarray(out, np.float64)
     return np.maximum(np.nan_to_num(out, nan=0.0, posinf=0.0, neginf=0.0), 0.0)
+
+
+def available_modes(arrays) -> list[str]:
+    """The GI modes a bake has the artifacts for (``arrays``: artifact names, a mapping or a set), in the
+    evaluate stage's order: direct, leaking, ddgi, mask, mask_normalized, prt."""
+    modes = ["direct"]
+    if all(f"sh_l1_{c}" in arrays for c in "rgb"):
+        modes.append("leaking")
+    if all(n in arrays for n in ("irradiance", "depth_moments", "probe_positions_relocated", "probe_states")):
+        modes.append("ddgi")
+    if "mask_indirection" in arrays and "mask_atlas_0123" in arrays and "cluster_sh_0_r" in arrays:
+        modes.append("mask")
+        if "cluster_weights_0123" in arrays:
+            modes.append("mask_normalized")
+    if "prt" in arrays:
+        modes.append("prt")
+    return modes
+
+
+def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarray:
+    """(N,) GI texture fetches per pixel of ``mode`` at the points: the formulas of the mode GLSL headers.
+
+    ``res``: the mode's :class:`workers.render.shading.ModeResources` (``info``: ``sh_order``, ``clusters``,
+    ``coefficients``, ``groups``; ``uniforms``: ``uMaskOffset``); ``arrays``: the bake's artifacts by name;
+    ``grid``: counts, origin, spacing; points (N, 3) world space, metres; normals, views (N, 3) unit.
+    """
+    N = points.shape[0]
+    if mode == "direct" or N == 0:
+        return np.zeros(N)
+    if mode == "leaking":
+        return np.full(N, 7.0 if res.info.get("sh_order") == 2 else 3.0)     # sh_l2 sub-volumes, or sh_l1_{r,g,b}
+    if mode == "ddgi":
+        _, cage = cage_probes(points, normals, views, grid["counts"], grid["origin"], grid["spacing"], 0.3)
+        live = (np.asarray(arrays["probe_states"]).reshape(-1)[cage] != OFF).sum(axis=1)
+        return 8.0 + 2.0 * live                                              # 8 state/position + 2 per live corner
+    if mode in ("mask", "mask_normalized"):
+        K = res.info["clusters"]
+        A = 1 + (K > 4)
+        vols = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
+        m = SM.mask_values(vols, points, normals, grid, float(res.uniforms.get("uMaskOffset", 0.0)), views)[:, :K]
+        z = (m > 0).sum(axis=1)                                              # MD §1: clusters with m_k > 0
+        per = 7.0 if res.info.get("sh_order") == 2 else 3.0                   # L2: 7 sub-volumes per cluster
+        return 1.0 + A + per * z + (A if mode == "mask_normalized" else 0)
+    if mode == "prt":
+        return np.full(N, float(res.info.get("coefficients", 4)) * res.info["groups"])
+    raise ValueError(mode)

@@ -1,9 +1,10 @@
 """Data-driven precomputed radiance transfer: the math of the ``prt`` stage and of relighting (PRT §3-5).
 
-Everything here is numpy/scipy, no I/O. The stage (:mod:`workers.stages.prt`) builds a dataset of N random
-lighting configurations (:func:`random_light_configurations`): for each, the *direct* illumination at M
-measurement points (blue noise on the surfaces, :func:`sample_elimination`) and the *indirect*
-illumination at a target (probe SH coefficients, lightmap texels). From that dataset :func:`fit` extracts
+Everything here is numpy/scipy, no I/O. :mod:`workers.kernels.prt_dataset` builds a dataset of N random
+lighting configurations (:func:`workers.kernels.prt_scenario.random_light_configurations`): for each, the
+*direct* illumination at M measurement points (blue noise on the surfaces,
+:func:`workers.kernels.prt_scenario.measurement_points`) and the *indirect* illumination at a target (probe SH
+coefficients, lightmap texels, :mod:`workers.kernels.lightmap`). From that dataset :func:`fit` extracts
 
 - a basis (PRT §3.2 eq 7-8, §4.2): the mean of the normalized indirect vectors plus the first n - 1
   left singular vectors of the mean-subtracted ones, found from the N x N Gram matrix (Turk & Pentland,
@@ -37,205 +38,25 @@ References
 ----------
 .. [PRT] L. Belcour, T. Deliot, W. Barbier, C. Soler, "A Data-Driven Paradigm for Precomputed Radiance
    Transfer", SIGGRAPH 2022 (``../shared/papers/data-driven-prt.txt``).
-.. [Yuksel15] C. Yuksel, "Sample Elimination for Generating Poisson Disk Sample Sets", CGF 34(2), 2015.
 """
 from __future__ import annotations
 
-import heapq
-import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 __all__ = [
-    "random_light_configurations", "area_samples", "sample_elimination", "min_spacing", "group_mean",
-    "gamma_encode", "gamma_decode", "PrtFit", "fit", "reconstruct", "project", "pack_rgba", "unpack_rgba",
-    "chart_layout", "rasterize", "dilate",
+    "group_mean", "gamma_encode", "gamma_decode", "PrtFit", "fit", "reconstruct", "project", "fit_stats",
+    "pack_rgba", "unpack_rgba", "sh_volumes", "lm_textures",
 ]
 
-SPOT_OUTER_RANGE = (math.pi / 8, math.pi / 3)
-"""radians: a random spot's outer cone angle is uniform in this range; the inner one is half of it."""
-PLACEMENT_TRIES = 64
-"""redraws of a point/spot light position that falls inside geometry."""
 OUTLIER_RATIO = 10.0
 """A training column whose normalized indirect ‖y‖/‖x‖ exceeds this many times the median is left out
 of the fit: its light is almost unseen by the measurement points (PRT §7, "sparse illumination
 measurement"), and one such column can own the mean and the first basis vector."""
 
 
-# --------------------------------------------------------------------------------------------- lights
-def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int, box_min, box_max,
-                                inside=None, target_box=None) -> list[list[dict]]:
-    """N random lighting configurations from a scenario (PRT §4.1 "Database Creation").
-
-    Parameters
-    ----------
-    rng : numpy Generator (seeded by the caller)
-    scenario : dict
-        ``proto.models.LightRange`` as a dict: ``types``, ``count`` (lights per configuration),
-        ``color_min``/``color_max`` (per channel, linear RGB), ``intensity_min``/``intensity_max``
-        (candela for point/spot, lux for directional).
-    n : int
-        Number of configurations.
-    box_min, box_max : (3,) float
-        Where point and spot lights are placed (uniformly), world space, metres.
-    inside : callable or None
-        ``inside(points (k, 3) float32) -> (k,) bool``; a position inside geometry is drawn again (up to
-        :data:`PLACEMENT_TRIES` times), since a light inside a solid lights nothing.
-    target_box : ((3,), (3,)) or None
-        Where spots aim (a uniform point of it); default: the placement box. Pass the scene bounds when
-        the lights stand outside the scene.
-
-    Returns
-    -------
-    list of N lists of light dicts in the scene format (:mod:`workers.scene`): each light's type is
-    uniform over ``types``, colour uniform per channel, intensity uniform. Directional lights travel in a
-    uniformly random direction; a spot aims at a uniform point of ``target_box``, outer cone uniform in
-    :data:`SPOT_OUTER_RANGE`, inner cone half of it.
-    """
-    lo = np.asarray(box_min, np.float64)
-    hi = np.asarray(box_max, np.float64)
-    types = list(scenario["types"])
-    cmin = np.asarray(scenario["color_min"], np.float64)
-    cmax = np.asarray(scenario["color_max"], np.float64)
-    tlo, thi = (lo, hi) if target_box is None else (np.asarray(target_box[0], np.float64),
-                                                    np.asarray(target_box[1], np.float64))
-    out = []
-    for _ in range(n):
-        lights = []
-        for _ in range(int(scenario["count"])):
-            kind = types[int(rng.integers(len(types)))]
-            color = rng.uniform(cmin, cmax) if np.any(cmax > cmin) else cmin.copy()
-            intensity = float(rng.uniform(scenario["intensity_min"], scenario["intensity_max"]))
-            light = {"type": kind, "color": color.tolist(), "intensity": intensity, "range": None,
-                     "position": None, "direction": None, "inner_cone_angle": 0.0,
-                     "outer_cone_angle": math.pi / 4, "name": "prt"}
-            if kind in ("point", "spot"):
-                p = rng.uniform(lo, hi)
-                for _ in range(PLACEMENT_TRIES):
-                    if inside is None or not bool(np.asarray(inside(p[None].astype(np.float32)))[0]):
-                        break
-                    p = rng.uniform(lo, hi)
-                light["position"] = p.tolist()
-            if kind == "directional":
-                d = rng.normal(size=3)
-                light["direction"] = (d / max(np.linalg.norm(d), 1e-12)).tolist()
-            elif kind == "spot":
-                target = rng.uniform(tlo, thi)
-                d = target - np.asarray(light["position"])
-                if np.linalg.norm(d) < 1e-6:
-                    d = np.array([0.0, -1.0, 0.0])
-                light["direction"] = (d / np.linalg.norm(d)).tolist()
-                outer = float(rng.uniform(*SPOT_OUTER_RANGE))
-                light["outer_cone_angle"], light["inner_cone_angle"] = outer, 0.5 * outer
-            lights.append(light)
-        out.append(lights)
-    return out
-
-
-# ---------------------------------------------------------------------------------- measurement points
-def triangle_areas(triangles) -> np.ndarray:
-    """(T,) float64 areas (m²) of (T, 3, 3) triangles."""
-    t = np.asarray(triangles, np.float64)
-    return 0.5 * np.linalg.norm(np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0]), axis=1)
-
-
-def area_samples(triangles, count: int, rng: np.random.Generator, weights=None):
-    """Uniform area-weighted random points on triangles.
-
-    Returns ``(tri (count,) int64, u (count,), v (count,))`` barycentrics in the ray-hit convention
-    ``x = (1 - u - v)·v0 + u·v1 + v·v2`` (:class:`workers.raycast.Hits`). ``weights`` (T,) optionally
-    scales each triangle's area (0 excludes it).
-    """
-    area = triangle_areas(triangles)
-    if weights is not None:
-        area = area * np.asarray(weights, np.float64)
-    total = area.sum()
-    if not total > 0:
-        raise ValueError("area_samples: the triangles have no area")
-    cdf = np.cumsum(area) / total
-    tri = np.searchsorted(cdf, rng.random(count) * cdf[-1], side="right").clip(0, len(area) - 1)
-    r1, r2 = rng.random(count), rng.random(count)
-    s = np.sqrt(r1)
-    return tri.astype(np.int64), s * (1.0 - r2), s * r2  # uniform on the triangle (Osada et al. 2002)
-
-
-def sample_elimination(points, m: int, area: float, *, alpha: float = 8.0, beta: float = 0.65,
-                       gamma: float = 1.5, dims: int = 2) -> np.ndarray:
-    """Indices of ``m`` points kept from a denser set by weighted sample elimination [Yuksel15].
-
-    Each point i gets the weight ``w_i = Σ_j (1 - d̂_ij / (2 r_max))^α`` over neighbours within
-    2·r_max (Yuksel eq 1-2, α = 8), with ``d̂ = max(d, r_min)``, ``r_min = r_max·(1 - (m/N)^γ)·β``
-    (§3.3, γ = 1.5, β = 0.65) and r_max the maximal Poisson-disk radius of m points on a domain of
-    the given measure (§3.2: 2D ``√(A / (2√3·m))``, 3D ``∛(V / (4√2·m))``). The point with the largest
-    weight is removed and its neighbours' weights drop by its contribution, with a max-heap, until m
-    remain. Euclidean distances (Yuksel §5 uses them for surfaces too).
-
-    Parameters
-    ----------
-    points : (N, 3) float, N >= m
-    m : int
-    area : float
-        The domain's measure: total surface area (m²) for dims = 2, volume for dims = 3.
-
-    Returns
-    -------
-    (m,) int64 indices into ``points``, in increasing order.
-    """
-    p = np.asarray(points, np.float64)
-    n = p.shape[0]
-    if p.ndim != 2 or m < 1 or m > n:
-        raise ValueError(f"sample_elimination: need (N, d) points with 1 <= m <= N, got {p.shape} and m = {m}")
-    if m == n:
-        return np.arange(n)
-    if dims == 2:
-        r_max = math.sqrt(area / (2.0 * math.sqrt(3.0) * m))
-    elif dims == 3:
-        r_max = (area / (4.0 * math.sqrt(2.0) * m)) ** (1.0 / 3.0)
-    else:
-        raise ValueError("sample_elimination: dims must be 2 or 3")
-    r_min = r_max * (1.0 - (m / n) ** gamma) * beta
-    r2 = 2.0 * r_max
-    pairs = cKDTree(p).query_pairs(r2, output_type="ndarray")
-    i, j = pairs[:, 0], pairs[:, 1]
-    d = np.maximum(np.linalg.norm(p[i] - p[j], axis=1), r_min)
-    w = (1.0 - np.minimum(d, r2) / r2) ** alpha
-    weight = np.zeros(n)
-    np.add.at(weight, i, w)
-    np.add.at(weight, j, w)
-    # neighbour lists (CSR, both directions)
-    src = np.concatenate([i, j])
-    dst = np.concatenate([j, i])
-    ww = np.concatenate([w, w])
-    order = np.argsort(src, kind="stable")
-    src, dst, ww = src[order], dst[order], ww[order]
-    start = np.searchsorted(src, np.arange(n + 1))
-    alive = np.ones(n, bool)
-    heap = [(-weight[k], k) for k in range(n)]
-    heapq.heapify(heap)
-    remaining = n
-    while remaining > m:
-        neg, k = heapq.heappop(heap)
-        if not alive[k] or -neg != weight[k]:
-            continue  # stale entry (lazy deletion)
-        alive[k] = False
-        remaining -= 1
-        for e in range(start[k], start[k + 1]):
-            q = dst[e]
-            if alive[q]:
-                weight[q] -= ww[e]
-                heapq.heappush(heap, (-weight[q], q))
-    return np.flatnonzero(alive)
-
-
-def min_spacing(points) -> float:
-    """Smallest distance between two of the points (metres)."""
-    p = np.asarray(points, np.float64)
-    d, _ = cKDTree(p).query(p, k=2)
-    return float(d[:, 1].min())
-
-
+# ------------------------------------------------------------------------------------- supersamples
 def group_mean(values, offsets) -> np.ndarray:
     """Mean of consecutive row groups: rows ``offsets[g]:offsets[g+1]`` of ``values`` (K, ...) -> (G, ...).
 
@@ -466,160 +287,48 @@ def unpack_rgba(groups, n: int) -> np.ndarray:
     return np.ascontiguousarray(s.reshape((-1,) + a.shape[1:-1])[:n])
 
 
-# ------------------------------------------------------------------------------------------ lightmap
-def _shelf_pack(sizes, res: int):
-    """Place (w, h) integer rectangles in a res x res square, tallest first, left to right in shelves.
+def sh_volumes(slots: np.ndarray, channels: str, counts, K: int):
+    """Probe basis volumes: ``[[(name, (nz, ny, nx, 4) float32) per slot group] per SH coefficient]``.
 
-    Returns (k, 2) offsets (x, y) or None when they do not fit."""
-    order = sorted(range(len(sizes)), key=lambda i: (-sizes[i][1], -sizes[i][0], i))
-    off = np.zeros((len(sizes), 2), np.int64)
-    x = y = shelf = 0
-    for i in order:
-        w, h = sizes[i]
-        if w > res or h > res:
-            return None
-        if x + w > res:
-            x, y, shelf = 0, y + shelf, 0
-        if y + h > res:
-            return None
-        off[i] = (x, y)
-        x += w
-        shelf = max(shelf, h)
-    return off
+    mono: slots (n, P·K) -> volume ``prt_sh_basis_c{k}_g{g}`` holds SH coefficient k of slots 4g..4g+3
+    in RGBA (slot 0 = the mean; PRT §5.2 packing). multi: slots (n, P·K, 3) -> one volume per slot g
+    with its RGB in rgb and a = 0."""
+    nx, ny, nz = counts
+    n = slots.shape[0]
+    out = []
+    if channels == "mono":
+        vol = slots.reshape(n, nz, ny, nx, K)
+        for k in range(K):
+            out.append([(f"prt_sh_basis_c{k}_g{g}", grp) for g, grp in enumerate(pack_rgba(vol[..., k]))])
+    else:
+        vol = slots.reshape(n, nz, ny, nx, K, 3)
+        pad = np.zeros((nz, ny, nx, 1), np.float32)
+        for k in range(K):
+            out.append([(f"prt_sh_basis_c{k}_g{j}", np.concatenate([vol[j, ..., k, :], pad], axis=-1))
+                        for j in range(n)])
+    return out
 
 
-def chart_layout(triangles, uv, chart, res: int, padding: int = 2):
-    """Pack UV charts into one res x res lightmap at a uniform texel density.
+def lm_textures(images: np.ndarray, channels: str):
+    """Lightmap basis textures ``[(name, (H, W, 4) float32)]``: mono images (n, H, W) four slots per
+    texture (``prt_lm_basis_g{g}``: slots 4g..4g+3); multi images (n, H, W, 3) one slot per texture."""
+    if channels == "mono":
+        return [(f"prt_lm_basis_g{g}", grp) for g, grp in enumerate(pack_rgba(images))]
+    pad = np.zeros(images.shape[1:3] + (1,), np.float32)
+    return [(f"prt_lm_basis_g{j}", np.concatenate([images[j], pad], axis=-1)) for j in range(images.shape[0])]
 
-    Each chart (triangles sharing a ``chart`` id >= 0, each with its own UV space, e.g. one glTF
-    node's TEXCOORD_1) keeps its internal layout; its UV bounding box is scaled by
-    √(world area / UV area) so texels cover the same area everywhere, the boxes are shelf-packed with
-    ``padding`` texels around each, and the largest density that fits is found by bisection.
 
-    Parameters
-    ----------
-    triangles : (T, 3, 3) float, metres; uv : (T, 3, 2) float; chart : (T,) int (-1: not in the map).
-
-    Returns
-    -------
-    atlas_uv : (T, 3, 2) float32 — lightmap UVs (texel (row r, col c) centred at
-        ``((c + 0.5)/res, (r + 0.5)/res)``, glTF convention: v runs down the rows); zeros for chart -1
-        and for charts with no UV area.
-    texels_per_metre : float
+def fit_stats(fitted: PrtFit, direct, target) -> dict:
+    """How well a fit explains its own dataset: ``columns``, ``outliers_dropped``, ``energy_kept`` (Σ of the kept
+    n − 1 squared singular values over all of them, PRT §4.2), the first 64 ``singular_values``, ``train_rmse``
+    (of :func:`reconstruct` against ``target``) and ``train_rms`` (of ``target``). direct (N, M, 3), target (N, L, 3).
     """
-    tri = np.asarray(triangles, np.float64)
-    uv = np.asarray(uv, np.float64)
-    chart = np.asarray(chart)
-    out = np.zeros(uv.shape, np.float32)
-    wa = triangle_areas(tri)
-    e1, e2 = uv[:, 1] - uv[:, 0], uv[:, 2] - uv[:, 0]
-    ua = 0.5 * np.abs(e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0])
-    ids, lo, ext, scale = [], [], [], []
-    for c in np.unique(chart[chart >= 0]):
-        sel = chart == c
-        a_uv, a_w = ua[sel].sum(), wa[sel].sum()
-        if not (a_uv > 0 and a_w > 0):
-            continue
-        pts = uv[sel].reshape(-1, 2)
-        ids.append(c)
-        lo.append(pts.min(axis=0))
-        ext.append(np.maximum(pts.max(axis=0) - pts.min(axis=0), 1e-9))
-        scale.append(math.sqrt(a_w / a_uv))                  # metres per UV unit
-    if not ids:
-        return out, 0.0
-    lo, ext, scale = np.array(lo), np.array(ext), np.array(scale)
-    metres = ext * scale[:, None]                              # chart box size, metres
-
-    def sizes(rho):
-        return [(int(math.ceil(w * rho)) + 2 * padding, int(math.ceil(h * rho)) + 2 * padding) for w, h in metres]
-
-    lo_r, hi_r = 0.0, res / max(float(metres.max()), 1e-12)
-    for _ in range(40):                                      # bisection on the texel density
-        mid = 0.5 * (lo_r + hi_r)
-        if _shelf_pack(sizes(mid), res) is not None:
-            lo_r = mid
-        else:
-            hi_r = mid
-    rho = lo_r
-    offsets = _shelf_pack(sizes(rho), res)
-    if offsets is None or rho <= 0:
-        return out, 0.0
-    for k, c in enumerate(ids):
-        sel = chart == c
-        texel = offsets[k] + padding + (uv[sel] - lo[k]) * scale[k] * rho   # texel-space coordinates
-        out[sel] = (texel / res).astype(np.float32)
-    return out, float(rho)
-
-
-def rasterize(atlas_uv, res: int):
-    """Texels whose centre lies in a triangle's lightmap footprint.
-
-    Parameters
-    ----------
-    atlas_uv : (T, 3, 2) float, lightmap UVs (see :func:`chart_layout`); all-zero rows are skipped.
-
-    Returns
-    -------
-    tri : (res, res) int32, the triangle covering each texel centre (row = v, col = u), -1 if none
-        (where footprints overlap, the later triangle wins);
-    bary : (res, res, 2) float32, its barycentrics (u, v) in the ray-hit convention
-        ``x = (1 - u - v)·v0 + u·v1 + v·v2``.
-    """
-    uvs = np.asarray(atlas_uv, np.float64) * res
-    tri_map = np.full((res, res), -1, np.int32)
-    bary = np.zeros((res, res, 2), np.float32)
-    lo = np.floor(uvs.min(axis=1) - 0.5).astype(np.int64).clip(0, res - 1)
-    hi = np.ceil(uvs.max(axis=1) - 0.5).astype(np.int64).clip(0, res - 1)
-    live = np.any(uvs != 0, axis=(1, 2))
-    for t in np.flatnonzero(live):
-        (x0, y0), (x1, y1), (x2, y2) = uvs[t]
-        det = (x1 - x0) * (y2 - y0) - (x2 - x0) * (y1 - y0)
-        if det == 0:
-            continue
-        cols = np.arange(lo[t, 0], hi[t, 0] + 1)
-        rows = np.arange(lo[t, 1], hi[t, 1] + 1)
-        px = cols[None, :] + 0.5
-        py = rows[:, None] + 0.5
-        bu = ((px - x0) * (y2 - y0) - (x2 - x0) * (py - y0)) / det
-        bv = ((x1 - x0) * (py - y0) - (px - x0) * (y1 - y0)) / det
-        eps = -1e-9
-        inside = (bu >= eps) & (bv >= eps) & (bu + bv <= 1 - eps)
-        if not inside.any():
-            continue
-        rr, cc = np.nonzero(inside)
-        tri_map[rows[rr], cols[cc]] = t
-        bary[rows[rr], cols[cc], 0] = bu[rr, cc]
-        bary[rows[rr], cols[cc], 1] = bv[rr, cc]
-    return tri_map, bary
-
-
-def dilate(images, mask, iterations: int = 2):
-    """Grow images into empty texels: each pass fills every empty texel with a filled 8-neighbour by the
-    mean of its filled neighbours (a linear operation, so it commutes with weighted sums of images —
-    dilating the basis dilates every relit lightmap).
-
-    images : (..., H, W) float; mask : (H, W) bool, True where filled. Returns (dilated images, new mask).
-    """
-    img = np.array(images, np.float32, copy=True)
-    m = np.asarray(mask, bool).copy()
-    H, W = m.shape
-    for _ in range(iterations):
-        acc = np.zeros_like(img)
-        cnt = np.zeros((H, W), np.float32)
-        for dy in (-1, 0, 1):
-            for dx in (-1, 0, 1):
-                if dy == 0 and dx == 0:
-                    continue
-                ys = slice(max(dy, 0), H + min(dy, 0))
-                yd = slice(max(-dy, 0), H + min(-dy, 0))
-                xs = slice(max(dx, 0), W + min(dx, 0))
-                xd = slice(max(-dx, 0), W + min(-dx, 0))
-                src = m[ys, xs]
-                acc[..., yd, xd] += img[..., ys, xs] * src
-                cnt[yd, xd] += src
-        grow = ~m & (cnt > 0)
-        if not grow.any():
-            break
-        img[..., grow] = acc[..., grow] / cnt[grow]
-        m |= grow
-    return img, m
+    s2 = fitted.singular ** 2
+    kept = min(fitted.n - 1, s2.size)
+    y = np.asarray(target, np.float64)
+    err = np.stack([reconstruct(fitted, direct[k]) - y[k] for k in range(y.shape[0])])
+    rms = float(np.sqrt(np.mean(y ** 2)))
+    energy = float(s2[:kept].sum() / s2.sum()) if s2.sum() > 0 else 1.0
+    return {"columns": fitted.columns, "outliers_dropped": fitted.dropped, "energy_kept": energy,
+            "singular_values": fitted.singular[:min(64, fitted.singular.size)].tolist(),
+            "train_rmse": float(np.sqrt(np.mean(err ** 2))), "train_rms": rms}

@@ -66,7 +66,7 @@ homogeneous of degree 1, so scaling (normalization, masks) commutes with it, but
     along the normal (:data:`MASK_OFFSET_SAMPLES`, like DDGI-P eq 2's self-shadow bias) puts the footprint
     in front of the wall; the view term moves it towards the camera's side, away from a neighbouring wall
     at a corner (which the normal alone does not). Why the own cell: a channel is free (canonical 0,
-    :func:`workers.kernels.masks.canonicalize`) in a cell where its cluster has no probe; filtered across a
+    :func:`workers.kernels.mask_fit.canonicalize`) in a cell where its cluster has no probe; filtered across a
     face it would change that cluster's weight in the neighbour, where it is present. ``offset = 0`` reads
     at x.
     L2 (``cluster_sh_l2=``): E_k from ``cluster_sh_l2_{k}`` as :func:`leaking_l2` reads ``sh_l2``.
@@ -88,17 +88,19 @@ from typing import Mapping
 
 import numpy as np
 
+from proto import gi_modes
+from proto.gi_modes import MASK_OFFSET_SAMPLES
 from workers.kernels.compress import lookup_blend, mask_lookups
 from workers.kernels.grid import cage_indices, cell_coords
 from workers.kernels.sh import SH_L2_TEXELS, sh_irradiance, sh_irradiance_l1_nonlinear, sh_irradiance_l2
 
 __all__ = ["MODES", "Grid", "trilinear", "texel_fetch", "probe_uvw", "field_uvw", "field_samples_per_cell",
            "leaking", "leaking_l2", "visibility_weighted", "mask", "mask_normalized", "irradiance", "mask_values",
-           "probe_texel", "sh_l2_sample", "has_l2", "MASK_OFFSET_SAMPLES"]
+           "probe_texel", "sh_l2_sample", "has_l2"]
 
 MODES = ("leaking", "visibility_weighted", "mask", "mask_normalized")
-MASK_OFFSET_SAMPLES = 1.0
-"""Runtime default of the mask lookup's offset: refined samples (per axis) along n + v."""
+# MASK_OFFSET_SAMPLES (proto/gi_modes.json, one source with the viewer): the runtime default of the mask lookup's
+# offset, refined samples (per axis) along n + v
 
 
 class Grid:
@@ -420,15 +422,11 @@ def mask_normalized(points, normals, masks, cluster_sh, cluster_weights, grid, o
 
 def has_l2(mode: str, arrays: Mapping) -> bool:
     """Whether the bake's arrays hold the L2 volumes ``mode`` reads (``sh_l2``; ``cluster_sh_l2_{k}`` for every
-    cluster of the mask modes)."""
-    if mode in ("leaking", "visibility_weighted"):
-        return "sh_l2" in arrays
-    if mode in ("mask", "mask_normalized"):
-        K = 0
-        while f"cluster_sh_{K}_r" in arrays:
-            K += 1
-        return K > 0 and all(f"cluster_sh_l2_{k}" in arrays for k in range(K))
-    return False
+    cluster of the mask modes): the mode's ``l2_needs`` in ``proto/gi_modes.json`` (visibility_weighted reads
+    leaking's volumes)."""
+    if mode not in MODES:
+        return False
+    return gi_modes.has_l2("leaking" if mode == "visibility_weighted" else mode, arrays)
 
 
 def irradiance(mode: str, arrays: Mapping, grid, points, normals,

@@ -20,6 +20,9 @@ Per camera an equal share of the points, at jittered pixel positions of a strati
 grid's aspect the image's): the closest hit of each pixel ray, kept where it shows a front face or a
 double-sided surface, the normals flipped toward the camera.
 
+The reference stage's choice (:func:`surface_point_set`): camera points for ``sampling = "cameras"``, unless the
+cameras see fewer than 10% of the points wanted: then (and for ``"area"``) area points.
+
 Check points (:func:`check_point_set`)
 -------------------------------------
 The config's ``evaluate.points``: each point with its unit normal, or the 6 axis normals +X, -X, +Y, -Y, +Z, -Z
@@ -34,7 +37,9 @@ import math
 
 import numpy as np
 
-__all__ = ["area_points", "camera_points", "check_point_set", "AXIS_NORMALS", "FREE_RAYS"]
+from workers.kernels.materials import double_sided_triangles
+
+__all__ = ["area_points", "camera_points", "check_point_set", "surface_point_set", "AXIS_NORMALS", "FREE_RAYS"]
 
 AXIS_NORMALS = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float64)
 FREE_RAYS = 16
@@ -66,8 +71,7 @@ def _surfaces(scene, tri, bu, bv) -> dict:
 
 
 def _double_sided(scene) -> np.ndarray:
-    ds = np.array([bool(m.get("double_sided", False)) for m in scene.materials] or [False], bool)
-    return ds[np.asarray(scene.material, np.int64)] if scene.n_triangles else np.zeros(0, bool)
+    return double_sided_triangles(scene) if scene.n_triangles else np.zeros(0, bool)
 
 
 def area_points(scene, n: int, *, seed: int = 0, caster=None, eps: float | None = None,
@@ -175,6 +179,27 @@ def camera_points(scene, cameras, n: int, *, seed: int = 0, caster=None) -> dict
     out = {k: v[:n] for k, v in out.items()}
     out["stats"] = {"rays": rays, "kept": int(len(out["tri"]))}
     return out
+
+
+def surface_point_set(scene, cameras, n: int, sampling: str, *, seed: int = 0, caster=None,
+                      eps: float | None = None) -> tuple[dict, str, list[dict]]:
+    """The reference's surface points (module doc): ``(points, sampling used, warnings)``; the points as
+    :func:`camera_points` / :func:`area_points` return them; the warning ``few_surface_points`` when fewer than
+    half of the ``n`` wanted could be placed."""
+    sp = None
+    if sampling == "cameras" and cameras:
+        sp = camera_points(scene, cameras, n, seed=seed, caster=caster)
+        if len(sp["position"]) < 0.1 * n:
+            sp = None                 # the cameras see (almost) nothing: uniform by area instead
+    if sp is None:
+        sampling = "area"
+        sp = area_points(scene, n, seed=seed, caster=caster, eps=eps)
+    warnings = []
+    if n and len(sp["position"]) < 0.5 * n:
+        warnings.append({"code": "few_surface_points",
+                         "message": f"only {len(sp['position'])} of {n} surface points could be "
+                                    f"placed ({sampling} sampling): the metrics are noisier"})
+    return sp, sampling, warnings
 
 
 def check_point_set(points, normals=None) -> tuple[np.ndarray, np.ndarray]:

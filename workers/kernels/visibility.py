@@ -393,7 +393,7 @@ def _reduce(i0, i1, rays, cage_off, soff, pdeg, ptri, pback, double_sided, sdeg,
                 else:
                     vout += 1
             elif pback[j] and not double_sided[ptri[j]]:
-                vin += 1
+                vin += 1                            # a single-sided back face seen first: inside (DDGI-P §4.1)
             else:
                 vout += 1
             if cage_off[i, c]:
@@ -404,8 +404,8 @@ def _reduce(i0, i1, rays, cage_off, soff, pdeg, ptri, pback, double_sided, sdeg,
                 if sdeg[k] or not socc[k]:
                     vis += 1
                 k += 1
-            theta[i, c] = (vis * 510 + rays) // (2 * rays)  # round(255 · vis / rays), exact
-        dont_care[i] = vin > vout
+            theta[i, c] = (vis * 510 + rays) // (2 * rays)  # MD eq 2's θ_i(x) = vis / rays, as round(255 θ), exact
+        dont_care[i] = vin > vout                   # inside: weight 0 in MD eq 5-6 (a tie keeps the sample)
 
 
 # ---------------------------------------------------------------------- θ of one slab

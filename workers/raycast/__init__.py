@@ -12,10 +12,14 @@ counter-clockwise front faces) and answers, for N rays:
 
 Results depend only on the rays, never on the thread count or chunking.
 
-Stages build theirs with ``caster_for_scene(scene)``: the same interface, with alpha-tested cutouts
-(glTF alphaMode MASK) transparent where their alpha is below the cutoff (:mod:`workers.raycast.cutout`).
+Stages get theirs from ``caster_for_scene(scene)``: the same interface, with alpha-tested cutouts
+(glTF alphaMode MASK) transparent where their alpha is below the cutoff (:mod:`workers.raycast.cutout`),
+built once per scene and process and shared by every stage (:mod:`workers.raycast.cache`).
 
-Consumers: stages (trace, relocate, classify, visibility, light, evaluate).
+Modules: ``embree.py`` (the backend), ``cutout.py`` (alpha cutouts over it), ``cache.py`` (one caster per
+scene), ``probes.py`` (the probe rays of relocate and trace: :func:`workers.raycast.probes.trace_probes`).
+
+Consumers: stages (place, relocate, trace, visibility, light, prt, reference, evaluate).
 """
 from __future__ import annotations
 
@@ -23,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["Hits", "RayCaster", "CutoutRayCaster", "caster_for_scene"]
+__all__ = ["Hits", "RayCaster", "EmbreeRayCaster", "CutoutRayCaster", "caster_for_scene"]
 
 
 @dataclass(frozen=True)
@@ -73,4 +77,5 @@ from .embree import EmbreeRayCaster  # noqa: E402  (the backend needs Hits defin
 RayCaster = EmbreeRayCaster
 """The default backend: :class:`workers.raycast.embree.EmbreeRayCaster`."""
 
-from .cutout import CutoutRayCaster, caster_for_scene  # noqa: E402  (alpha-tested cutouts over the backend)
+from .cutout import CutoutRayCaster  # noqa: E402  (alpha-tested cutouts over the backend)
+from .cache import caster_for_scene  # noqa: E402  (one caster per scene and process)

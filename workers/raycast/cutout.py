@@ -134,10 +134,11 @@ class CutoutRayCaster:
         return self._all.inside_parity(points, n_dirs=n_dirs, rule=rule)
 
 
-def caster_for_scene(scene, **kwargs):
-    """The ray caster of a :class:`workers.scene.NormalizedScene`: a plain :class:`EmbreeRayCaster` when no
+def build_caster(scene, **kwargs):
+    """A new ray caster of a :class:`workers.scene.NormalizedScene`: a plain :class:`EmbreeRayCaster` when no
     material is a cutout, else a :class:`CutoutRayCaster` testing alpha with
-    :func:`workers.kernels.materials.opaque_at_hits`."""
+    :func:`workers.kernels.materials.opaque_at_hits`. Stages use the cached
+    :func:`workers.raycast.caster_for_scene` instead."""
     from workers.kernels.materials import cutout_materials, material_table, opaque_at_hits
 
     cut_mat = cutout_materials(scene)

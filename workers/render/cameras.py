@@ -35,19 +35,23 @@ diversity factor (distance to the chosen positions and angle to the chosen view 
 Everything is deterministic (fixed ray sets, ties to the lowest index). The target is the point at
 the median depth of the central rays; near/far come from the frustum's hit distances.
 
-Consumers: workers/render/gbuffer.py, the evaluate stage, the reference path tracer
+Review cameras (:func:`review_cameras`): the bake's own, else the glTF's, else auto-placed, else a default.
+
+Consumers: workers/render/gbuffer.py, the reference and evaluate stages, the reference path tracer
 (:mod:`workers.kernels.pathtrace`) through :meth:`Camera.pixel_rays`.
 """
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from workers.kernels.sampling import fibonacci_sphere
 
-__all__ = ["Camera", "auto_cameras", "camera_basis", "default_camera", "fit_clip_planes", "look_at", "perspective"]
+__all__ = ["Camera", "auto_cameras", "camera_basis", "camera_record", "default_camera", "fit_clip_planes", "look_at",
+           "perspective", "review_cameras"]
 
 DEFAULT_WIDTH = 512
 DEFAULT_HEIGHT = 384
@@ -312,33 +316,37 @@ def auto_cameras(caster, bounds, count: int = 3, *, candidates=None, per_axis: i
     gw, gh = 12, 9
     jj, ii = np.meshgrid((np.arange(gw) + 0.5) / gw * width, (np.arange(gh) + 0.5) / gh * height)
     centre = (np.abs(ii - height / 2) <= height / 4) & (np.abs(jj - width / 2) <= width / 4)
+    # the pixel directions of a view direction do not depend on the camera's position: one set for all candidates
+    rd = np.concatenate([Camera(np.zeros(3), v, fov_y=fov_y, width=width, height=height)
+                         .pixel_directions(ii.ravel(), jj.ravel()) for v in vd])            # (K·108, 3)
+    K, n_px = len(vd), gw * gh
+    hh = caster.intersect(np.repeat(cand, len(rd), axis=0), np.tile(rd, (len(cand), 1)))
+    front_all = (hh.hit & ~hh.backface).reshape(len(cand), K, n_px)
+    t_all = hh.t.reshape(len(cand), K, n_px).astype(np.float64)
+    bins_all = _normal_bins(tri_n[np.where(hh.hit, hh.tri, 0)]).reshape(len(cand), K, n_px)
+    rows = np.repeat(np.arange(K), n_px).reshape(K, n_px)
     best = []
-    for ci, p in enumerate(cand):
-        rd = np.concatenate([Camera(p, p + v, fov_y=fov_y, width=width, height=height)
-                             .pixel_directions(ii.ravel(), jj.ravel()) for v in vd])
-        hh = caster.intersect(np.broadcast_to(p, rd.shape), rd)
-        front = (hh.hit & ~hh.backface).reshape(len(vd), -1)
-        tt = hh.t.reshape(len(vd), -1).astype(np.float64)
-        bins = _normal_bins(tri_n[np.where(hh.hit, hh.tri, 0)]).reshape(len(vd), -1)
-        scores = np.zeros(len(vd))
-        meta = []
-        for k in range(len(vd)):
-            f = front[k]
-            cov = float(f.mean())
-            if f.sum() < 4:
-                meta.append((cov, 0.0, 0.0, math.inf, 0))
-                continue
-            spread = float(np.log(tt[k][f]).std())
-            med = float(np.median(tt[k][f]))
-            counts = np.bincount(bins[k][f], minlength=27)
-            surfaces = int((counts >= 0.05 * f.sum()).sum())
-            cmask = f & centre.ravel()
-            target_t = float(np.median(tt[k][cmask])) if cmask.any() else med
-            scores[k] = (cov * (0.25 + min(1.0, spread)) * min(1.0, med / (0.5 * far_free[ci]))
-                         * min(1.0, surfaces / 3.0))
-            meta.append((cov, spread, med, target_t, surfaces))
+    for ci in range(len(cand)):
+        f, tt = front_all[ci], t_all[ci]
+        nf = f.sum(axis=1)
+        cov = f.mean(axis=1)
+        with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)                 # all-NaN rows: views with no front hit
+            spread = np.nanstd(np.where(f, np.log(np.where(f, tt, 1.0)), np.nan), axis=1)
+            med = np.nanmedian(np.where(f, tt, np.nan), axis=1)
+            cm = f & centre.ravel()[None]
+            target_t = np.where(cm.any(axis=1), np.nanmedian(np.where(cm, tt, np.nan), axis=1), med)
+        counts = np.zeros((K, 27), np.int64)
+        np.add.at(counts, (rows[f], bins_all[ci][f]), 1)
+        surfaces = (counts >= 0.05 * nf[:, None]).sum(axis=1)
+        ok = nf >= 4
+        scores = np.where(ok, cov * (0.25 + np.minimum(1.0, np.nan_to_num(spread)))
+                          * np.minimum(1.0, np.nan_to_num(med) / (0.5 * far_free[ci])) * np.minimum(1.0, surfaces / 3.0),
+                          0.0)
         k = int(np.argmax(scores))
-        best.append((scores[k] * centrality[ci] * enclosure[ci], vd[k], meta[k]))
+        meta = ((float(cov[k]), float(spread[k]), float(med[k]), float(target_t[k]), int(surfaces[k])) if ok[k]
+                else (float(cov[k]), 0.0, 0.0, math.inf, 0))
+        best.append((scores[k] * centrality[ci] * enclosure[ci], vd[k], meta))
 
     # 3. greedy diverse pick
     score = np.array([s for s, _, _ in best])
@@ -386,3 +394,47 @@ def default_camera(bounds, *, width: int = DEFAULT_WIDTH, height: int = DEFAULT_
     pos = c + _unit([0.0, 0.35, 1.0]) * dist
     cam = Camera(pos, c, fov_y=fov_y, width=width, height=height, name="default")
     return replace(cam, near=max(1e-3 * (dist + r), dist - 1.5 * r), far=dist + 1.5 * r)
+
+
+def review_cameras(config, scene, caster) -> tuple[list[Camera], str]:
+    """The review cameras of a bake and where they come from: ``"config"``, ``"gltf"``, ``"auto"``, ``"default"``
+    or ``"none"``; names are unique and safe for artifact names.
+
+    ``config.evaluate.cameras`` when it is a list (the server puts the scene's stored review cameras there);
+    else the glTF's own cameras (``scene.cameras``, at most 16); else ``evaluate.cameras`` cameras placed by
+    :func:`auto_cameras` in free space inside the scene bounds; else :func:`default_camera` (an open scene).
+    ``caster`` fits the clip planes and places the automatic cameras.
+    """
+    ev = config.evaluate
+    kw = dict(width=int(ev.width), height=int(ev.height))
+    box = np.asarray(scene.bounds, np.float64)
+    specs, source = None, None
+    if isinstance(ev.cameras, (list, tuple)):
+        specs = [c.model_dump() if hasattr(c, "model_dump") else dict(c) for c in ev.cameras]
+        source = "config"
+    elif getattr(scene, "cameras", None) and int(ev.cameras) > 0:
+        specs, source = [dict(c) for c in scene.cameras][:16], "gltf"
+    if specs is not None:
+        out, taken = [], set()
+        for i, d in enumerate(specs):
+            name = d.get("name") or f"cam-{i}"
+            while name in taken:
+                name = f"{name[:28]}-{i}"
+            taken.add(name)
+            cam = Camera(d["position"], d["target"], fov_y=d.get("fov_y") or float(ev.fov_y), name=name, **kw)
+            out.append(fit_clip_planes(cam, caster, box))
+        return out, source
+    n = int(ev.cameras)
+    if n <= 0:
+        return [], "none"
+    cams = auto_cameras(caster, box, n, fov_y=float(ev.fov_y), **kw)
+    if cams:
+        return cams, "auto"
+    return [default_camera(box, fov_y=float(ev.fov_y), **kw)], "default"
+
+
+def camera_record(cam: Camera) -> dict:
+    """What the manifest records of a review camera (the ``evaluate`` stats' ``cameras``): name, position,
+    target (world space, metres), vertical fov (degrees), width, height (pixels)."""
+    return {"name": cam.name, "position": [float(x) for x in cam.position], "target": [float(x) for x in cam.target],
+            "fov": float(cam.fov_y), "width": cam.width, "height": cam.height}

@@ -17,7 +17,8 @@ files the WebGL2 viewer compiles. One full-screen triangle; per pixel
 (H, W, 3) float32 with row 0 at the top (the G-buffer's order: textures are uploaded row 0 first and the
 pass reads texel ``gl_FragCoord.xy``, so no flip happens anywhere).
 
-Modes and their textures (:func:`prepare_mode`; the GLSL headers document each binding):
+Modes and their textures (:func:`prepare_mode`, from the mode table ``proto/gi_modes.json`` that the viewer reads too;
+the GLSL headers document each binding):
 
 =================== ===========================================================================================
 ``direct``          none
@@ -50,10 +51,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from proto import gi_modes
+from proto.gi_modes import (KINDS, MASK_BLEND, MASK_OFFSET_SAMPLES, MASK_SEEN_THRESHOLD, MAX_3D_TEXTURE_DEPTH, MAX_LIGHTS, MAX_TEXTURE_SIZE, MODE_IDS,
+                            PRT_MAX_GROUPS, SELF_SHADOW_BIAS)
 from proto.glsl_preprocess import ShaderSourceError, format_compile_errors, load_sources, preprocess
 from workers.kernels.ddgi import bias_scale
 from workers.kernels.grid import OFF
-from workers.kernels.samplers import MASK_OFFSET_SAMPLES, has_l2
 from workers.kernels.sh import sh_l2_atlas_depth
 from workers.kernels.shading import direct_irradiance
 
@@ -62,16 +65,11 @@ from .context import create_context
 __all__ = ["MODES", "MAX_LIGHTS", "ModeResources", "GBufferInputs", "ShadingRenderer", "prepare_mode",
            "shadow_masks", "light_uniforms", "stack_volumes", "wrap_atlas"]
 
-MODES = ("direct", "leaking", "ddgi", "mask", "mask_normalized", "prt")
-MAX_LIGHTS = 8
-PRT_MAX_GROUPS = 16
-MAX_3D_TEXTURE_DEPTH = 2048
-MAX_TEXTURE_SIZE = 16384
-"""Widest 2D texture the pass uploads as stored (GL_MAX_TEXTURE_SIZE of llvmpipe and most GPUs and WebGL2 devices):
-a wider DDGI atlas is bound re-packed by :func:`wrap_atlas`."""
-"""Deepest stacked 3D texture the pass builds for L2 cluster volumes (GL_MAX_3D_TEXTURE_SIZE of desktop GL / llvmpipe
-and most WebGL2 GPUs; WebGL2 only guarantees 256): deeper stacks fall back to L1."""
-_SAMPLER_TYPES = {0x8B5E: "2d", 0x8B5F: "3d"}  # GL_SAMPLER_2D, GL_SAMPLER_3D  # basis slots ≤ 64 (mode_prt.glsl KILN_PRT_MAX_GROUPS)
+MODES = MODE_IDS
+"""The GI modes of ``proto/gi_modes.json``; its constants (MAX_LIGHTS, PRT_MAX_GROUPS, MAX_3D_TEXTURE_DEPTH: deeper L2
+cluster stacks fall back to L1, MAX_TEXTURE_SIZE: wider DDGI atlases are re-packed by :func:`wrap_atlas`) are
+:mod:`proto.gi_modes`'s."""
+_SAMPLER_TYPES = {0x8B5E: "2d", 0x8B5F: "3d"}  # GL_SAMPLER_2D, GL_SAMPLER_3D
 
 
 # ----------------------------------------------------------------------------------------- inputs
@@ -190,13 +188,6 @@ def _grid_uniforms(grid) -> dict:
             "uGridCounts": tuple(float(x) for x in grid["counts"])}
 
 
-def cluster_count(arrays) -> int:
-    K = 0
-    while f"cluster_sh_{K}_r" in arrays:
-        K += 1
-    return K
-
-
 def _want_l2(sh_order, available: bool, mode: str) -> bool:
     if sh_order not in (None, 1, 2):
         raise ValueError(f"sh_order must be None, 1 or 2, got {sh_order!r}")
@@ -205,43 +196,67 @@ def _want_l2(sh_order, available: bool, mode: str) -> bool:
     return available and sh_order != 1
 
 
-def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask_meta: dict | None = None,
-                 mask_offset_samples: float = MASK_OFFSET_SAMPLES, prt_model=None,
+def _upload(kind: str, arrays, names: list[str], counts) -> np.ndarray:
+    """The array a texture of ``kind`` (``proto/gi_modes.json`` kinds) holds for the artifacts ``names``: float
+    arrays as float32, the others (RGBA8 masks, the indirection) as stored; ``probe-data`` (nz, ny, nx, 4) float32 =
+    relocated position xyz and 1 unless OFF. ``atlas`` as stored (:func:`prepare_mode` re-packs a wide one)."""
+    if kind == "stack":
+        return stack_volumes([arrays[n] for n in names])
+    if kind == "probe-data":
+        nx, ny, nz = (int(c) for c in counts)
+        pos = np.asarray(arrays[names[0]], np.float32).reshape(nz, ny, nx, 3)
+        states = np.asarray(arrays[names[1]]).reshape(nz, ny, nx)
+        return np.ascontiguousarray(np.concatenate([pos, (states != OFF)[..., None].astype(np.float32)], axis=-1))
+    (name,) = names
+    a = np.asarray(arrays[name])
+    return np.ascontiguousarray(a, np.float32 if a.dtype.kind == "f" else None)
+
+
+def _bind_textures(r: ModeResources, arrays, counts, sh_order: int, prt_basis=None) -> dict[str, np.ndarray]:
+    """Fill ``r.textures`` with the mode's bindings of ``proto/gi_modes.json`` (:func:`proto.gi_modes.texture_bindings`)
+    and ``r.defines`` with its #defines; returns the uploaded arrays by uniform."""
+    out = {}
+    for uniform, (names, kind) in gi_modes.texture_bindings(r.mode, arrays, sh_order, prt_basis).items():
+        out[uniform] = _upload(kind, arrays, names, counts)
+        r.textures[uniform] = (out[uniform], KINDS[kind]["filter"] == "linear")
+    r.defines.update(gi_modes.mode_defines(r.mode, sh_order, gi_modes.cluster_count(arrays)))
+    return out
+
+
+def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = SELF_SHADOW_BIAS,
+                 mask_meta: dict | None = None, mask_offset_samples: float = MASK_OFFSET_SAMPLES, prt_model=None,
                  prt_coefficients=None, sh_order: int | None = None) -> ModeResources:
     """Textures and uniforms of one mode from baked artifacts addressed by name (``arrays[name]``).
 
-    grid : counts (nx, ny, nz), origin, spacing. mask modes need ``mask_meta`` with ``samples_per_cell`` (S),
+    Which artifact goes to which sampler, how it is uploaded, the mode's uniforms and #defines: ``proto/gi_modes.json``
+    (one source with the viewer's ``web/src/state/modes.js``); the uniform values are computed here.
+    grid : counts (nx, ny, nz), origin, spacing. ddgi: ``self_shadow_bias`` is B of DDGI-P eq 2, the bake's
+    ``light.self_shadow_bias``. mask modes need ``mask_meta`` with ``samples_per_cell`` (S),
     ``block_size`` (T) and ``border_lo``; they read the masks ``mask_offset_samples`` refined samples along
     n + v (``uMaskOffset``; :func:`workers.kernels.samplers.mask_values`). prt needs ``prt_model``
     (:class:`workers.prt_relight.PrtModel`, mono, no gamma) and ``prt_coefficients`` (n, 3) (u of PRT eq 10 per colour channel).
     ``sh_order``: None = L2 where the bake has it (the default), 1 = L1, 2 = L2 required (module doc).
     """
+    if mode not in gi_modes.MODES:
+        raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
     r = ModeResources(mode, uniforms=_grid_uniforms(grid))
     nx, ny, nz = (int(c) for c in grid["counts"])
     if mode == "direct":
         return r
     if mode == "leaking":
-        if _want_l2(sh_order, has_l2(mode, arrays), mode):
-            r.textures["uShL2"] = (np.ascontiguousarray(arrays["sh_l2"], np.float32), True)
-            r.defines["KILN_SH_L2"] = 1
-            r.info.update(sh_order=2)
-            return r
-        for u, c in (("uShR", "r"), ("uShG", "g"), ("uShB", "b")):
-            r.textures[u] = (np.ascontiguousarray(arrays[f"sh_l1_{c}"], np.float32), True)
-        r.info.update(sh_order=1)
+        l2 = _want_l2(sh_order, gi_modes.has_l2(mode, arrays), mode)
+        _bind_textures(r, arrays, grid["counts"], 2 if l2 else 1)
+        r.info.update(sh_order=2 if l2 else 1)
         return r
     if mode == "ddgi":
-        pos = np.asarray(arrays["probe_positions_relocated"], np.float32).reshape(nz, ny, nx, 3)
         states = np.asarray(arrays["probe_states"]).reshape(nz, ny, nx)
-        data = np.concatenate([pos, (states != OFF)[..., None].astype(np.float32)], axis=-1)
-        irr = np.ascontiguousarray(arrays["irradiance"], np.float32)
-        dep = np.ascontiguousarray(arrays["depth_moments"], np.float32)
-        t_irr = irr.shape[0] // ny
-        t_dep = dep.shape[0] // ny
-        irr, irr_cols = wrap_atlas(irr, grid["counts"])      # wider than MAX_TEXTURE_SIZE: it would not upload
-        dep, dep_cols = wrap_atlas(dep, grid["counts"])
-        r.textures.update(uProbeData=(np.ascontiguousarray(data), False), uIrradianceAtlas=(irr, True),
-                          uDepthAtlas=(dep, True))
+        up = _bind_textures(r, arrays, grid["counts"], 1)
+        t_irr = up["uIrradianceAtlas"].shape[0] // ny
+        t_dep = up["uDepthAtlas"].shape[0] // ny
+        # wider than MAX_TEXTURE_SIZE it would not upload: re-packed
+        irr, irr_cols = wrap_atlas(up["uIrradianceAtlas"], grid["counts"])
+        dep, dep_cols = wrap_atlas(up["uDepthAtlas"], grid["counts"])
+        r.textures.update(uIrradianceAtlas=(irr, True), uDepthAtlas=(dep, True))
         r.uniforms.update(uDdgiBias=bias_scale(grid["spacing"], self_shadow_bias), uIrradianceTexels=t_irr - 2,
                           uDepthTexels=t_dep - 2, uIrradianceColumns=irr_cols, uDepthColumns=dep_cols)
         r.info.update(irradiance_texels=t_irr - 2, depth_texels=t_dep - 2, probes_off=int((states == OFF).sum()),
@@ -250,61 +265,43 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = 0.3, mask
     if mode in ("mask", "mask_normalized"):
         if mask_meta is None:
             raise ValueError("mask modes need mask_meta (samples_per_cell, block_size, border_lo)")
-        K = cluster_count(arrays)
+        K = gi_modes.cluster_count(arrays)
         if K < 1:
             raise ValueError("mask modes need cluster_sh_{k}_{r,g,b} volumes")
-        l2 = _want_l2(sh_order, has_l2(mode, arrays), mode)
+        l2 = _want_l2(sh_order, gi_modes.has_l2(mode, arrays), mode)
         if l2 and sh_order is None and sh_l2_atlas_depth(nz, K) > MAX_3D_TEXTURE_DEPTH:
             l2 = False                           # the stack would not fit one 3D texture: L1 (info says so)
             r.info.update(sh_l2_skipped=f"7·K·(nz + 2) = {sh_l2_atlas_depth(nz, K)} > {MAX_3D_TEXTURE_DEPTH}")
-        if l2:
-            sh = stack_volumes([arrays[f"cluster_sh_l2_{k}"] for k in range(K)])
-            r.defines["KILN_SH_L2"] = 1
-            sh_uniform = "uClusterShL2"
-        else:
-            sh = stack_volumes([arrays[f"cluster_sh_{k}_{c}"] for k in range(K) for c in "rgb"])
-            sh_uniform = "uClusterSh"
+        _bind_textures(r, arrays, grid["counts"], 2 if l2 else 1)   # KILN_MASK_CLUSTERS = K: no code for absent ones
         r.info.update(sh_order=2 if l2 else 1)
-        r.textures.update({"uMaskIndirection": (np.ascontiguousarray(arrays["mask_indirection"]), False),
-                           "uMaskAtlas0123": (np.ascontiguousarray(arrays["mask_atlas_0123"]), True),
-                           sh_uniform: (sh, True)})
-        if K > 4:
-            r.textures["uMaskAtlas4567"] = (np.ascontiguousarray(arrays["mask_atlas_4567"]), True)
-        if mode == "mask_normalized":
-            names = ["cluster_weights_0123"] + (["cluster_weights_4567"] if K > 4 else [])
-            r.textures["uClusterWeights"] = (stack_volumes([arrays[n] for n in names]), True)
         S = int(mask_meta["samples_per_cell"])
         r.uniforms.update(uClusterCount=K, uMaskS=float(S),
                           uMaskT=float(mask_meta["block_size"]), uMaskLo=float(mask_meta["border_lo"]),
-                          uMaskOffset=float(mask_offset_samples))
-        r.defines["KILN_MASK_CLUSTERS"] = K       # leaves out the code of absent clusters (gi_mask.glsl)
+                          uMaskOffset=float(mask_offset_samples), uMaskSeen=MASK_SEEN_THRESHOLD,
+                          uMaskBlend=tuple(MASK_BLEND))
         r.info.update(clusters=K)
         return r
-    if mode == "prt":
-        if prt_model is None or prt_coefficients is None:
-            raise ValueError("prt mode needs prt_model and prt_coefficients")
-        if prt_model.channels != "mono" or prt_model.gamma is not None:
-            raise ValueError("the prt GLSL mode sums a mono, linear (gamma None) basis")
-        u = np.asarray(prt_coefficients, np.float32)
-        n = u.shape[0]
-        G = -(-n // 4)
-        if G > PRT_MAX_GROUPS:
-            raise ValueError(f"prt mode: at most {4 * PRT_MAX_GROUPS} basis slots, got {n}")
-        names = prt_model.section["sh"]["basis"]            # [k][g] artifact names
-        l2 = _want_l2(sh_order, len(names) == 9, mode)      # an L2 bake's basis has all 9 coefficients
-        C = 9 if l2 else 4
-        vols = [arrays[names[k][g]] for k in range(C) for g in range(G)]
-        if l2:
-            r.defines["KILN_SH_L2"] = 1
-        coef = np.zeros((3, PRT_MAX_GROUPS, 4), np.float32)
-        padded = np.zeros((4 * G, 3), np.float32)
-        padded[:n] = u
-        coef[:, :G, :] = padded.T.reshape(3, G, 4)
-        r.textures["uPrtBasis"] = (stack_volumes(vols), True)
-        r.uniforms.update(uPrtGroups=G, uPrtCoef=coef.reshape(-1, 4))
-        r.info.update(basis=n, groups=G, sh_order=2 if l2 else 1, coefficients=C)
-        return r
-    raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
+    # prt
+    if prt_model is None or prt_coefficients is None:
+        raise ValueError("prt mode needs prt_model and prt_coefficients")
+    if prt_model.channels != "mono" or prt_model.gamma is not None:
+        raise ValueError("the prt GLSL mode sums a mono, linear (gamma None) basis")
+    u = np.asarray(prt_coefficients, np.float32)
+    n = u.shape[0]
+    G = -(-n // 4)
+    if G > PRT_MAX_GROUPS:
+        raise ValueError(f"prt mode: at most {4 * PRT_MAX_GROUPS} basis slots, got {n}")
+    names = prt_model.section["sh"]["basis"]            # [k][g] artifact names
+    l2 = _want_l2(sh_order, len(names) == 9, mode)      # an L2 bake's basis has all 9 coefficients
+    C = 9 if l2 else 4
+    _bind_textures(r, arrays, grid["counts"], 2 if l2 else 1, [row[:G] for row in names])
+    coef = np.zeros((3, PRT_MAX_GROUPS, 4), np.float32)
+    padded = np.zeros((4 * G, 3), np.float32)
+    padded[:n] = u
+    coef[:, :G, :] = padded.T.reshape(3, G, 4)
+    r.uniforms.update(uPrtGroups=G, uPrtCoef=coef.reshape(-1, 4))
+    r.info.update(basis=n, groups=G, sh_order=2 if l2 else 1, coefficients=C)
+    return r
 
 
 # ----------------------------------------------------------------------------------------- renderer

@@ -5,12 +5,12 @@ Reads ``place`` (grid stats), ``trace`` (``probe_states``) and ``visibility`` (`
 and ``seed``.
 
 1. E(i, j), MD eq 6, for every pair of probes sharing a cell, in one pass over θ
-   (:func:`workers.kernels.masks.edge_loss`; a sum over samples as in the paper, don't-care samples
+   (:func:`workers.kernels.coloring.edge_loss`; a sum over samples as in the paper, don't-care samples
    weigh 0, OFF probes are left out);
 2. ``coloring = "anneal"``: simulated annealing on eq 7 + eq 8 from a convex division of the grid
-   into K boxes (:func:`~workers.kernels.masks.convex_division`), ``sweeps`` Metropolis sweeps over
+   into K boxes (:func:`~workers.kernels.coloring.convex_division`), ``sweeps`` Metropolis sweeps over
    the probes at geometrically falling temperatures
-   (:func:`~workers.kernels.masks.temperature_schedule`: with Ē the mean positive E, T0 = 3·Ē,
+   (:func:`~workers.kernels.coloring.temperature_schedule`: with Ē the mean positive E, T0 = 3·Ē,
    T_end = min(1e-3·Ē, 0.1·λ)), seeded by the bake seed; the best colouring seen at a sweep end is kept, so the result
    never ends above the initial loss. ``coloring = "parity"`` (K = 8): eq 4, no annealing.
 
@@ -33,8 +33,8 @@ import time
 import numpy as np
 
 from workers.kernels.grid import OFF
-from workers.kernels.masks import (anneal, coloring_loss, convex_division, edge_loss, join_theta, parity_coloring,
-                                   random_loss)
+from workers.kernels.coloring import anneal, coloring_loss, convex_division, edge_loss, parity_coloring, random_loss
+from workers.kernels.mask_field import join_theta
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 RANDOM_TRIALS = 8

@@ -5,7 +5,7 @@ Reads ``place`` (grid stats), ``trace`` (``probe_states``), ``light`` (``sh_l1_{
 ``masks`` (clusters, sigma, light_aware, light_aware_penalty). (``relocate`` is an input of the stage
 for its cache key only.)
 
-Per refined-grid sample (:mod:`workers.kernels.masks`):
+Per refined-grid sample (:mod:`workers.kernels.mask_fit`):
 
 1. eq 5 minimized locally given g: ``m_k`` = the φ-weighted median of θ over cluster k's non-OFF
    corners of the sample's cell (exact minimizer of ``Σ_{i: g_i = k} φ_i |θ_i − m_k|``); 0 for a
@@ -17,7 +17,7 @@ Per refined-grid sample (:mod:`workers.kernels.masks`):
    of the closer layer), so trilinear filtering at surfaces is not dragged to 0;
 4. a Gaussian filter of ``sigma`` samples (0 = none), clamp-to-edge, that keeps zero channels zero
    (departure from MD step 6: filtering a cluster's mask across a wall leaks its light; see
-   :func:`workers.kernels.masks.gaussian_filter`);
+   :func:`workers.kernels.mask_fit.gaussian_filter`);
 5. quantized to bytes ``round(255·m)``.
 
 Outputs
@@ -46,8 +46,9 @@ import time
 
 import numpy as np
 
-from workers.kernels.masks import (canonicalize, cluster_volumes, fill_dont_care, fit_masks, gaussian_filter, join_theta,
-                                   light_aware_fit, mask_residual, quantize)
+from workers.kernels.mask_field import join_theta
+from workers.kernels.mask_fit import (canonicalize, cluster_volumes, fill_dont_care, fit_masks, gaussian_filter,
+                                      light_aware_fit, mask_residual, quantize)
 from workers.kernels.sh import sh_l2_atlas
 from workers.stages.base import Artifact, StageContext, StageOutput
 

@@ -4,42 +4,9 @@ Reads ingest (bounds), place (grid), relocate (probe positions), trace (cached p
 moments, states) and light (only for ordering and cache keys; its settings come from ``config.light``).
 Off unless ``config.prt.enabled``: then it returns no artifacts and stats ``{"enabled": false}``.
 
-1. **Scenario** (PRT §4.1): N = ``prt.configurations`` random lighting configurations from
-   ``prt.scenario`` (:func:`workers.kernels.prt.random_light_configurations`), seeded by the bake seed;
-   positions in ``scenario.box`` (default: the scene bounds), redrawn when inside geometry; spots aim at
-   a random point of the scene bounds.
-2. **Measurement points** (§4.1): M = ``prt.measurement_points`` blue-noise points on the front faces of
-   the triangles, by sample elimination [Yuksel15] from 5·M·S uniform area-weighted candidates, keeping
-   only candidates that one of the first 64 configurations lights (with non-zero albedo): points no
-   light of the scenario reaches (the outside of a room) carry no information. With supersampling
-   S > 1 (§5.1), M·S points are kept and grouped by their nearest of M points chosen by a second
-   elimination; a measurement point's direct value is its group's mean.
-3. **Dataset**. Per configuration k, the direct vector x_k (M, 3) is the outgoing radiance
-   ``albedo/π · E_direct`` at the measurement points (shadow rays, :func:`shading.direct_irradiance`). The
-   indirect targets are computed exactly as the light stage would for those lights *alone*: **emission
-   excluded and sky 0**, so that the target is linear in the lights (an emissive surface or a sky would
-   add a constant that no transfer from x could produce). The front-face probe-ray hits are shaded once
-   (:func:`light.hit_surfaces`); for each configuration only ``E_direct`` at the hits changes, and the
-   bounces re-shade the cached hits (nothing is re-traced but shadow rays) with the light stage's bounce
-   settings (``light.bounces`` or convergence to ``light.tolerance``, per configuration).
-   Targets: (a) the probes' radiance SH (P, K, 3) (``light.sh_order``), what the light stage stores as
-   ``probe_sh``; (b) lightmap texels (``prt.lightmap``² texels, 0 = none): TEXCOORD_1 charts where the
-   scene has them (one chart per glTF node), xatlas UVs for the other triangles, packed at a uniform
-   texel density; a texel's value is the DDGI irradiance (:func:`ddgi.sample_irradiance`, view direction =
-   the normal, with the light stage's ray-traced cage visibility, :func:`light.probe_visibility`) of that
-   configuration's converged probes at the texel's surface point.
-
-   Speed: a bounce is linear in the probe irradiance, so the DDGI sampler is turned into a sparse
-   matrix once (:func:`ddgi_weights`: 8 probes x 4 bilinear texels per point, read back from the real
-   sampler) and configurations are solved in batches, 3 colour columns each: every bounce is one sparse
-   product and one octahedral accumulation for the whole batch. Tests check it against
-   :func:`workers.stages.light.integrate`.
-4. **Fit** (§4.2, eq 7-10, 14): :func:`workers.kernels.prt.fit` per target — normalized by ‖x‖,
-   mean-subtracted, optional gamma (§5.3), SVD, ``n = prt.basis`` slots (the mean counts as one, as in
-   PRT), ridge λ = ``prt.ridge`` with an intercept on the ‖x‖ column (see the kernel's doc: without it
-   eq 14 cannot reproduce even linear data), columns whose light the points barely see dropped
-   (``kernels.prt.OUTLIER_RATIO``); mono (default: shared basis, one transfer per colour channel) or
-   multi.
+An adapter: scenario, measurement points, dataset (the light stage's bounce integrator with ``config.light``'s
+settings, per configuration alone: emission excluded, sky 0) and fit are :mod:`workers.kernels.prt_dataset`,
+seeded by the bake seed; this module reads the inputs and packs the artifacts.
 
 Artifacts (stage ``prt``; the layout is documented in ``proto/bundle.md`` by the lead):
 
@@ -63,486 +30,45 @@ name                      shape, format                    content
 ``prt_lm_uv``             npy (T, 3, 2) float32            the lightmap UV of every triangle corner
 ========================= ================================ ===========================================
 
-Relighting (:mod:`workers.prt_relight`): x from the new lights at the measurement points, then per
-channel ``u = T_c [x_c, ‖x_c‖]`` (row 0 gives u_0 = ‖x_c‖), ``y_c = Σ_j u_j · slot_j`` (g⁻¹ with gamma).
+Relighting (:mod:`workers.prt_relight`): x from the new lights at the measurement points, then per channel
+``u = T_c [x_c, ‖x_c‖]`` (row 0 gives u_0 = ‖x_c‖), ``y_c = Σ_j u_j · slot_j`` (g⁻¹ with gamma; PRT eq 14).
 """
 from __future__ import annotations
 
-import math
 import time
-from dataclasses import dataclass
-from types import SimpleNamespace
 
 import numpy as np
-import scipy.sparse as sp
-from scipy.spatial import cKDTree
 
-from workers.kernels import prt as kprt
-from workers.kernels.convergence import relative_tail
-from workers.kernels.ddgi import cage_probes, sample_irradiance
-from workers.kernels.grid import OFF, unpack_atlas
-from workers.kernels.sh import sh_count, sh_project
-from workers.kernels.shading import direct_irradiance, surface_at_hits
+from workers.kernels.grid import unpack_atlas
+from workers.kernels.prt_dataset import PrtDataset, PrtTooLarge, build_dataset, fit_targets
+from workers.kernels.prt_scenario import triangle_areas
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
-from workers.stages.light import HitSurfaces, hit_surfaces, irradiance_maps, probe_visibility
 
 PRT_SEED_SALT = 0x505254
 """Mixed with the bake seed for the stage's random stream ("PRT")."""
-CANDIDATES_PER_POINT = 5
-"""Uniform candidates per kept sample for sample elimination (Yuksel uses 5x)."""
-MAX_CANDIDATES = 2_000_000
-BATCH_BYTES = 256 << 20
-"""Bytes of per-ray radiance (P·R·3·4 per configuration) a batch of configurations may hold."""
-DATASET_BYTES = 4 << 30
-"""Refuse (StageError prt_too_large) a dataset plus DDGI matrices larger than this."""
-USABLE_TEST_CONFIGS = 64
-"""Measurement candidates must be lit by one of the first this many configurations to be kept."""
-DILATE_TEXELS = 2
-LIGHTMAP_PADDING = 2
-
-
-# ------------------------------------------------------------------------------------ DDGI as a matrix
-def ddgi_weights(points, normals, views, grid: dict, positions, states, depth, n: int, bias: float,
-                 visible=None) -> sp.csr_matrix:
-    """The DDGI sampler as a sparse matrix: ``sample_irradiance(..., maps) == W @ maps.reshape(P·(n+2)², 3)``.
-
-    ``maps`` is (P, n+2, n+2, 3) bordered octahedral irradiance; ``visible`` (N, 8) the light stage's
-    ray-traced cage visibility (:func:`workers.stages.light.probe_visibility`), passed through. The
-    sampler is linear in the maps and its weights depend only on geometry, probe positions, states,
-    depth and visibility, so they are read back from the real sampler
-    (:func:`workers.kernels.ddgi.sample_irradiance`): three calls with maps that are 1 on the probes of
-    one of the 8 grid-parity classes (the 8 probes of a cage have distinct parities) give each cage
-    probe's normalized weight; one call with maps holding their own row and column index gives the
-    bilinear footprint (the same for the 8 probes: it depends on the normal only). The cage comes from
-    :func:`workers.kernels.ddgi.cage_probes`. Returns (N, P·(n+2)²) float32 CSR with 32 stored entries a
-    row (some zero, some repeated: products sum them; 8 bytes an entry, no COO temporaries).
-    """
-    pts = np.ascontiguousarray(points, np.float32)
-    nrm = np.ascontiguousarray(normals, np.float32)
-    view = np.ascontiguousarray(views, np.float32)
-    N = pts.shape[0]
-    counts = np.asarray(grid["counts"], np.int64)
-    origin = np.asarray(grid["origin"], np.float64)
-    spacing = np.asarray(grid["spacing"], np.float64)
-    nx, ny, nz = (int(c) for c in counts)
-    P = nx * ny * nz
-    t = n + 2
-    if N == 0:
-        return sp.csr_matrix((0, P * t * t), dtype=np.float32)
-    q = np.arange(P)
-    gi, gj, gk = q % nx, (q // nx) % ny, q // (nx * ny)
-    cls = (gi & 1) | ((gj & 1) << 1) | ((gk & 1) << 2)
-
-    def sample(maps):
-        return sample_irradiance(pts, nrm, view, counts, origin, spacing, positions, states, maps, depth, bias,
-                                 visible=visible)
-
-    w8 = np.zeros((N, 8), np.float64)
-    maps = np.zeros((P, t, t, 3), np.float32)
-    for call in range(3):
-        maps[:] = 0
-        for ch in range(3):
-            k = 3 * call + ch
-            if k < 8:
-                maps[cls == k, :, :, ch] = 1.0
-        out = sample(maps)
-        for ch in range(3):
-            if 3 * call + ch < 8:
-                w8[:, 3 * call + ch] = out[:, ch]
-    maps[:] = 0
-    maps[..., 0] = np.arange(t, dtype=np.float32)[None, :, None]
-    maps[..., 1] = np.arange(t, dtype=np.float32)[None, None, :]
-    maps[..., 2] = 1.0
-    foot = sample(maps).astype(np.float64)
-    r0 = np.clip(np.floor(foot[:, 0]), 0, n).astype(np.int64)
-    c0 = np.clip(np.floor(foot[:, 1]), 0, n).astype(np.int64)
-    fr = np.clip(foot[:, 0] - r0, 0.0, 1.0)
-    fc = np.clip(foot[:, 1] - c0, 0.0, 1.0)
-    _, cage = cage_probes(pts, nrm, view, counts, origin, spacing, bias)    # (N, 8) as the sampler picks them
-    # 32 taps per row (8 corners x 4 bilinear texels), built straight into CSR: row i owns entries 32i..32i+31
-    cols = np.zeros((N, 8, 4), np.int64 if P * t * t >= 2 ** 31 else np.int32)
-    vals = np.zeros((N, 8, 4), np.float32)
-    rows = np.arange(N)
-    taps = ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc))
-    for c in range(8):
-        o = (c & 1, (c >> 1) & 1, (c >> 2) & 1)
-        if any(o[a] and counts[a] == 1 for a in range(3)):
-            continue  # duplicates corner 0 on a 1-probe axis (the sampler clamps; the class sum holds both)
-        probe = cage[:, c]
-        w = w8[rows, cls[probe]]
-        for j, (dr, dc, bw) in enumerate(taps):
-            cols[:, c, j] = probe * t * t + (r0 + dr) * t + (c0 + dc)
-            vals[:, c, j] = w * bw
-    indptr = np.arange(0, 32 * N + 1, 32, dtype=cols.dtype)
-    return sp.csr_matrix((vals.reshape(-1), cols.reshape(-1), indptr), shape=(N, P * t * t))
-
-
-# ------------------------------------------------------------------------------------- dataset solver
-def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs: np.ndarray, states: np.ndarray,
-                n: int, *, bounces: int | None, max_bounces: int, tolerance: float, sh_order: int,
-                W_texels: sp.csr_matrix | None = None):
-    """The light stage's bounce iteration (:func:`workers.stages.light.integrate`, emission 0, sky 0) for B
-    lighting configurations at once.
-
-    e_direct : (B, H, 3) direct irradiance at the front-face hits per configuration.
-    Returns ``(sh (B, P, K, 3) float32, texels (B, T, 3) float32 or None, bounces (B,) int,
-    maps (B, P, n+2, n+2, 3) float32)``: the probes' radiance SH (OFF probes 0), the DDGI irradiance at
-    the rows of ``W_texels``, the bounce count and the converged irradiance maps of each configuration.
-    Each configuration stops by the light stage's rule (fixed ``bounces``, or its own per-probe residual
-    below ``tolerance``, :func:`workers.kernels.convergence.relative_tail`, capped at ``max_bounces``).
-    """
-    P, R = surf.P, surf.R
-    B = e_direct.shape[0]
-    H = surf.index.size
-    t = n + 2
-    K = sh_count(sh_order)
-    alb = surf.albedo / np.float32(math.pi)                               # (H, 3)
-    base = (alb[:, None, :] * e_direct.transpose(1, 0, 2)).reshape(H, 3 * B).astype(np.float32)
-    rho = np.tile(alb, (1, B))
-    radiance = np.zeros((P * R, 3 * B), np.float32)                       # misses see sky 0
-    irr = np.zeros((P * t * t, 3 * B), np.float32)
-    live = np.arange(B)
-    sh_out = np.zeros((B, P, K, 3), np.float32)
-    tex_out = None if W_texels is None else np.zeros((B, W_texels.shape[0], 3), np.float32)
-    maps_out = np.zeros((B, P, t, t, 3), np.float32)
-    count = np.zeros(B, np.int64)
-    cap = bounces if bounces is not None else max_bounces
-    off = states == OFF
-    deltas: list[np.ndarray] = []
-    for b in range(1, cap + 1):
-        if b == 1:
-            radiance[surf.index] = base
-        else:
-            radiance[surf.index] = base + rho * (W @ irr)                 # albedo/π·(E_direct + E_indirect)
-        new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)   # (P, t, t, 3·live)
-        newf = new.reshape(P * t * t, -1)
-        nb = live.size
-        # per probe and configuration: the light still to come (workers.kernels.convergence, as the light stage)
-        value = np.abs(newf).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
-        deltas = (deltas + [np.abs(newf - irr).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)])[-3:]
-        residual, _ = relative_tail(deltas, value)
-        irr = newf
-        if b == cap:
-            done = np.ones(nb, bool)
-        elif bounces is None:
-            done = np.asarray(residual) < tolerance
-        else:
-            done = np.zeros(nb, bool)
-        if done.any():
-            cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
-            ids = live[done]
-            sh = sh_project(dirs, radiance[:, cols].reshape(P, R, -1), order=sh_order).astype(np.float32)
-            sh[off] = 0.0
-            sh_out[ids] = sh.reshape(P, K, -1, 3).transpose(2, 0, 1, 3)
-            maps_out[ids] = new[..., cols].reshape(P, t, t, -1, 3).transpose(3, 0, 1, 2, 4)
-            if W_texels is not None:
-                tex_out[ids] = (W_texels @ irr[:, cols]).reshape(-1, len(ids), 3).transpose(1, 0, 2)
-            count[ids] = b
-            keep = ~done
-            kc = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
-            live = live[keep]
-            deltas = [d[:, keep] for d in deltas]
-            if live.size == 0:
-                break
-            base, rho = base[:, kc], rho[:, kc]
-            radiance = np.ascontiguousarray(radiance[:, kc])
-            irr = np.ascontiguousarray(irr[:, kc])
-    return sh_out, tex_out, count, maps_out
-
-
-# ---------------------------------------------------------------------------------- measurement points
-def measurement_points(scene, m: int, s: int, rng: np.random.Generator, usable=None) -> dict:
-    """M blue-noise measurement points (M·S samples grouped by point) on the scene's front faces (PRT §4.1, §5.1).
-
-    Candidates are uniform area-weighted points (CANDIDATES_PER_POINT per sample); ``usable(position,
-    normal, albedo) -> (k,) bool`` may drop some first (the stage drops those that no configuration of
-    the scenario lights: they carry no information and would waste points, e.g. the outside of a room).
-    Sample elimination [Yuksel15] keeps M·S of them; with S > 1 the M points are a second elimination of
-    those and every sample joins its nearest point. Returns ``{"position", "normal", "albedo": (M·S, 3)
-    float32, "offsets": (M+1,) int32, "usable_fraction": float}``; point i averages rows offsets[i]:offsets[i+1].
-    """
-    tris = scene.triangles
-    area = float(kprt.triangle_areas(tris).sum())
-    fine = m * s
-    cand = min(max(CANDIDATES_PER_POINT * fine, fine), max(MAX_CANDIDATES, fine))
-    tri, u, v = kprt.area_samples(tris, cand, rng)
-    surf = surface_at_hits(scene, tri, u, v)
-    pos, nrm, alb = surf["position"], surf["normal"], surf["albedo"]
-    frac = 1.0
-    if usable is not None:
-        ok = np.asarray(usable(pos, nrm, alb), bool)
-        if ok.sum() >= fine:  # else too few usable candidates: keep them all
-            frac = float(ok.mean())
-            pos, nrm, alb = pos[ok], nrm[ok], alb[ok]
-    keep = kprt.sample_elimination(pos, fine, area * frac)                 # [Yuksel15]
-    pos, nrm, alb = pos[keep], nrm[keep], alb[keep]
-    if s == 1:
-        offsets = np.arange(m + 1, dtype=np.int32)
-    else:  # §5.1: the M points are a coarser elimination of the samples; each sample joins its nearest
-        heads = kprt.sample_elimination(pos, m, area * frac)
-        _, group = cKDTree(pos[heads].astype(np.float64)).query(pos.astype(np.float64))
-        group[heads] = np.arange(m)
-        order = np.argsort(group, kind="stable")
-        pos, nrm, alb, group = pos[order], nrm[order], alb[order], group[order]
-        offsets = np.searchsorted(group, np.arange(m + 1)).astype(np.int32)
-    return {"position": pos.astype(np.float32), "normal": nrm.astype(np.float32),
-            "albedo": alb.astype(np.float32), "offsets": offsets, "usable_fraction": frac}
-
-
-def measurement_direct(points: dict, lights: list[dict], caster, eps: float) -> np.ndarray:
-    """The direct vector x (M, 3): outgoing radiance ``albedo/π · E_direct`` averaged per point (PRT §4.3, §5.1)."""
-    e = direct_irradiance(points["position"], points["normal"], lights, caster, eps)
-    rad = points["albedo"].astype(np.float64) / math.pi * e
-    return kprt.group_mean(rad, points["offsets"])
-
-
-# -------------------------------------------------------------------------------------------- lightmap
-def _xatlas_uv(tris: np.ndarray, res: int) -> np.ndarray | None:
-    """(k, 3, 2) UVs in [0, 1] for triangles without TEXCOORD_1 (xatlas, vertices welded by position)."""
-    try:
-        import xatlas
-    except ImportError:
-        return None
-    verts = tris.reshape(-1, 3)
-    uniq, inv = np.unique(verts, axis=0, return_inverse=True)
-    atlas = xatlas.Atlas()
-    atlas.add_mesh(np.ascontiguousarray(uniq, np.float32), inv.reshape(-1, 3).astype(np.uint32))
-    po = xatlas.PackOptions()
-    po.padding = LIGHTMAP_PADDING
-    po.resolution = int(res)
-    atlas.generate(pack_options=po)
-    if atlas.atlas_count != 1:
-        vm, idx, uvs = xatlas.parametrize(np.ascontiguousarray(uniq, np.float32), inv.reshape(-1, 3).astype(np.uint32))
-    else:
-        vm, idx, uvs = atlas[0]
-    return uvs[idx].astype(np.float32)
-
-
-def lightmap_texels(scene, res: int) -> dict:
-    """Lay out the lightmap and find its texels' surface points.
-
-    Returns ``{"uv" (T, 3, 2) float32 lightmap UVs, "tri" (res, res) int32, "covered" (res, res) bool,
-    "position", "normal": (L, 3) float32 of the covered texels in row-major order, "source", "warnings"}``.
-    """
-    T = scene.n_triangles
-    warnings = []
-    tc = scene.texcoord1()
-    if tc is None:
-        uv, chart = np.zeros((T, 3, 2), np.float32), np.full(T, -1, np.int64)
-    else:
-        uv, chart = np.array(tc[0], np.float32), np.array(tc[1], np.int64)
-    missing = chart < 0
-    source = "texcoord1" if not missing.any() else ("xatlas" if missing.all() else "texcoord1+xatlas")
-    if missing.any():
-        gen = _xatlas_uv(np.asarray(scene.triangles)[missing], res)
-        if gen is None:
-            warnings.append(f"xatlas is not installed: {int(missing.sum())} triangles without TEXCOORD_1 "
-                            "are left out of the lightmap")
-        else:
-            uv[missing] = gen
-            chart[missing] = int(chart.max(initial=-1)) + 1
-    atlas_uv, density = kprt.chart_layout(scene.triangles, uv, chart, res, padding=LIGHTMAP_PADDING)
-    tri, bary = kprt.rasterize(atlas_uv, res)
-    covered = tri >= 0
-    s = surface_at_hits(scene, tri[covered], bary[covered, 0], bary[covered, 1])
-    return {"uv": atlas_uv, "tri": tri, "covered": covered, "position": s["position"], "normal": s["normal"],
-            "source": source, "texels_per_metre": density, "warnings": warnings}
-
-
-# ------------------------------------------------------------------------------------------- the stage
-def sh_volumes(slots: np.ndarray, channels: str, counts, K: int):
-    """Probe basis volumes: ``[[(name, (nz, ny, nx, 4) float32) per slot group] per SH coefficient]``.
-
-    mono: slots (n, P·K) -> volume ``prt_sh_basis_c{k}_g{g}`` holds SH coefficient k of slots 4g..4g+3
-    in RGBA (slot 0 = the mean; PRT §5.2 packing). multi: slots (n, P·K, 3) -> one volume per slot g
-    with its RGB in rgb and a = 0."""
-    nx, ny, nz = counts
-    n = slots.shape[0]
-    out = []
-    if channels == "mono":
-        vol = slots.reshape(n, nz, ny, nx, K)
-        for k in range(K):
-            out.append([(f"prt_sh_basis_c{k}_g{g}", grp) for g, grp in enumerate(kprt.pack_rgba(vol[..., k]))])
-    else:
-        vol = slots.reshape(n, nz, ny, nx, K, 3)
-        pad = np.zeros((nz, ny, nx, 1), np.float32)
-        for k in range(K):
-            out.append([(f"prt_sh_basis_c{k}_g{j}", np.concatenate([vol[j, ..., k, :], pad], axis=-1))
-                        for j in range(n)])
-    return out
-
-
-def lm_textures(images: np.ndarray, channels: str):
-    """Lightmap basis textures ``[(name, (H, W, 4) float32)]``: mono images (n, H, W) four slots per
-    texture (``prt_lm_basis_g{g}``: slots 4g..4g+3); multi images (n, H, W, 3) one slot per texture."""
-    if channels == "mono":
-        return [(f"prt_lm_basis_g{g}", grp) for g, grp in enumerate(kprt.pack_rgba(images))]
-    pad = np.zeros(images.shape[1:3] + (1,), np.float32)
-    return [(f"prt_lm_basis_g{j}", np.concatenate([images[j], pad], axis=-1)) for j in range(images.shape[0])]
-
-
-def _fit_stats(fitted: kprt.PrtFit, direct, target) -> dict:
-    s2 = fitted.singular ** 2
-    kept = min(fitted.n - 1, s2.size)
-    y = np.asarray(target, np.float64)
-    err = np.stack([kprt.reconstruct(fitted, direct[k]) - y[k] for k in range(y.shape[0])])
-    rms = float(np.sqrt(np.mean(y ** 2)))
-    energy = float(s2[:kept].sum() / s2.sum()) if s2.sum() > 0 else 1.0
-    return {"columns": fitted.columns, "outliers_dropped": fitted.dropped, "energy_kept": energy,
-            "singular_values": fitted.singular[:min(64, fitted.singular.size)].tolist(),
-            "train_rmse": float(np.sqrt(np.mean(err ** 2))), "train_rms": rms}
-
-
-@dataclass
-class PrtDataset:
-    """What the fit sees (PRT §4.1), plus what tests and benchmarks need to check it.
-
-    configs : N lists of lights; points : measurement samples (see :func:`measurement_points`);
-    direct : (N, M, 3) float64 direct vectors; sh : (N, P, K, 3) float32 probe radiance SH;
-    texels : (N, L, 3) float32 lightmap texel irradiance, or None; lightmap : :func:`lightmap_texels`
-    output or None; probes : dict of what the light stage's math needs (``surf``, ``grid``,
-    ``positions``, ``states``, ``depth``, ``dirs``, ``n``, ``bias``, ``caster``, ``eps``);
-    bounces : (N,) int; timings : dict of seconds.
-    """
-
-    configs: list
-    points: dict
-    direct: np.ndarray
-    sh: np.ndarray
-    texels: np.ndarray | None
-    lightmap: dict | None
-    probes: dict
-    bounces: np.ndarray
-    timings: dict
 
 
 def prt_dataset(ctx: StageContext) -> PrtDataset:
-    """Steps 1-3 of the module doc: scenario, measurement points and the dataset of direct/indirect pairs."""
-    sec = ctx.config.prt
-    lsec = ctx.config.light
-    scene = ctx.scene
-    timings = {}
-    t0 = time.perf_counter()
-    place = ctx.inputs["place"].stats
-    grid = {k: place[k] for k in ("counts", "origin", "spacing")}
-    tr = ctx.inputs["trace"]
-    dirs, hits, tri = tr["ray_directions"], tr["ray_hits"], tr["ray_tri"]
-    states = tr["probe_states"].reshape(-1)
-    depth = unpack_atlas(tr["depth_moments"], grid["counts"], ctx.config.trace.depth_texels + 2)
-    positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float32)
+    """Steps 1-3 (:func:`workers.kernels.prt_dataset.build_dataset`) on the bake's inputs."""
+    sec, scene, tr = ctx.config.prt, ctx.scene, ctx.inputs["trace"]
+    grid = {k: ctx.inputs["place"].stats[k] for k in ("counts", "origin", "spacing")}
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"], np.float64)
-    eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)   # as the light stage
-    n_irr = lsec.irradiance_texels
-    bias = lsec.self_shadow_bias
-    if kprt.triangle_areas(scene.triangles).sum() <= 0:
+    if triangle_areas(scene.triangles).sum() <= 0:
         raise StageError("no_surface", "the scene's triangles have no area to place measurement points on")
-    caster = caster_for_scene(scene)
-    rng = np.random.default_rng([ctx.config.seed, PRT_SEED_SALT])
-
-    # 1. lighting scenario (PRT §4.1)
     scen = sec.scenario
     box = (scen.box.min, scen.box.max) if scen.box is not None else (bounds[0], bounds[1])
-    configs = kprt.random_light_configurations(rng, scen.model_dump(), sec.configurations, box[0], box[1],
-                                               inside=caster.inside_parity, target_box=(bounds[0], bounds[1]))
-    # 2. measurement points (§4.1, §5.1), on surfaces some configuration lights
-    probe_configs = configs[:USABLE_TEST_CONFIGS]
-
-    def lit_by_scenario(pos, nrm, alb):
-        lit = np.zeros(pos.shape[0], bool)
-        for lights in probe_configs:
-            lit |= np.any(direct_irradiance(pos, nrm, lights, caster, eps) > 0, axis=1)
-        return lit & np.any(alb > 0, axis=1)
-
-    points = measurement_points(scene, sec.measurement_points, sec.supersampling, rng, usable=lit_by_scenario)
-    timings["points_seconds"] = time.perf_counter() - t0
-    ctx.report(0.05)
-
-    # 3. dataset: shading data of the cached hits once, the DDGI sampler as matrices once
-    t1 = time.perf_counter()
-    surf = hit_surfaces(scene, dirs, hits, tri)
-    visible, _ = probe_visibility(surf, grid, positions, states, caster, bias)   # as the light stage
-    W = ddgi_weights(surf.position, surf.normal, surf.view, grid, positions, states, depth, n_irr, bias, visible)
-    lm = None
-    W_lm = None
-    N = sec.configurations
-    K = sh_count(lsec.sh_order)
-    if sec.lightmap > 0:
-        lm = lightmap_texels(scene, sec.lightmap)
-    texels = int(lm["covered"].sum()) if lm is not None else 0
-    need = N * 3 * 4 * (surf.P * K + texels) + 32 * 8 * (texels + surf.index.size)
-    if need > DATASET_BYTES:
-        raise StageError("prt_too_large", f"the PRT dataset would need {need / 2 ** 30:.1f} GiB ({N} configurations "
-                         f"x ({surf.P} probes x {K} SH + {texels} lightmap texels) x 3 channels, plus the DDGI "
-                         "matrices); lower prt.configurations or prt.lightmap "
-                         f"(limit {DATASET_BYTES / 2 ** 30:.0f} GiB)")
-    if lm is not None:
-        texel_points = SimpleNamespace(position=lm["position"], normal=lm["normal"], view=lm["normal"])
-        lm["visible"], _ = probe_visibility(texel_points, grid, positions, states, caster, bias)
-        W_lm = ddgi_weights(lm["position"], lm["normal"], lm["normal"], grid, positions, states, depth, n_irr, bias,
-                            lm["visible"])
-    timings["setup_seconds"] = time.perf_counter() - t1
-    ctx.report(0.1)
-
-    t2 = time.perf_counter()
-    P, R = surf.P, surf.R
-    direct = np.zeros((N, sec.measurement_points, 3), np.float64)
-    sh_all = np.zeros((N, P, K, 3), np.float32)
-    tex_all = np.zeros((N, W_lm.shape[0], 3), np.float32) if W_lm is not None else None
-    n_bounces = np.zeros(N, np.int64)
-    batch = int(np.clip(BATCH_BYTES // max(P * R * 3 * 4, 1), 1, 64))
-    direct_s = 0.0
-    for a in range(0, N, batch):
-        ids = range(a, min(N, a + batch))
-        td = time.perf_counter()
-        e = np.stack([direct_irradiance(surf.position, surf.normal, configs[k], caster, eps) for k in ids])
-        for k in ids:
-            direct[k] = measurement_direct(points, configs[k], caster, eps)
-        direct_s += time.perf_counter() - td
-        sh, tex, cnt, _ = solve_batch(surf, W, e, dirs, states, n_irr, bounces=lsec.bounces,
-                                      max_bounces=lsec.max_bounces, tolerance=lsec.tolerance,
-                                      sh_order=lsec.sh_order, W_texels=W_lm)
-        sh_all[a:a + len(ids)] = sh
-        if tex_all is not None:
-            tex_all[a:a + len(ids)] = tex
-        n_bounces[a:a + len(ids)] = cnt
-        ctx.report(0.1 + 0.8 * min(N, a + batch) / N)
-    timings["dataset_seconds"] = time.perf_counter() - t2
-    timings["direct_seconds"] = direct_s
-    probes = {"surf": surf, "grid": grid, "positions": positions, "states": states, "depth": depth, "dirs": dirs,
-              "n": n_irr, "bias": bias, "caster": caster, "eps": eps, "visible": visible}
-    return PrtDataset(configs=configs, points=points, direct=direct, sh=sh_all, texels=tex_all, lightmap=lm,
-                      probes=probes, bounces=n_bounces, timings=timings)
-
-
-def light_stage_reference(ds: PrtDataset, lights: list[dict], light_section, lightmap: bool = True):
-    """The light stage's own computation for ``lights`` alone (emission 0, sky 0), for checking a transfer.
-
-    Runs :func:`workers.stages.light.integrate` (the light stage's bounce loop, with ``light_section``'s
-    settings) on the dataset's cached hits; returns ``(sh (P, K, 3) float32, texels (L, 3) float32 or
-    None)``: the probes' radiance SH (OFF probes 0) and the DDGI irradiance
-    (:func:`ddgi.sample_irradiance`) of the converged probes at the lightmap texels.
-    """
-    from dataclasses import replace
-
-    from workers.stages.light import integrate
-
-    pr = ds.probes
-    surf = replace(pr["surf"], emission=np.zeros_like(pr["surf"].emission))
-    e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"])
-    irr, radiance, _, _ = integrate(surf, e, pr["dirs"], (0.0, 0.0, 0.0), pr["grid"], pr["positions"], pr["states"],
-                                 pr["depth"], pr["n"], bounces=light_section.bounces,
-                                 max_bounces=light_section.max_bounces, tolerance=light_section.tolerance,
-                                 bias=pr["bias"], visible=pr["visible"])
-    sh = sh_project(pr["dirs"], radiance, order=light_section.sh_order).astype(np.float32)
-    sh[pr["states"] == OFF] = 0.0
-    tex = None
-    if lightmap and ds.lightmap is not None:
-        g = pr["grid"]
-        lm = ds.lightmap
-        tex = sample_irradiance(lm["position"], lm["normal"], lm["normal"], g["counts"], g["origin"], g["spacing"],
-                                pr["positions"], pr["states"], irr, pr["depth"], pr["bias"], visible=lm["visible"])
-    return sh, tex
+    try:
+        return build_dataset(
+            scene, caster_for_scene(scene), np.random.default_rng([ctx.config.seed, PRT_SEED_SALT]), grid=grid,
+            dirs=tr["ray_directions"], hits=tr["ray_hits"], tri=tr["ray_tri"], states=tr["probe_states"].reshape(-1),
+            depth=unpack_atlas(tr["depth_moments"], grid["counts"], ctx.config.trace.depth_texels + 2),
+            positions=ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float32),
+            bounds=bounds, scenario=scen.model_dump(), box=box, configurations=sec.configurations,
+            n_points=sec.measurement_points, supersampling=sec.supersampling, lightmap=sec.lightmap,
+            light=ctx.config.light, report=ctx.report)
+    except PrtTooLarge as e:
+        raise StageError("prt_too_large", str(e)) from None
 
 
 def run_prt(ctx: StageContext) -> StageOutput:
@@ -553,100 +79,72 @@ def run_prt(ctx: StageContext) -> StageOutput:
 
 
 def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> StageOutput:
-    """Step 4 and the artifacts: fit the basis and transfer of each target and pack them."""
-    sec = ctx.config.prt
-    lsec = ctx.config.light
+    """Step 4 (:func:`workers.kernels.prt_dataset.fit_targets`) and the artifacts."""
+    sec, lsec, timings = ctx.config.prt, ctx.config.light, dict(ds.timings)
     t0 = time.perf_counter() if t0 is None else t0
-    timings = dict(ds.timings)
-    configs, points, direct, sh_all, tex_all, lm = ds.configs, ds.points, ds.direct, ds.sh, ds.texels, ds.lightmap
-    grid = ds.probes["grid"]
-    nx, ny, nz = grid["counts"]
-    N, P, K = sh_all.shape[:3]
-    eps = ds.probes["eps"]
-    surf = ds.probes["surf"]
-    n_bounces = ds.bounces
-
-    # 4. basis and transfer per target (§4.2)
+    points, lm, (N, P, K) = ds.points, ds.lightmap, ds.sh.shape[:3]
     t3 = time.perf_counter()
-    fit_sh = kprt.fit(direct, sh_all.reshape(N, P * K, 3), sec.basis, sec.ridge, sec.gamma, sec.channels)
-    artifacts: list[Artifact] = []
-    sh_names = []
-    for k, group in enumerate(sh_volumes(fit_sh.slots, sec.channels, grid["counts"], K)):
-        sh_names.append([name for name, _ in group])
-        for g, (name, vol) in enumerate(group):
-            artifacts.append(Artifact(name, np.ascontiguousarray(vol, np.float32),
-                                      description=f"PRT probe basis: SH coefficient {k}, slot group {g}",
-                                      meta={"coefficient": k, "group": g, "channels": sec.channels}))
-    artifacts.append(Artifact("prt_sh_transfer", fit_sh.transfer, format="npy",
+    fitted = fit_targets(ds, basis=sec.basis, ridge=sec.ridge, gamma=sec.gamma, channels=sec.channels,
+                         lightmap=sec.lightmap)
+    artifacts = [Artifact(name, np.ascontiguousarray(vol, np.float32),
+                          description=f"PRT probe basis: SH coefficient {k}, slot group {g}",
+                          meta={"coefficient": k, "group": g, "channels": sec.channels})
+                 for k, group in enumerate(fitted.sh_volumes) for g, (name, vol) in enumerate(group)]
+    artifacts.append(Artifact("prt_sh_transfer", fitted.sh.transfer, format="npy",
                               description="PRT transfer to the probe SH basis coefficients (PRT eq 14)"))
-    stats_sh = _fit_stats(fit_sh, direct, sh_all.reshape(N, P * K, 3))
     lm_info = None
-    if lm is not None and tex_all is not None and tex_all.shape[1] > 0:
-        fit_lm = kprt.fit(direct, tex_all, sec.basis, sec.ridge, sec.gamma, sec.channels)
-        res = sec.lightmap
-        cov = lm["covered"]
-        c_ = 1 if sec.channels == "mono" else 3
-        imgs = np.zeros((fit_lm.n, c_, res, res), np.float32)
-        imgs[:, :, cov] = fit_lm.slots.reshape(fit_lm.n, -1, c_).transpose(0, 2, 1)
-        imgs, grown = kprt.dilate(imgs, cov, DILATE_TEXELS)                 # linear: relit maps dilate too
-        imgs = imgs[:, 0] if c_ == 1 else np.ascontiguousarray(np.moveaxis(imgs, 1, -1))
-        mask = np.where(cov, 1, np.where(grown, 2, 0)).astype(np.uint8)
-        lm_names = []
-        for name, tex in lm_textures(imgs, sec.channels):
-            lm_names.append(name)
-            artifacts.append(Artifact(name, np.ascontiguousarray(tex, np.float32),
-                                      description="PRT lightmap basis (mono: four slots per texel, slot 0 = mean)"))
+    if fitted.lm is not None:
+        artifacts += [Artifact(name, np.ascontiguousarray(tex, np.float32),
+                               description="PRT lightmap basis (mono: four slots per texel, slot 0 = mean)")
+                      for name, tex in fitted.lm.textures]
         artifacts += [
-            Artifact("prt_lm_transfer", fit_lm.transfer, format="npy",
+            Artifact("prt_lm_transfer", fitted.lm.fit.transfer, format="npy",
                      description="PRT transfer to the lightmap basis coefficients (PRT eq 14)"),
-            Artifact("prt_lm_mask", mask, description="lightmap texels: 0 empty, 1 sampled, 2 dilated"),
+            Artifact("prt_lm_mask", fitted.lm.mask, description="lightmap texels: 0 empty, 1 sampled, 2 dilated"),
             Artifact("prt_lm_uv", lm["uv"], format="npy", description="lightmap UV per triangle corner"),
         ]
-        lm_info = {"resolution": res, "texels": int(cov.sum()), "dilated": int((mask == 2).sum()),
-                   "uv_source": lm["source"], "texels_per_metre": lm["texels_per_metre"],
-                   "basis": lm_names, "transfer": "prt_lm_transfer", "mask": "prt_lm_mask", "uv": "prt_lm_uv",
-                   "unit": "irradiance (lux x colour): DDGI sample of the probes, view = normal",
-                   **_fit_stats(fit_lm, direct, tex_all)}
+        lm_info = {"resolution": sec.lightmap, "texels": int(lm["covered"].sum()),
+                   "dilated": int((fitted.lm.mask == 2).sum()), "uv_source": lm["source"],
+                   "texels_per_metre": lm["texels_per_metre"], "basis": [name for name, _ in fitted.lm.textures],
+                   "transfer": "prt_lm_transfer", "mask": "prt_lm_mask", "uv": "prt_lm_uv",
+                   "unit": "irradiance (lux x colour): DDGI sample of the probes, view = normal", **fitted.lm.stats}
     timings["fit_seconds"] = time.perf_counter() - t3
-
-    pts = points
-    table = np.concatenate([pts["position"], pts["normal"], pts["albedo"]], axis=1).astype(np.float32)
+    table = np.concatenate([points["position"], points["normal"], points["albedo"]], axis=1).astype(np.float32)
     section = {
         "version": 1, "channels": sec.channels, "gamma": sec.gamma, "ridge": sec.ridge, "basis": sec.basis,
         "configurations": N, "measurement_points": sec.measurement_points, "supersampling": sec.supersampling,
-        "shadow_eps": eps, "points": "prt_points", "point_offsets": "prt_point_offsets", "lights": "prt_lights",
+        "shadow_eps": ds.probes["eps"], "points": "prt_points", "point_offsets": "prt_point_offsets",
+        "lights": "prt_lights",
         "direct": "outgoing radiance albedo/pi * E_direct at the measurement points, averaged per point",
         "normalization": "u = T [x, |x|] per channel (row 0 gives u_0 = |x|); y = sum_j u_j * slot_j",
         "emission": "excluded (sky 0): the transfer covers the given lights only",
-        "sh": {"order": lsec.sh_order, "coefficients": K, "counts": [nx, ny, nz], "basis": sh_names,
-               "transfer": "prt_sh_transfer", "unit": "radiance SH per probe (three.js order), as probe_sh",
-               **stats_sh},
+        "sh": {"order": lsec.sh_order, "coefficients": K, "counts": list(ds.probes["grid"]["counts"]),
+               "basis": [[name for name, _ in group] for group in fitted.sh_volumes], "transfer": "prt_sh_transfer",
+               "unit": "radiance SH per probe (three.js order), as probe_sh", **fitted.sh_stats},
         "lightmap": lm_info,
     }
     artifacts += [
         Artifact("prt", section, format="json", description="PRT section: settings, sizes, artifact names"),
-        Artifact("prt_lights", {"configurations": configs}, format="json",
+        Artifact("prt_lights", {"configurations": ds.configs}, format="json",
                  description="the dataset's random lighting configurations"),
         Artifact("prt_points", table, format="npy",
                  description="measurement samples: position xyz, normal xyz, albedo rgb (grouped by point)"),
-        Artifact("prt_point_offsets", pts["offsets"], format="npy",
+        Artifact("prt_point_offsets", points["offsets"], format="npy",
                  description="point m averages samples offsets[m]:offsets[m+1]"),
     ]
     timings["total_seconds"] = time.perf_counter() - t0
     stats = {
         "enabled": True, "configurations": N, "measurement_points": sec.measurement_points,
         "supersampling": sec.supersampling, "basis": sec.basis, "channels": sec.channels,
-        "usable_surface_fraction": points["usable_fraction"], "front_hits": int(surf.index.size),
-        "bounces_mean": float(n_bounces.mean()),
-        "bounces_max": int(n_bounces.max(initial=0)),
-        "sh_energy_kept": stats_sh["energy_kept"], "sh_train_rmse": stats_sh["train_rmse"],
+        "usable_surface_fraction": points["usable_fraction"], "front_hits": int(ds.probes["surf"].index.size),
+        "bounces_mean": float(ds.bounces.mean()), "bounces_max": int(ds.bounces.max(initial=0)),
+        "sh_energy_kept": fitted.sh_stats["energy_kept"], "sh_train_rmse": fitted.sh_stats["train_rmse"],
         "lightmap_texels": lm_info["texels"] if lm_info else 0,
         "warnings": (lm["warnings"] if lm else []) + (
-            ["no configuration lit any measurement point: the transfer is zero"] if fit_sh.columns == 0 else []),
+            ["no configuration lit any measurement point: the transfer is zero"] if fitted.sh.columns == 0 else []),
         **timings,
     }
     if lm_info:
-        stats["lm_energy_kept"] = lm_info["energy_kept"]
-        stats["lm_train_rmse"] = lm_info["train_rmse"]
+        stats.update(lm_energy_kept=lm_info["energy_kept"], lm_train_rmse=lm_info["train_rmse"])
     ctx.report(1.0)
     return StageOutput(artifacts=artifacts, stats=stats)

@@ -3,15 +3,11 @@
 From the relocated positions, ``rays_per_probe`` rays per probe on a spherical Fibonacci pattern
 under a seeded random rotation (DDGI-I §3.2; one rotation for all probes, as DDGI per frame).
 
-- **Classification** (DDGI-P §6.1-6.2, Fig 10, offline subset): OFF when more than
-  ``backface_fraction`` of the rays still hit back faces (inside geometry after relocation);
-  ACTIVE when the closest front face is nearer than one cell diagonal (a surface within the probe's
-  cells: it shades surfaces); SLEEPING otherwise. (Fig 10 compares with the probe spacing; we use
-  the cell diagonal because a probe shades every point of its 8 cells.)
-- **Depth moments** (DDGI-I §3.5 eq 2, DDGI-P §4.1): per probe an octahedral ``depth_texels``²
-  map of the weighted mean of distance and distance², weight ``max(0, cos)^depth_sharpness``,
-  back-face hits shortened by 80%, misses at ``max_distance`` (the diagonal of the scene bounds
-  joined with the grid box); plus the 1-texel border (octahedral.add_border).
+- **Classification** (DDGI-P §6.1-6.2, Fig 10, offline subset; :mod:`workers.kernels.classification`):
+  OFF inside geometry, ACTIVE with a front face within one cell diagonal, SLEEPING otherwise.
+- **Depth moments** (DDGI-I §3.5 eq 2, DDGI-P §4.1; :mod:`workers.kernels.depth_moments`): per probe an
+  octahedral ``depth_texels``² map of the mean distance and distance², misses at ``max_distance`` (the
+  diagonal of the scene bounds joined with the grid box), with the 1-texel border.
 - **Hits** (internal, for the light and PRT stages): per ray the distance, triangle, barycentrics
   and back-face flag, so later stages re-shade without re-tracing.
 
@@ -24,44 +20,16 @@ from __future__ import annotations
 
 import numpy as np
 
+from workers.kernels.classification import classify
+from workers.kernels.depth_moments import depth_moments, max_ray_distance
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
-from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.materials import double_sided_triangles
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
 from workers.raycast import caster_for_scene
+from workers.raycast.probes import trace_probes
 from workers.stages.base import Artifact, StageContext, StageOutput
-from workers.stages.relocate import double_sided_triangles, trace_probes
 
 STAGE_SEED_TAG = 0x7ACE
-
-BACKFACE_SHORTEN = 0.2
-"""Back-face hit distances are multiplied by this (shortened by 80%, DDGI-P §4.1)."""
-
-
-def max_ray_distance(bounds, counts, origin, spacing) -> float:
-    """Diagonal of the scene bounds joined with the grid box, metres: the distance recorded for misses."""
-    lo = np.minimum(np.asarray(bounds[0]), np.asarray(origin))
-    hi = np.maximum(np.asarray(bounds[1]), np.asarray(origin) + np.asarray(spacing) * (np.asarray(counts) - 1))
-    return float(max(np.linalg.norm(hi - lo), 1e-3))
-
-
-def classify(t: np.ndarray, back: np.ndarray, cell_diagonal: float, backface_fraction: float) -> np.ndarray:
-    """(P,) uint8 states from the final rays (DDGI-P Fig 10). t, back : (P, R)."""
-    R = t.shape[1]
-    inside = back.sum(axis=1) / R > backface_fraction
-    closest_front = np.where(back, np.inf, t).min(axis=1)
-    states = np.where(closest_front < cell_diagonal, ACTIVE, SLEEPING).astype(np.uint8)
-    states[inside] = OFF
-    return states
-
-
-def depth_moments(t: np.ndarray, back: np.ndarray, dirs: np.ndarray, n: int, sharpness: float,
-                  max_distance: float) -> np.ndarray:
-    """(P, n+2, n+2, 2) float32 mean distance and mean squared distance per octahedral texel, with border."""
-    d = np.where(np.isfinite(t), t, max_distance)
-    d = np.minimum(np.where(back, d * BACKFACE_SHORTEN, d), max_distance)     # DDGI-P §4.1
-    values = np.stack([d, d * d], axis=-1).astype(np.float32)               # eq 2: l and l²
-    maps = accumulate_octahedral(dirs, values, oct_texel_directions(n), sharpness)
-    return add_border(maps).astype(np.float32)
 
 
 def run_trace(ctx: StageContext) -> StageOutput:

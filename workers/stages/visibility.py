@@ -16,10 +16,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from workers.kernels.materials import double_sided_triangles
 from workers.kernels.visibility import field_shape, join_slabs, slab_ranges, theta_slab
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput, samples_per_cell
-from workers.stages.relocate import double_sided_triangles
 
 ZSTD_LEVEL = 3
 

@@ -14,13 +14,13 @@ from typing import Literal
 import redis
 from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
-from pydantic import BaseModel, ConfigDict, Field
 
+from persist.catalog import TERMINAL, Catalog
+from persist.export import export_bundle
+from persist.store import Store
 from proto import bundle, cost
-from proto.catalog import TERMINAL, Catalog
 from proto.models import BakeConfig, Manifest
-from proto.stages import collect_warnings, export_bundle, finalize_bake
-from proto.store import Store
+from proto.stages import collect_warnings, finalize_bake
 from server import queue
 from server.api import deps
 from server.api.errors import ApiError
@@ -30,8 +30,9 @@ from server.api.jsonbody import FiniteJSONRoute
 from server.api.jsonbody import dumps as finite_dumps
 from server.api.files import BlobResponse
 from server.api.paging import Page, page
-from server.api.schemas import (BakeCreated, BakeDryRun, BakePublic, BakeRefused, BakeSnapshot, BakesPublic,
+from server.api.schemas import (BakeCreate, BakeCreated, BakeDryRun, BakePublic, BakeRefused, BakeSnapshot, BakesPublic,
                                 error_responses)
+from server.config import Settings
 
 log = logging.getLogger("kiln.api")
 router = APIRouter(prefix="/v1/bakes", tags=["bakes"], route_class=FiniteJSONRoute)
@@ -40,12 +41,6 @@ MEDIA = {"ktx2": "image/ktx2", "npy": "application/octet-stream", "json": "appli
          "glb": "model/gltf-binary"}
 SSE_POLL_S = 0.25
 SSE_HEARTBEAT_S = 15.0
-
-
-class BakeCreate(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    scene_id: str = Field(..., min_length=1, max_length=128)
-    config: BakeConfig = Field(default_factory=BakeConfig)
 
 
 def json_response(obj) -> Response:
@@ -183,8 +178,9 @@ _NO_BAKE = {404: "no such bake for this team"}
                         422: {"model": BakeRefused, "description": "the config refused (invalid_config, the "
                               "message names the field) or over the server's budget (over_budget, with the "
                               "estimate and the limits)"}})
-def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.team),
+def create_bake(body: BakeCreate, team: str = Depends(deps.team),
                 catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store),
+                settings: Settings = Depends(deps.settings), conn: redis.Redis = Depends(deps.redis_conn),
                 dry_run: bool = Query(False, description="only estimate the bake: 200 {estimate, limits, "
                                                          "over_budget}; nothing is recorded or started")):
     """Every bake is estimated first (``proto.cost``: probes, seconds, peak memory, artifact bytes). Over the
@@ -195,7 +191,6 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
     if scene is None:
         raise ApiError(404, "scene_not_found", f"no scene {body.scene_id}")
     body.config = review.with_review_cameras(body.config, scene)   # the scene's stored review cameras
-    settings = request.app.state.settings
     est = cost.estimate(scene, body.config)
     budget = budget_of(settings)
     over = cost.over_budget(est, budget)
@@ -228,10 +223,11 @@ def create_bake(body: BakeCreate, request: Request, team: str = Depends(deps.tea
         for (name, _), rec in zip(stages, records):
             catalog.update_stage(bake_id, name, status="succeeded", progress=1.0, seconds=rec["seconds"],
                                  cached=True, stats=rec["stats"], started=time.time(), finished=time.time())
-        finalize_bake(catalog, store, catalog.get_bake(bake_id))
+        done = finalize_bake(catalog.get_bake(bake_id), scene, store)
+        catalog.mark_succeeded(bake_id, done.manifest, done.metrics)
     else:
         try:
-            queue.enqueue_bake(request.app.state.redis, catalog.get_bake(bake_id), scene,
+            queue.enqueue_bake(conn, catalog.get_bake(bake_id), scene,
                                settings.bake_memory_bytes)
         except (redis.exceptions.ConnectionError, redis.exceptions.TimeoutError) as e:
             # Redis down: the bake is safe in the catalog; recovery enqueues it once Redis is back
@@ -268,17 +264,17 @@ def get_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = De
 
 @router.post("/{bake_id}/cancel", summary="Cancel a queued or running bake", response_model=BakePublic,
              responses=error_responses(401, _NO_BAKE, {409: "the bake has finished (bake_finished)"}, 413))
-def cancel_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
-                catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
+def cancel_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+                store: Store = Depends(deps.store), conn: redis.Redis = Depends(deps.redis_conn)):
     bake = _get(catalog, team, bake_id)
     if bake["status"] in TERMINAL:
         raise ApiError(409, "bake_finished", f"the bake is already {bake['status']}")
-    _cancel(request, catalog, bake)
+    _cancel(conn, catalog, bake)
     bake = catalog.get_bake(bake_id)
     return json_response(public(bake, store, _scene_warnings(catalog, bake)))
 
 
-def _cancel(request: Request, catalog: Catalog, bake: dict) -> None:
+def _cancel(conn: redis.Redis, catalog: Catalog, bake: dict) -> None:
     """Cancel in the catalog first (a running stage's progress callback and every later job see it), then stop
     the jobs: queued ones are cancelled, a running one's work-horse is killed by its worker at once."""
     catalog.set_bake_status(bake["id"], "cancelled", only_from=("queued", "running"))
@@ -286,20 +282,20 @@ def _cancel(request: Request, catalog: Catalog, bake: dict) -> None:
         if s["status"] in ("pending", "retrying", "running"):
             catalog.update_stage(bake["id"], s["name"], status="cancelled")
     try:
-        queue.cancel_jobs(request.app.state.redis, bake)
+        queue.cancel_jobs(conn, bake)
     except Exception as e:
         log.warning("could not cancel the jobs of bake %s (%s); they will skip it", bake["id"], e)
 
 
 @router.delete("/{bake_id}", status_code=204, summary="Delete a bake (cancelling it first)",
                response_class=Response, responses=error_responses(401, _NO_BAKE))
-def delete_bake(bake_id: str, request: Request, team: str = Depends(deps.team),
-                catalog: Catalog = Depends(deps.catalog)):
+def delete_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+                settings: Settings = Depends(deps.settings), conn: redis.Redis = Depends(deps.redis_conn)):
     bake = _get(catalog, team, bake_id)
     if bake["status"] not in TERMINAL:
-        _cancel(request, catalog, bake)
+        _cancel(conn, catalog, bake)
     catalog.delete_bake(bake_id)
-    zpath = request.app.state.settings.data / "bundles" / f"{bake_id}.zip"
+    zpath = settings.data / "bundles" / f"{bake_id}.zip"
     zpath.unlink(missing_ok=True)
     return Response(status_code=204)
 
@@ -408,12 +404,12 @@ def get_artifact(bake_id: str, name: str, request: Request, team: str = Depends(
                              "content": {"application/zip": _FILE, "multipart/byteranges": _FILE}},
                        **error_responses({400: "a malformed Range header"}, 401, _NO_BAKE,
                                          {409: "the bake has not succeeded (bake_not_finished)"}, 416)})
-def get_bundle(bake_id: str, request: Request, team: str = Depends(deps.team),
-               catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
+def get_bundle(bake_id: str, team: str = Depends(deps.team), catalog: Catalog = Depends(deps.catalog),
+               store: Store = Depends(deps.store), settings: Settings = Depends(deps.settings)):
     bake = _get(catalog, team, bake_id)
     if bake["status"] != "succeeded":
         raise ApiError(409, "bake_not_finished", f"the bake is {bake['status']}; the bundle exists once it succeeds")
-    zdir = request.app.state.settings.data / "bundles"
+    zdir = settings.data / "bundles"
     zpath = zdir / f"{bake_id}.zip"
     if not zpath.exists():
         with tempfile.TemporaryDirectory(dir=store.root / "tmp") as work:

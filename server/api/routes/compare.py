@@ -21,7 +21,7 @@ import math
 
 from fastapi import APIRouter, Depends, Query
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 from server.api.deps import catalog, team
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute

@@ -3,35 +3,38 @@ from __future__ import annotations
 
 from typing import Any
 
+import redis
 from fastapi import APIRouter, Depends, Request, Response
 from prometheus_client import CollectorRegistry, generate_latest
 from prometheus_client.core import GaugeMetricFamily, SummaryMetricFamily
 
+from persist.catalog import Catalog
 from proto.models import BakeConfig
 from server import queue
 from server.api import deps
 from server.api.jsonbody import FiniteJSONRoute
 from server.api.schemas import Health, error_responses
+from server.config import Settings
 
 router = APIRouter(tags=["ops"], route_class=FiniteJSONRoute)
 
 
 @router.get("/healthz", summary="Liveness and dependencies", response_model=Health)
-def healthz(request: Request):
-    st = request.app.state
+def healthz(settings: Settings = Depends(deps.settings), catalog: Catalog = Depends(deps.catalog),
+            conn: redis.Redis = Depends(deps.redis_conn)):
     redis_ok = True
     try:
-        st.redis.ping()
+        conn.ping()
     except Exception:
         redis_ok = False
     try:
-        st.catalog.count_bakes_by_status()
+        catalog.count_bakes_by_status()
         catalog_ok = True
     except Exception:
         catalog_ok = False
     ok = redis_ok and catalog_ok
     return {"status": "ok" if ok else "degraded", "redis": redis_ok, "catalog": catalog_ok,
-            "auth": "open" if st.settings.open else "api-keys"}
+            "auth": "open" if settings.open else "api-keys"}
 
 
 class _Collector:
@@ -73,9 +76,9 @@ class _Collector:
             responses={200: {"description": "Prometheus text format 0.0.4",
                              "content": {"text/plain; version=0.0.4; charset=utf-8": {"schema": {"type": "string"}}}},
                        **error_responses(401)})
-def metrics(request: Request, team: str = Depends(deps.team)):
+def metrics(request: Request, team: str = Depends(deps.team), settings: Settings = Depends(deps.settings)):
     reg = CollectorRegistry()
-    reg.register(_Collector(request.app, None if request.app.state.settings.open else team))
+    reg.register(_Collector(request.app, None if settings.open else team))
     return Response(generate_latest(reg), media_type="text/plain; version=0.0.4; charset=utf-8")
 
 

@@ -25,25 +25,16 @@ import json
 import re
 
 from fastapi import APIRouter, Depends
-from pydantic import BaseModel, ConfigDict, Field
 
-from proto.catalog import Catalog
-from proto.models import BakeConfig, CameraSpec
-from proto.store import Store
+from persist.catalog import Catalog
+from persist.store import Store
+from proto.models import BakeConfig
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
-from server.api.schemas import SceneCameras, error_responses
+from server.api.schemas import CamerasBody, SceneCameras, error_responses
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"], route_class=FiniteJSONRoute)
-
-MAX_REVIEW_CAMERAS = 16
-
-
-class CamerasBody(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    cameras: list[CameraSpec] = Field(..., max_length=MAX_REVIEW_CAMERAS,
-                                      description="review cameras (an empty list removes the stored ones)")
 
 
 def _named(cameras: list[dict]) -> list[dict]:

@@ -8,15 +8,15 @@ from pathlib import Path
 
 from fastapi import APIRouter, Depends, Request, Response
 
-from proto.catalog import Catalog
-from proto.store import Store
+from persist.catalog import Catalog
+from persist.store import Store
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
 from server.api.paging import Page, page
 from server.api.schemas import ScenePublic, ScenesPublic, error_responses
 from server.config import Settings
-from server.ingest_pool import UploadsBusy
+from server.ingest_pool import IngestPool, UploadsBusy
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"], route_class=FiniteJSONRoute)
 
@@ -150,15 +150,13 @@ UPLOAD_PARAMETERS = [
                                                      "KILN_MAX_SCENE_MB / the triangle limit"},
                                           415, {422: "not a valid scene (the code names why: workers/gltf/errors.py "
                                                      "ERROR_CODES)"}, 429)})
-async def upload_scene(request: Request, team: str = Depends(deps.team)):
+async def upload_scene(request: Request, team: str = Depends(deps.team), settings: Settings = Depends(deps.settings),
+                       catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store),
+                       pool: IngestPool = Depends(deps.ingest_pool)):
     """Admission first, before any body byte is read: the team's concurrent uploads (429 with Retry-After,
     ``KILN_MAX_UPLOADS_PER_TEAM``) and its quotas (429 ``quota_exceeded``). The body streams to disk within
     ``KILN_MAX_UPLOAD_MB`` and ``KILN_INGEST_TIMEOUT_S``; a parser child reads it (killed past the timeout or when
     the client goes away); the normalized scene must stay within ``KILN_MAX_SCENE_MB`` and the quota."""
-    settings: Settings = request.app.state.settings
-    catalog: Catalog = request.app.state.catalog
-    store: Store = request.app.state.store
-    pool = request.app.state.ingest_pool
     await asyncio.to_thread(_check_upload_quota, settings, catalog, store, team)
     try:
         admitted = pool.admit(team)

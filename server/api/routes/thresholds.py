@@ -15,25 +15,15 @@ does not parse, and answers like GET. Another team's scene reads as 404, as ever
 from __future__ import annotations
 
 from fastapi import APIRouter, Depends, Query
-from pydantic import BaseModel, ConfigDict, Field
 
-from proto.catalog import Catalog
+from persist.catalog import Catalog
 from server import gates
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
-from server.api.schemas import SceneThresholds, error_responses
+from server.api.schemas import SceneThresholds, ThresholdsBody, error_responses
 
 router = APIRouter(prefix="/v1/scenes", tags=["scenes"], route_class=FiniteJSONRoute)
-
-MAX_THRESHOLDS = 32
-
-
-class ThresholdsBody(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    thresholds: list[str] = Field(..., max_length=MAX_THRESHOLDS,
-                                  description=f"gates, {gates.GRAMMAR} (an empty list removes the stored ones)",
-                                  examples=[["mask_normalized.leak > 0.05", "*.rmse >= 0.2"]])
 
 
 def _scene(catalog: Catalog, team: str, scene_id: str) -> dict:

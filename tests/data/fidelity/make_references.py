@@ -704,7 +704,10 @@ def _r(x, digits=6):
 
 def reference(scene: str, material: str, samples: int, seeds: list[int], timeout: float, work: Path,
               reuse: bool = False, emit_seeds: int | None = None, direct_samples: int = 1024,
-              direct_seeds: int = 1) -> dict:
+              direct_seeds: int = 1, points_file: Path | None = None) -> dict:
+    """The Cycles reference of ``scene`` at the points of ``points_file`` (default: ``<scene>.points.json`` here)."""
+    points_file = points_file or HERE / f"{scene}.points.json"
+    tag = "" if points_file.parent == HERE else f"{points_file.parent.name}."   # work-file names of another set
     external = scene in EXTERNAL
     fix = None
     if external:
@@ -714,7 +717,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
         if EXTERNAL[scene].get("drop_coincident"):
             base, fix = drop_coincident(src)
             (work / f"{scene}.clean.glb").write_bytes(base)
-            pts_ = np.asarray(json.loads((HERE / f"{scene}.points.json").read_text())["points"], np.float64)
+            pts_ = np.asarray(json.loads(points_file.read_text())["points"], np.float64)
             fix["check"] = same_surfaces(external_path(scene), work / f"{scene}.clean.glb", pts_)
             print(f"  {scene}: dropped {fix['dropped']} coincident triangles for Cycles ({fix['by_material']}); "
                   f"Kiln's rays from the check points: {fix['check']}", flush=True)
@@ -727,11 +730,11 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
         sky = [0.0, 0.0, 0.0]
     glb = work / f"{scene}.glb"
     glb.write_bytes(data)
-    pdoc = json.loads((HERE / f"{scene}.points.json").read_text())
+    pdoc = json.loads(points_file.read_text())
     if pdoc["glb_sha256"] != hashlib.sha256(src).hexdigest() \
             or (external and pdoc.get("config") != EXTERNAL[scene]["config"]):
         raise RuntimeError(f"{scene}.points.json was made for another version of the scene: rerun --points-only")
-    pts = work / f"{scene}.points.json"
+    pts = work / f"{scene}.{tag}points.json"
     pts.write_text(json.dumps({"points": pdoc["points"]}))
     emit = has_emitters(data)
     use_sky = max(sky) > 0
@@ -742,7 +745,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
         (work / f"{scene}.emit.glb").write_bytes(_strip_punctual(data))
     runs, walls, emit_runs, emit_walls, direct_runs, direct_walls = [], [], [], [], [], []
     for seed in seeds:
-        out = work / f"{scene}.{material}.{seed}.json"
+        out = work / f"{scene}.{tag}{material}.{seed}.json"
         res, wall = run_oracle(glb, pts, out, samples=samples, seed=seed, material=material, timeout=timeout,
                                log=work / f"{out.stem}.log", reuse=reuse, sky=sky)
         runs.append(res)
@@ -750,7 +753,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
         print(f"  {scene} {material} seed {seed}: {wall:.0f} s wall ({res['bake_s']:.0f} s baking), "
               f"{res['n_receivers']} receivers{f', sky {sky}' if use_sky else ''}", flush=True)
         if use_sky and len(direct_runs) < direct_seeds:
-            out = work / f"{scene}.{material}.{seed}.sky0.json"
+            out = work / f"{scene}.{tag}{material}.{seed}.sky0.json"
             res, wall = run_oracle(glb, pts, out, samples=direct_samples, seed=seed, material=material,
                                    timeout=timeout, log=work / f"{out.stem}.log", reuse=reuse)
             direct_runs.append(res)
@@ -758,7 +761,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
             print(f"  {scene} {material} seed {seed} (sky 0, {direct_samples} spp: the lights' direct light): "
                   f"{wall:.0f} s", flush=True)
         if emit and (emit_seeds is None or len(emit_runs) < emit_seeds):
-            out = work / f"{scene}.{material}.{seed}.emit.json"
+            out = work / f"{scene}.{tag}{material}.{seed}.emit.json"
             res, wall = run_oracle(work / f"{scene}.emit.glb", pts, out, samples=samples, seed=seed,
                                    material=material, timeout=timeout, log=work / f"{out.stem}.log", reuse=reuse)
             emit_runs.append(res)

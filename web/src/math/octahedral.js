@@ -1,6 +1,7 @@
 /**
  * CPU mirror of proto/glsl/octahedral.glsl and of workers/kernels/octahedral.py: octahedral encoding with
- * the fold on +Z (Cigolle et al. 2014) and the atlas tiling of proto/bundle.md 5.1.
+ * the fold on +Z (Cigolle et al. 2014; the octahedral probe maps of DDGI-I §3.1) and the atlas tiling of
+ * proto/bundle.md 5.1.
  */
 
 const signNotZero = (v) => (v >= 0 ? 1 : -1);

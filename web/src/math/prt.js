@@ -70,7 +70,7 @@ export function directVector(table, offsets, lights) {
       bl += table[o + 8] / Math.PI * e[2];
     }
     const cnt = Math.max(1, b - a);
-    x[m * 3] = r / cnt; x[m * 3 + 1] = g / cnt; x[m * 3 + 2] = bl / cnt;
+    x[m * 3] = r / cnt; x[m * 3 + 1] = g / cnt; x[m * 3 + 2] = bl / cnt;  // x, the direct vector (PRT §3, §4.3)
   }
   return x;
 }
@@ -91,7 +91,7 @@ export function relightCoefficients(transfer, n, x) {
     for (let j = 0; j < n; j++) {
       const row = (c * n + j) * (M + 1);
       let s = transfer[row + M] * norm;
-      for (let m = 0; m < M; m++) s += transfer[row + m] * x[m * 3 + c];
+      for (let m = 0; m < M; m++) s += transfer[row + m] * x[m * 3 + c];  // u = M_n x (PRT eq 10), + the ‖x‖ intercept
       u[j * 3 + c] = s;
     }
   }

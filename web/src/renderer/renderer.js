@@ -11,12 +11,10 @@ import { formatCompileErrors } from './preprocess.js';
 import { GLSL_SOURCES, shaderSource } from './shaders.js';
 import { preprocess } from './preprocess.js';
 import probeClusterFrag from './glsl/probe_cluster.frag.glsl?raw';
-import { MODE_SAMPLERS } from '../state/modes.js';
+import { MASK_BLEND, MASK_SEEN_THRESHOLD, MAX_LIGHTS, MODE_SAMPLERS, PRT_MAX_GROUPS } from '../state/modes.js';
 import { FrameTimer } from './timer.js';
 import { ShadowMaps } from './shadows.js';
 
-export const MAX_LIGHTS = 8;
-export const PRT_MAX_GROUPS = 16;  // mode_prt.glsl KILN_PRT_MAX_GROUPS
 const LIGHT_TYPES = { point: 0, spot: 1, directional: 2 };
 const OUTPUTS = { shaded: 0, indirect: 1, direct: 2, albedo: 3 };
 
@@ -68,6 +66,8 @@ export class GIRenderer {
       uMaskT: { value: 2 },
       uMaskLo: { value: 0 },
       uMaskOffset: { value: 0 },
+      uMaskSeen: { value: MASK_SEEN_THRESHOLD },
+      uMaskBlend: { value: new Float32Array(MASK_BLEND) },
       uPrtGroups: { value: 0 },
       uPrtCoef: { value: new Float32Array(3 * PRT_MAX_GROUPS * 4) },
       ...ShadowMaps.uniforms(MAX_LIGHTS),

@@ -73,10 +73,12 @@ export const FIELD_UI = {
   'evaluate.width': { label: 'Width', unit: 'px', advanced: true },
   'evaluate.height': { label: 'Height', unit: 'px', advanced: true },
   'evaluate.fov_y': { label: 'Field of view', unit: '°', advanced: true },
-  'evaluate.spp': { label: 'Reference samples per pixel' },
+  'evaluate.spp': { label: 'Reference paths per point' },
+  'evaluate.check_spp': { label: 'Reference paths per check point', advanced: true },
+  'evaluate.dark_spp': { label: 'Reference paths at dark points', help: 'where the leak metrics are measured', advanced: true },
   'evaluate.bounces': { label: 'Reference bounces', advanced: true },
   'evaluate.modes': { label: 'GI modes to check', advanced: true },
-  'evaluate.repeats': { label: 'Timing repeats', advanced: true },
+  'evaluate.repeats': { label: 'Timing repeats', help: '0: time the preview itself', advanced: true },
   'evaluate.flip': { label: 'FLIP metric', help: 'slow on large images', advanced: true },
 };
 

@@ -3,19 +3,29 @@
  * its shader reads. A mode lights up when every artifact it needs is in the bake's `artifacts` list AND its
  * shader file exists in proto/glsl; otherwise the UI says why ("not baked" / "shader not written yet").
  *
- * `needs` entries are artifact names, or {prefix} for families (`cluster_sh_<k>_<c>`, `prt_*`). The mask and
- * PRT modes list what workers/stages/{masks,compress,prt}.py write; their bindings copy
- * workers/render/shading.py prepare_mode (proto/glsl/README.md "Texture bindings of the new modes").
- * `textures` (an object, or a function of the bake's artifact names and the artifacts loaded so far) maps a
- * sampler uniform to an artifact and how to upload it: 'volume' (3D, linear filtering, CLAMP_TO_EDGE),
- * 'volume-nearest', 'atlas' (2D, linear), 'stack' (a list of probe volumes concatenated along z:
- * gi_grid.glsl giStackedUVW) or 'probe-data' ([relocated positions, states] -> RGBA32F xyz + non-OFF flag,
- * NEAREST). `uniforms({grid, names, info, artifacts})` gives the mode's other uniforms, as
- * workers/render/shading.py prepare_mode binds them. `defines(names, artifacts, caps)` (optional) gives the
- * preprocessor #defines of the mode's shader: KILN_SH_L2 where the bake has the L2 volumes (shOrder below).
+ * The mode table is proto/gi_modes.json, one file with the Python renderer (workers/render/shading.py prepare_mode
+ * reads it through proto/gi_modes.py): per mode its shader, `needs` (artifact names; `prefix*` for families such as
+ * `cluster_sh_<k>_<c>`), its textures (sampler uniform -> artifact names and kind), the names of its other uniforms
+ * and its #defines; with it the shared constants (DDGI-P eq 2's B default and 0.75, the mask lookup offset, limits).
+ * Here each mode gets `needs` as {prefix} objects, `textures(names, artifacts, caps)` -> {uniform: [artifact name |
+ * names, kind]} with kind 'volume' (3D, linear filtering, CLAMP_TO_EDGE), 'volume-nearest', 'atlas' (2D, linear),
+ * 'stack' (a list of probe volumes concatenated along z: gi_grid.glsl giStackedUVW) or 'probe-data' ([relocated
+ * positions, states] -> RGBA32F xyz + non-OFF flag, NEAREST), `defines(names, artifacts, caps)` (KILN_SH_L2 where the
+ * bake has the L2 volumes, shOrder below; KILN_MASK_CLUSTERS = K) and `uniforms({grid, names, bake, info,
+ * artifacts, caps})`, the values of the uniforms the table lists, computed as workers/render/shading.py does.
  */
 import { atlasColumns } from '../math/atlas.js';
-const CHANNELS = ['r', 'g', 'b'];
+import spec from '../../../proto/gi_modes.json';
+
+const CONST = Object.fromEntries(Object.entries(spec.constants).map(([k, v]) => [k, v.value]));
+const CHANNELS = spec.patterns.channels;
+
+/** The mode table of proto/gi_modes.json by id (shader, needs, textures, uniforms, defines). */
+export const MODE_SPECS = Object.fromEntries(spec.modes.map((m) => [m.id, m]));
+
+/** Lights a shading pass takes (lights.glsl MAX_LIGHTS) and PRT basis groups of 4 (mode_prt.glsl KILN_PRT_MAX_GROUPS). */
+export const MAX_LIGHTS = CONST.max_lights;
+export const PRT_MAX_GROUPS = CONST.prt_max_groups;
 
 /** K, the number of clusters: cluster_sh_{k}_r for k = 0, 1, ... in the artifact names. */
 export function clusterCount(names) {
@@ -25,43 +35,51 @@ export function clusterCount(names) {
   return k;
 }
 
-/** The `cluster_sh_{k}_{c}` names in stacking order (k0 r, k0 g, k0 b, k1 r, ...: gi_mask.glsl). */
-const clusterShNames = (names) => Array.from({ length: clusterCount(names) }, (_, k) => CHANNELS.map((c) => `cluster_sh_${k}_${c}`)).flat();
-
-/** The `cluster_sh_l2_{k}` names in stacking order (gi_mask.glsl uClusterShL2). */
-const clusterShL2Names = (names) => Array.from({ length: clusterCount(names) }, (_, k) => `cluster_sh_l2_${k}`);
+/**
+ * Artifact names of a proto/gi_modes.json pattern: {k} over the clusters 0..K-1, {c} over r, g, b, {q} over the
+ * groups of 4 clusters ('0123', '4567'); the first placeholder varies slowest (proto/gi_modes.py expand).
+ */
+export function expandPattern(pattern, K) {
+  const values = { k: Array.from({ length: K }, (_, k) => String(k)), c: CHANNELS,
+    q: spec.patterns.cluster_groups.slice(0, Math.ceil(K / 4)) };
+  let out = [pattern];
+  for (const [, key] of pattern.matchAll(/\{([kcq])\}/g)) {
+    out = out.flatMap((n) => values[key].map((v) => n.replace(`{${key}}`, v)));
+  }
+  return out;
+}
 
 /**
- * Deepest stacked 3D texture built for L2 cluster volumes without knowing the device (workers/render/shading.py
- * MAX_3D_TEXTURE_DEPTH); the viewer passes the device's MAX_3D_TEXTURE_SIZE as caps.max3D.
+ * Deepest stacked 3D texture built for L2 cluster volumes without knowing the device (proto/gi_modes.json
+ * max_3d_texture_depth); the viewer passes the device's MAX_3D_TEXTURE_SIZE as caps.max3D.
  */
-export const MAX_3D_TEXTURE_DEPTH = 2048;
+export const MAX_3D_TEXTURE_DEPTH = CONST.max_3d_texture_depth;
 
 /**
  * SH order a mode shades with for a bake (docs/architecture.md "Runtime SH evaluation"): 2 where the bake has the
- * L2 volumes the mode reads (leaking: `sh_l2`; mask modes: `cluster_sh_l2_{k}` for every cluster, their stack of
- * 7·K·(nz + 2) slices within caps.max3D when caps.nz is known; prt: the 9 coefficients of an L2 basis), else 1.
- * caps.shOrder = 1 forces L1. As workers/render/shading.py prepare_mode decides.
+ * L2 volumes the mode reads (its `l2_needs`: leaking `sh_l2`; mask modes `cluster_sh_l2_{k}` for every cluster, their
+ * stack of 7·K·(nz + 2) slices within caps.max3D when caps.nz is known; prt: the 9 coefficients of an L2 basis),
+ * else 1. caps.shOrder = 1 forces L1. As workers/render/shading.py prepare_mode decides.
  */
 export function shOrder(modeId, names = [], artifacts = {}, caps = {}) {
   if (caps.shOrder === 1) return 1;
   const set = new Set(names);
-  if (modeId === 'leaking') return set.has('sh_l2') ? 2 : 1;
-  if (modeId === 'mask' || modeId === 'mask_normalized') {
-    const K = clusterCount(names);
-    if (!K || !clusterShL2Names(names).every((n) => set.has(n))) return 1;
-    const depth = caps.nz ? 7 * K * (caps.nz + 2) : 0;
-    return depth <= (caps.max3D || MAX_3D_TEXTURE_DEPTH) ? 2 : 1;
-  }
   if (modeId === 'prt') {
     const basis = artifacts.prt?.sh?.basis;
     if (basis) return basis.length === 9 ? 2 : 1;
     return names.some((n) => /^prt_sh_basis_c8_/.test(n)) ? 2 : 1;
   }
-  return 1;
+  const need = MODE_SPECS[modeId]?.l2_needs;
+  if (!need) return 1;
+  const K = clusterCount(names);
+  if (need.some((p) => p.includes('{')) && !K) return 1;
+  if (!need.flatMap((p) => expandPattern(p, K)).every((n) => set.has(n))) return 1;
+  if (modeId === 'mask' || modeId === 'mask_normalized') {
+    const depth = caps.nz ? 7 * K * (caps.nz + 2) : 0;
+    return depth <= (caps.max3D || MAX_3D_TEXTURE_DEPTH) ? 2 : 1;
+  }
+  return 2;
 }
-
-const l2Defines = (id) => (names, artifacts, caps) => (shOrder(id, names, artifacts, caps) === 2 ? { KILN_SH_L2: true } : {});
 
 /** The probe spheres' SH colouring reads the L1 volumes (probe.frag.glsl, texelFetch per probe). */
 export const PROBE_SH_TEXTURES = { uShR: ['sh_l1_r', 'volume'], uShG: ['sh_l1_g', 'volume'], uShB: ['sh_l1_b', 'volume'] };
@@ -91,26 +109,41 @@ export function maskParams({ names, info, bake, grid }) {
 }
 
 /**
- * uMaskOffset: refined samples the mask lookup moves along n + v (per axis; workers/kernels/samplers.MASK_OFFSET_SAMPLES,
- * proto/glsl/gi_mask.glsl). A constant: the lookup works in the refined grid's own units.
+ * uMaskOffset: refined samples the mask lookup moves along n + v (per axis; proto/gi_modes.json mask_offset_samples,
+ * as workers/kernels/samplers.py and proto/glsl/gi_mask.glsl read it). A constant: the lookup works in the refined
+ * grid's own units.
  */
-export const MASK_OFFSET_SAMPLES = 1.0;
-
-/** The mask modes' cluster SH binding: the L2 stack (uClusterShL2) or the L1 one (uClusterSh). */
-function clusterShTextures(id, names, artifacts, caps) {
-  return shOrder(id, names, artifacts, caps) === 2 ? { uClusterShL2: [clusterShL2Names(names), 'stack'] }
-    : { uClusterSh: [clusterShNames(names), 'stack'] };
-}
+export const MASK_OFFSET_SAMPLES = CONST.mask_offset_samples;
+/** uMaskSeen, uMaskBlend: the mask lookup's both-sides blend (proto/gi_modes.json mask_seen_threshold, mask_blend;
+ * workers/kernels/compress.py lookup_blend). */
+export const MASK_SEEN_THRESHOLD = CONST.mask_seen_threshold;
+export const MASK_BLEND = CONST.mask_blend;
 
 function maskUniforms(ctx) {
   const { S, T, lo } = maskParams(ctx);
-  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo, uMaskOffset: MASK_OFFSET_SAMPLES };
+  return { uClusterCount: clusterCount(ctx.names), uMaskS: S, uMaskT: T, uMaskLo: lo, uMaskOffset: MASK_OFFSET_SAMPLES,
+    uMaskSeen: MASK_SEEN_THRESHOLD, uMaskBlend: MASK_BLEND };
 }
 
-/** uDdgiBias = 0.75 · D · 0.3, D = min spacing over axes with spacing > 0 (workers/kernels/ddgi.bias_scale). */
-export function ddgiBias(spacing, selfShadowBias = 0.3) {
+/** B of DDGI-P eq 2 where a bake does not give light.self_shadow_bias (proto/gi_modes.json self_shadow_bias). */
+export const SELF_SHADOW_BIAS = CONST.self_shadow_bias;
+
+/**
+ * B of DDGI-P eq 2 for a bake: its config's light.self_shadow_bias (the bake record's or the manifest's config, as
+ * the evaluate stage reads it), else SELF_SHADOW_BIAS (proto/gi_modes.py self_shadow_bias).
+ */
+export function selfShadowBias(bake) {
+  const b = bake?.config?.light?.self_shadow_bias;
+  return b === undefined || b === null ? SELF_SHADOW_BIAS : Number(b);
+}
+
+/**
+ * uDdgiBias = 0.75 · D · B (metres; DDGI-P eq 2), D = min spacing over axes with spacing > 0
+ * (workers/kernels/ddgi.bias_scale; 0.75 is proto/gi_modes.json bias_spacing_fraction).
+ */
+export function ddgiBias(spacing, selfShadowBiasB = SELF_SHADOW_BIAS) {
   const pos = (spacing || []).filter((s) => s > 0);
-  return 0.75 * (pos.length ? Math.min(...pos) : 0) * selfShadowBias;
+  return CONST.bias_spacing_fraction * (pos.length ? Math.min(...pos) : 0) * selfShadowBiasB;  // DDGI-P eq 2
 }
 
 /**
@@ -123,84 +156,83 @@ export function prtBasisNames(section, caps = {}) {
   return section.sh.basis.slice(0, C).flat();
 }
 
-export const GI_MODES = [
-  { id: 'direct', label: 'Direct only', shader: 'mode_direct.glsl', needs: [], textures: {} },
-  {
-    id: 'leaking', label: 'Leaking SH', shader: 'mode_leaking.glsl',
-    needs: ['sh_l1_r', 'sh_l1_g', 'sh_l1_b'],
-    // L2 (sh_l2, three.js LightProbeGrid layout, one texture) where the bake has it, else the L1 volumes
-    textures: (names, artifacts, caps) => (shOrder('leaking', names, artifacts, caps) === 2
-      ? { uShL2: ['sh_l2', 'volume'] } : { ...PROBE_SH_TEXTURES }),
-    defines: l2Defines('leaking'),
+/**
+ * A mode's {uniform: [artifact name | names, kind]} from proto/gi_modes.json for a bake's artifact names (as
+ * proto/gi_modes.py texture_bindings): the textures of the mode's SH order, those with min_clusters only with that
+ * many clusters; a one-artifact binding as the name, a stack or probe data as the list. The PRT basis comes from
+ * the `prt` section once loaded, before that from the names.
+ */
+function tableTextures(id, names, artifacts, caps) {
+  const order = shOrder(id, names, artifacts, caps);
+  const K = clusterCount(names);
+  const out = {};
+  for (const t of MODE_SPECS[id].textures) {
+    if ((t.sh_order ?? order) !== order || K < (t.min_clusters ?? 0)) continue;
+    let list;
+    if (t.artifacts.length === 1 && t.artifacts[0] === 'prt.sh.basis') {
+      list = artifacts.prt ? prtBasisNames(artifacts.prt, caps)
+        : names.filter((n) => (order === 2 ? /^prt_sh_basis_c[0-8]_/ : /^prt_sh_basis_c[0-3]_/).test(n));
+    } else list = t.artifacts.flatMap((p) => expandPattern(p, K));
+    out[t.uniform] = [list.length === 1 && t.kind !== 'stack' ? list[0] : list, t.kind];
+  }
+  return out;
+}
+
+/** A mode's #defines from proto/gi_modes.json: KILN_SH_L2 (bare) at SH order 2, KILN_MASK_CLUSTERS = K. */
+function tableDefines(id, names, artifacts, caps) {
+  const out = {};
+  for (const [name, rule] of Object.entries(MODE_SPECS[id].defines)) {
+    if (rule === 'sh_order == 2') {
+      if (shOrder(id, names, artifacts, caps) === 2) out[name] = true;
+    } else if (rule === 'K') out[name] = clusterCount(names);
+    else throw new Error(`proto/gi_modes.json: unknown define rule ${rule}`);
+  }
+  return out;
+}
+
+/** The values of the uniforms proto/gi_modes.json lists for each mode (shading.py prepare_mode computes the same). */
+const UNIFORMS = {
+  // caps.maxTexture: the device's MAX_TEXTURE_SIZE; a wider atlas is bound re-packed (renderer/textures.js
+  // wrapAtlas, kind 'atlas') and these columns tell the shader its layout (shading.py wrap_atlas). B from the bake.
+  ddgi: ({ grid, bake, artifacts, caps = {} }) => {
+    const ny = grid.counts[1];
+    const tIrr = Math.floor(artifacts.irradiance.height / ny);
+    const tDep = Math.floor(artifacts.depth_moments.height / ny);
+    const max = caps.maxTexture || Infinity;
+    return {
+      uDdgiBias: ddgiBias(grid.spacing, selfShadowBias(bake)), uIrradianceTexels: tIrr - 2, uDepthTexels: tDep - 2,
+      uIrradianceColumns: atlasColumns(artifacts.irradiance.width, tIrr, max),
+      uDepthColumns: atlasColumns(artifacts.depth_moments.width, tDep, max),
+    };
   },
-  {
-    // workers/render/shading.py prepare_mode("ddgi")
-    id: 'ddgi', label: 'DDGI (ray-traced visibility)', shader: 'mode_ddgi.glsl',
-    needs: ['irradiance', 'depth_moments', 'probe_positions_relocated', 'probe_states'],
-    textures: {
-      uIrradianceAtlas: ['irradiance', 'atlas'], uDepthAtlas: ['depth_moments', 'atlas'],
-      uProbeData: [['probe_positions_relocated', 'probe_states'], 'probe-data'],
-    },
-    // caps.maxTexture: the device's MAX_TEXTURE_SIZE; a wider atlas is bound re-packed (renderer/textures.js
-    // wrapAtlas, kind 'atlas') and these columns tell the shader its layout (shading.py wrap_atlas)
-    uniforms: ({ grid, artifacts, caps = {} }) => {
-      const ny = grid.counts[1];
-      const tIrr = Math.floor(artifacts.irradiance.height / ny);
-      const tDep = Math.floor(artifacts.depth_moments.height / ny);
-      const max = caps.maxTexture || Infinity;
-      return {
-        uDdgiBias: ddgiBias(grid.spacing), uIrradianceTexels: tIrr - 2, uDepthTexels: tDep - 2,
-        uIrradianceColumns: atlasColumns(artifacts.irradiance.width, tIrr, max),
-        uDepthColumns: atlasColumns(artifacts.depth_moments.width, tDep, max),
-      };
-    },
-  },
-  {
-    // workers/render/shading.py prepare_mode("mask")
-    id: 'mask', label: 'Mask GI', shader: 'mode_mask.glsl',
-    needs: ['mask_indirection', 'mask_atlas_0123', { prefix: 'cluster_sh_' }],
-    textures: (names, artifacts, caps) => ({
-      uMaskIndirection: ['mask_indirection', 'volume-nearest'], uMaskAtlas0123: ['mask_atlas_0123', 'volume'],
-      ...(clusterCount(names) > 4 ? { uMaskAtlas4567: ['mask_atlas_4567', 'volume'] } : {}),
-      ...clusterShTextures('mask', names, artifacts, caps),
-    }),
-    defines: l2Defines('mask'),
-    uniforms: maskUniforms,
-  },
-  {
-    id: 'mask_normalized', label: 'Mask GI (normalized)', shader: 'mode_mask_normalized.glsl',
-    needs: ['mask_indirection', 'mask_atlas_0123', 'cluster_weights_0123', { prefix: 'cluster_sh_' }],
-    textures: (names, artifacts, caps) => ({
-      uMaskIndirection: ['mask_indirection', 'volume-nearest'], uMaskAtlas0123: ['mask_atlas_0123', 'volume'],
-      ...(clusterCount(names) > 4 ? { uMaskAtlas4567: ['mask_atlas_4567', 'volume'] } : {}),
-      ...clusterShTextures('mask_normalized', names, artifacts, caps),
-      uClusterWeights: [clusterCount(names) > 4 ? ['cluster_weights_0123', 'cluster_weights_4567'] : ['cluster_weights_0123'], 'stack'],
-    }),
-    defines: l2Defines('mask_normalized'),
-    uniforms: maskUniforms,
-  },
-  {
-    // workers/render/shading.py prepare_mode("prt"); the coefficients come from the viewer's relight
-    // (math/prt.js) every time the light gizmo moves
-    id: 'prt', label: 'PRT relighting', shader: 'mode_prt.glsl',
+  mask: maskUniforms,
+  mask_normalized: maskUniforms,
+  // uPrtCoef comes from the viewer's relight (math/prt.js) every time the light gizmo moves
+  prt: ({ artifacts }) => ({ uPrtGroups: Math.ceil(Number(artifacts.prt.basis) / 4) }),
+};
+
+/** What only the viewer adds to a mode: a tooltip, artifacts fetched first. */
+const VIEWER = {
+  prt: {
     tooltip: 'PRT relighting: drag the light gizmo; the browser recomputes the coefficients every move. '
       + 'The direct light at the measurement points is unshadowed here (the server relight traces shadow rays), '
       + 'so a light behind a wall still feeds the other room.',
-    needs: ['prt', 'prt_points', 'prt_point_offsets', 'prt_sh_transfer', { prefix: 'prt_sh_basis_' }],
-    // the basis names are in the `prt` json: resolved by the viewer once it has the section
-    textures: (names, artifacts = {}, caps = {}) => ({
-      uPrtBasis: [artifacts.prt ? prtBasisNames(artifacts.prt, caps)
-        : names.filter((n) => (shOrder('prt', names, artifacts, caps) === 2 ? /^prt_sh_basis_c[0-8]_/ : /^prt_sh_basis_c[0-3]_/).test(n)), 'stack'],
-    }),
-    defines: l2Defines('prt'),
     prerequisites: ['prt', 'prt_lights', 'prt_points', 'prt_point_offsets', 'prt_sh_transfer'],  // fetched first: `prt` names the basis
-    uniforms: ({ artifacts }) => ({ uPrtGroups: Math.ceil(Number(artifacts.prt.basis) / 4) }),
   },
-];
+};
 
-/** Every sampler uniform any mode binds (the renderer creates their slots up front). */
-export const MODE_SAMPLERS = ['uShR', 'uShG', 'uShB', 'uShL2', 'uIrradianceAtlas', 'uDepthAtlas', 'uProbeData',
-  'uMaskIndirection', 'uMaskAtlas0123', 'uMaskAtlas4567', 'uClusterSh', 'uClusterShL2', 'uClusterWeights', 'uPrtBasis'];
+export const GI_MODES = spec.modes.map((m) => ({
+  id: m.id, label: m.label, shader: m.shader,
+  needs: m.needs.map((n) => (n.endsWith('*') ? { prefix: n.slice(0, -1) } : n)),
+  textures: (names, artifacts = {}, caps = {}) => tableTextures(m.id, names, artifacts, caps),
+  defines: (names, artifacts = {}, caps = {}) => tableDefines(m.id, names, artifacts, caps),
+  ...(UNIFORMS[m.id] ? { uniforms: UNIFORMS[m.id] } : {}),
+  ...(VIEWER[m.id] || {}),
+}));
+
+/** Every sampler uniform any mode binds, and the probe spheres' (the renderer creates their slots up front). */
+export const MODE_SAMPLERS = [...new Set([...Object.keys(PROBE_SH_TEXTURES),
+  ...spec.modes.flatMap((m) => m.textures.map((t) => t.uniform))])];
 
 /**
  * A mode's {uniform: [artifact name | names, kind]} for a bake's artifact names (and artifacts loaded so far;

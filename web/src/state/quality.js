@@ -71,9 +71,14 @@ export function chartScales(points, lines, { width = 240, height = 120, pad = 16
   const span = max - min;
   min -= span * 0.08; max += span * 0.08;
   const n = points.length;
-  const x = (i) => (n <= 1 ? width / 2 : pad + (i * (width - 2 * pad)) / (n - 1));
+  // x: the bakes' times (`time`, seconds) when every point has one and they differ, else their order
+  const times = points.map((p) => p.time);
+  const t0 = Math.min(...times), t1 = Math.max(...times);
+  const timed = n > 1 && times.every(Number.isFinite) && t1 > t0;
+  const x = (i) => (n <= 1 ? width / 2
+    : pad + ((timed ? (times[i] - t0) / (t1 - t0) : i / (n - 1)) * (width - 2 * pad)));
   const y = (v) => height - pad - ((v - min) / (max - min)) * (height - 2 * pad);
-  return { x, y, min, max };
+  return { x, y, min, max, timed, t0, t1 };
 }
 
 /**

@@ -27,6 +27,7 @@ export const fmtNum = (v) => (v == null ? '–' : Math.abs(v) >= 1000 || (Math.a
 export function metricChart(key, bakes, gates, results, { width = 260, height = 130 } = {}) {
   const pts = bakes.filter((b) => Number.isFinite(b.metrics?.[key])).map((b) => ({
     bake: b, value: b.metrics[key], stderr: Number.isFinite(b.metrics[`${key}_stderr`]) ? b.metrics[`${key}_stderr`] : null,
+    time: b.created,
   }));
   const own = gatesFor(key, gates);
   const sc = chartScales(pts, own.map((g) => g.value), { width, height, pad: 18 });
@@ -36,6 +37,11 @@ export function metricChart(key, bakes, gates, results, { width = 260, height = 
   svg.append(s('text', { x: 4, y: 12, class: 'chart-title' }, `${key} ${betterWay(key) === 'one' ? '(→ 1)' : '↓'}`));
   svg.append(s('text', { x: width - 4, y: 12, class: 'chart-axis', 'text-anchor': 'end' }, fmtNum(sc.max)));
   svg.append(s('text', { x: width - 4, y: height - 4, class: 'chart-axis', 'text-anchor': 'end' }, fmtNum(sc.min)));
+  if (sc.timed) {   // the x axis is time: the first and the last bake's
+    svg.append(s('text', { x: 4, y: height - 4, class: 'chart-axis chart-time', 'data-time': sc.t0 }, formatTime(sc.t0)));
+    svg.append(s('text', { x: width / 2, y: height - 4, class: 'chart-axis chart-time', 'text-anchor': 'middle',
+      'data-time': sc.t1 }, `→ ${formatTime(sc.t1)}`));
+  }
   for (const g of own) {
     const y = sc.y(g.value);
     svg.append(s('line', { class: 'threshold', x1: 0, x2: width, y1: y, y2: y, 'data-gate': g.text, 'data-value': g.value },

@@ -6,7 +6,7 @@
  * glTF coordinates (metres, +Y up), vertical field of view in degrees.
  */
 
-export const MAX_REVIEW_CAMERAS = 16;  // server/api/routes/review.py MAX_REVIEW_CAMERAS
+export const MAX_REVIEW_CAMERAS = 16;  // server/api/schemas.py MAX_REVIEW_CAMERAS
 const NAME_RE = /^[a-z0-9_-]{1,32}$/;  // proto.models.CameraSpec.name
 
 const vec3 = (v) => Array.isArray(v) && v.length === 3 && v.every((x) => typeof x === 'number' && Number.isFinite(x));

@@ -13,8 +13,7 @@ import { probeDataTexture, stackedVolumeTexture, textureFromKTX2, wrapAtlas } fr
 import { atlasColumns } from '../math/atlas.js';
 import { parseNpy } from '../loader/npy.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
-import { PRT_MAX_GROUPS } from '../renderer/renderer.js';
-import { GI_MODES, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
+import { GI_MODES, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
 import { autoCamera } from './autocamera.js';
 import { createControls } from './cameras.js';
 import { buildLightMarkers, disposeMarkers, pickSurface } from './lightMarkers.js';

@@ -1,56 +1,9 @@
-"""The content-addressed store and the SQLite catalog."""
+"""The SQLite catalog (persist/catalog.py)."""
 from __future__ import annotations
 
-import hashlib
-import multiprocessing as mp
 import os
-import signal
-import time
 
-from proto.catalog import Catalog
-from proto.store import Store
-
-
-def test_blobs_are_content_addressed_and_deduplicated(tmp_path):
-    s = Store(tmp_path)
-    d1 = s.put_bytes(b"hello")
-    assert d1 == hashlib.sha256(b"hello").hexdigest()
-    assert s.put_bytes(b"hello") == d1
-    assert s.read_bytes(d1) == b"hello"
-    f = tmp_path / "x.bin"
-    f.write_bytes(b"world" * 1000)
-    d2 = s.put_file(f)
-    assert f.exists() and s.read_bytes(d2) == b"world" * 1000
-    assert len(list((tmp_path / "blobs").glob("*/*"))) == 2
-    assert not any((tmp_path / "tmp").iterdir())
-
-
-def _writer(root, n):
-    s = Store(root)
-    for i in range(n):
-        s.put_bytes(os.urandom(1 << 20))
-
-
-def test_killed_writer_leaves_no_partial_blob(tmp_path):
-    p = mp.get_context("spawn").Process(target=_writer, args=(str(tmp_path), 10_000))
-    p.start()
-    time.sleep(1.5)
-    os.kill(p.pid, signal.SIGKILL)
-    p.join()
-    blobs = list((tmp_path / "blobs").glob("*/*"))
-    assert blobs
-    for b in blobs:
-        assert hashlib.sha256(b.read_bytes()).hexdigest() == b.name
-
-
-def test_stage_record_missing_blob_counts_as_absent(tmp_path):
-    s = Store(tmp_path)
-    d = s.put_bytes(b"a")
-    s.put_stage("k1", {"stage": "x", "artifacts": [{"sha256": d}]})
-    assert s.get_stage("k1")["stage"] == "x"
-    s.blob_path(d).unlink()
-    assert s.get_stage("k1") is None
-    assert s.get_stage("nothere") is None
+from persist.catalog import Catalog
 
 
 def test_catalog_bake_lifecycle(tmp_path):
@@ -102,16 +55,12 @@ def test_catalog_reads_reuse_a_connection_per_thread_and_see_every_write(tmp_pat
     assert os.read(r, 1) == b"1"
 
 
-def test_put_file_moves_from_a_folder_under_tmp_and_trusts_a_given_hash(tmp_path):
-    s = Store(tmp_path / "store")
-    sub = s.root / "tmp" / "stage-x"
-    sub.mkdir(parents=True)
-    f = sub / "a.bin"
-    f.write_bytes(b"kiln" * 1000)
-    ino = f.stat().st_ino
-    digest = hashlib.sha256(b"kiln" * 1000).hexdigest()
-    assert s.put_file(f, move=True, sha256=digest) == digest
-    assert not f.exists() and s.blob_path(digest).stat().st_ino == ino   # renamed, not copied
-    g = tmp_path / "outside.bin"                                         # outside tmp/: copied, hashed
-    g.write_bytes(b"other")
-    assert s.put_file(g, move=True) == hashlib.sha256(b"other").hexdigest() and not g.exists()
+def test_mark_succeeded_records_metrics_and_manifest_once(tmp_path):
+    c = Catalog(tmp_path / "k.db")
+    bid = c.create_bake("t", "s1", {"seed": 0}, [("ingest", "k1")])
+    assert c.mark_succeeded(bid, {"bake_id": bid}, {"artifact_bytes": 12, "stage_seconds.ingest": 0.5})
+    b = c.get_bake(bid)
+    assert b["status"] == "succeeded" and b["manifest"] == {"bake_id": bid} and b["finished"] is not None
+    assert b["metrics"] == {"artifact_bytes": 12.0, "stage_seconds.ingest": 0.5}
+    assert not c.mark_succeeded(bid, {"bake_id": "other"}, {})       # terminal: the manifest is kept
+    assert c.get_bake(bid)["manifest"] == {"bake_id": bid}

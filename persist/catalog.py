@@ -1,7 +1,7 @@
 """The catalog: scenes, bakes, stage runs and metrics in one SQLite file.
 
 Both the API process and the workers write it (WAL mode, a busy timeout), so it lives
-beside the store in ``proto/`` rather than in ``server/``. Redis holds the queue and live
+beside the store in ``persist/`` rather than in ``server/``. Redis holds the queue and live
 progress only; everything a user must not lose is here and survives restarts of the
 server, the workers and Redis.
 
@@ -285,6 +285,12 @@ class Catalog:
             cur = c.execute(f"UPDATE bakes SET {', '.join(sets)} WHERE id=? AND status IN ({q})",
                             (*args, bake_id, *allowed))
             return cur.rowcount == 1
+
+    def mark_succeeded(self, bake_id: str, manifest: dict, metrics: dict[str, float]) -> bool:
+        """Record a finished bake: its metrics, then its manifest and status ``succeeded`` (what
+        ``proto.stages.finalize_bake`` computed). Returns whether the status changed (False: already terminal)."""
+        self.set_metrics(bake_id, metrics)
+        return self.set_bake_status(bake_id, "succeeded", manifest=manifest)
 
     def bump_attempt(self, bake_id: str) -> int:
         with self._conn() as c:

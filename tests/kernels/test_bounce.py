@@ -1,0 +1,132 @@
+"""The bounce integrator (workers/kernels/bounce.py): closed forms, batches against single configurations."""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import scipy.sparse as sp
+
+from workers.kernels.bounce import integrate, integrate_one, irradiance_maps
+from workers.kernels.gather import MatrixGather
+from workers.kernels.grid import ACTIVE, OFF
+from workers.kernels.sampling import fibonacci_sphere
+
+N = 4            # interior texels per side
+T = N + 2
+
+
+def _rays(P=2, R=128):
+    return fibonacci_sphere(R).astype(np.float32), P, R
+
+
+def test_irradiance_maps_of_constant_radiance_is_pi_L_and_off_probes_are_dark():
+    dirs, P, R = _rays(3)
+    L = np.array([0.5, 1.0, 2.0], np.float32)
+    rad = np.broadcast_to(L, (P, R, 3)).copy()
+    states = np.array([ACTIVE, OFF, ACTIVE])
+    maps = irradiance_maps(dirs, rad, N, states)
+    assert maps.shape == (P, T, T, 3) and maps.dtype == np.float32
+    assert np.allclose(maps[[0, 2]], math.pi * L, rtol=1e-5)            # DDGI-I eq 1, α = 0: a furnace gives π·L
+    assert np.all(maps[1] == 0)
+
+
+def _box(a: float, e0, P=2, R=128):
+    """Every ray of every probe hits a front face of albedo a, lit by e0 (B, 3): a closed box in which every
+    point sees the same irradiance; the gather reads probe 0's first interior texel."""
+    dirs, P, R = _rays(P, R)
+    H = P * R
+    index = np.arange(H)
+    miss = np.zeros((P, R), bool)
+    albedo = np.full((H, 3), a, np.float32)
+    e = np.broadcast_to(np.asarray(e0, np.float32)[:, None, :], (len(e0), H, 3)).copy()
+
+    def gather(maps):
+        return np.broadcast_to(maps[0, 1, 1], (H, maps.shape[-1]))
+
+    return index, miss, albedo, e, dirs, np.full(P, ACTIVE), gather
+
+
+@pytest.mark.parametrize("a", [0.3, 0.8])
+def test_closed_box_sums_the_geometric_series(a):
+    # E_b = a·(E0 + E_{b−1}) = E0 (a + a² + … + a^b); converged: E0·a/(1 − a)
+    e0 = np.array([[1.0, 2.0, 3.0]])
+    index, miss, albedo, e, dirs, states, gather = _box(a, e0)
+    for b in (1, 2, 5):
+        irr, rad, change, residual = integrate_one(index, miss, albedo, e[0], dirs, states, N, gather,
+                                                   bounces=b, max_bounces=128, tolerance=1e-3)
+        want = e0[0] * sum(a ** k for k in range(1, b + 1))
+        assert len(change) == b and np.allclose(irr, want, rtol=1e-5)
+        assert np.allclose(rad, want / math.pi, rtol=1e-5)               # L = a/π·(E0 + E_{b−1}) = E_b/π
+    irr, _, change, residual = integrate_one(index, miss, albedo, e[0], dirs, states, N, gather, bounces=None,
+                                             max_bounces=500, tolerance=1e-4)
+    assert np.allclose(irr, e0[0] * a / (1 - a), rtol=2e-4)
+    assert residual[-1] < 1e-4 <= residual[-2] and all(math.isinf(r) for r in residual[:2])
+    # the tail estimate is exact for a geometric series: δ_b·a/(1 − a) / E_b = a^b / (1 − a^b)
+    b = len(residual)
+    assert residual[-1] == pytest.approx(a ** b / (1 - a ** b), rel=1e-2)
+
+
+def test_misses_see_the_sky_and_emission_adds_to_every_bounce():
+    dirs, P, R = _rays(2)
+    sky = np.array([0.2, 0.3, 0.4])
+    none, empty = np.zeros(0, np.int64), np.zeros((0, 3), np.float32)
+    irr, rad, _, _ = integrate_one(none, np.ones((P, R), bool), empty, empty, dirs, np.full(P, ACTIVE), N,
+                                   lambda m: empty, sky=sky, bounces=None, max_bounces=16, tolerance=1e-3)
+    assert np.allclose(irr, math.pi * sky, rtol=1e-5) and np.allclose(rad, sky)
+    index, miss, albedo, e, dirs, states, gather = _box(0.5, np.zeros((1, 3)))
+    irr, _, _, _ = integrate_one(index, miss, albedo, e[0], dirs, states, N, gather,
+                                 emission=np.full_like(albedo, 1.0), bounces=3, max_bounces=3, tolerance=0)
+    # L_b = 1 + a/π·E_{b−1}: E = π (1 + a + a²) after 3 bounces
+    assert np.allclose(irr, math.pi * (1 + 0.5 + 0.25), rtol=1e-5)
+
+
+def _random_scene(rng, P=3, R=96, H=200):
+    dirs, P, R = _rays(P, R)
+    index = np.sort(rng.choice(P * R, H, replace=False))
+    miss = np.ones(P * R, bool)
+    miss[index] = False
+    albedo = rng.uniform(0.2, 0.9, (H, 3)).astype(np.float32)
+    # a random linear gather whose rows sum to 1 (a convex blend of texels, like the DDGI sampler)
+    W = sp.random(H, P * T * T, density=0.05, random_state=np.random.RandomState(1), dtype=np.float32).tocsr()
+    W = sp.diags(1.0 / np.maximum(np.asarray(W.sum(axis=1)).ravel(), 1e-6)).astype(np.float32) @ W
+    return index, miss.reshape(P, R), albedo, dirs, np.array([ACTIVE, OFF, ACTIVE]), MatrixGather(W.tocsr())
+
+
+def test_a_batch_equals_its_configurations_one_at_a_time():
+    rng = np.random.default_rng(3)
+    index, miss, albedo, dirs, states, gather = _random_scene(rng)
+    e = rng.uniform(0, 5, (3, index.size, 3)).astype(np.float32)
+    e[1] *= 1e-3                                                    # dim: converges after the same ratio
+    e[2, : index.size // 2] = 0                                     # half dark: another series
+    got = {}
+
+    def retire(ids, radiance, maps, b):
+        for j, c in enumerate(ids):
+            assert c not in got
+            got[c] = (np.array(radiance[..., 3 * j:3 * j + 3]), np.array(maps[..., 3 * j:3 * j + 3]), b)
+
+    log = integrate(index, miss, albedo, e, dirs, states, N, gather, retire, bounces=None, max_bounces=64,
+                    tolerance=1e-4)
+    assert sorted(got) == [0, 1, 2]
+    for c in range(3):
+        irr, rad, change, residual = integrate_one(index, miss, albedo, e[c], dirs, states, N, gather, bounces=None,
+                                                   max_bounces=64, tolerance=1e-4)
+        assert got[c][2] == log.bounces[c] == len(change) == len(log.change[c])
+        assert np.allclose(got[c][1], irr, rtol=1e-5, atol=1e-7) and np.allclose(got[c][0], rad, rtol=1e-5, atol=1e-8)
+        assert np.allclose(log.residual[c], residual, rtol=1e-4)
+        assert np.all(irr[1] == 0)                                  # the OFF probe
+
+
+def test_fixed_bounces_stop_every_configuration_there_and_report_progress():
+    rng = np.random.default_rng(4)
+    index, miss, albedo, dirs, states, gather = _random_scene(rng)
+    e = rng.uniform(0, 1, (2, index.size, 3)).astype(np.float32)
+    calls, fractions = [], []
+
+    def retire(ids, radiance, maps, b):
+        calls.append((list(ids), b))
+
+    log = integrate(index, miss, albedo, e, dirs, states, N, gather, retire,
+                    bounces=4, max_bounces=64, tolerance=1.0, report=fractions.append)
+    assert calls == [([0, 1], 4)] and list(log.bounces) == [4, 4] and fractions == [0.25, 0.5, 0.75, 1.0]

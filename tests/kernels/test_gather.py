@@ -1,0 +1,61 @@
+"""Gathering probe irradiance at points (workers/kernels/gather.py): the sampler and its sparse matrix agree."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from workers.kernels import grid as kgrid
+from workers.kernels.ddgi import sample_irradiance
+from workers.kernels.gather import MatrixGather, SamplerGather, ddgi_weights
+from workers.kernels.grid import ACTIVE, OFF
+
+N = 6
+
+
+def _probes(counts=(3, 2, 4), off=()):
+    g = {"counts": list(counts), "origin": [0.0, 0.0, 0.0], "spacing": [1.0, 1.0, 1.0]}
+    pos = kgrid.base_positions(g["counts"], g["origin"], g["spacing"]).reshape(-1, 3).astype(np.float32)
+    P = pos.shape[0]
+    states = np.full(P, ACTIVE)
+    states[list(off)] = OFF
+    depth = np.zeros((P, 10, 10, 2), np.float32)
+    depth[..., 0], depth[..., 1] = 50.0, 2500.0                    # far: Chebyshev passes everywhere
+    return g, pos, states, depth
+
+
+def _points(rng, k, counts):
+    pts = (rng.random((k, 3)) * (np.array(counts) - 1)).astype(np.float32)
+    nrm = rng.normal(size=(k, 3))
+    nrm = (nrm / np.linalg.norm(nrm, axis=1, keepdims=True)).astype(np.float32)
+    return pts, nrm, nrm.copy()
+
+
+@pytest.mark.parametrize("counts", [(3, 2, 4), (1, 3, 2)])
+def test_ddgi_weights_reproduce_the_sampler(counts):
+    rng = np.random.default_rng(0)
+    g, pos, states, depth = _probes(counts, off=(1,))
+    pts, nrm, view = _points(rng, 300, counts)
+    vis = rng.integers(0, 2, (300, 8)).astype(np.uint8)
+    W = ddgi_weights(pts, nrm, view, g, pos, states, depth, N, 0.3, vis)
+    assert W.shape == (300, pos.shape[0] * (N + 2) ** 2) and W.nnz == 32 * 300
+    maps = rng.random((pos.shape[0], N + 2, N + 2, 3)).astype(np.float32)
+    ref = sample_irradiance(pts, nrm, view, g["counts"], g["origin"], g["spacing"], pos, states, maps, depth, 0.3,
+                            visible=vis)
+    assert np.allclose(W @ maps.reshape(-1, 3), ref, atol=1e-5)
+    assert ddgi_weights(pts[:0], nrm[:0], view[:0], g, pos, states, depth, N, 0.3).shape == (0, W.shape[1])
+
+
+def test_uniform_maps_gather_their_value_and_both_gathers_agree_for_a_batch():
+    # the DDGI weights are normalized (DDGI-P §2.2): maps holding c everywhere give c at every point
+    rng = np.random.default_rng(1)
+    g, pos, states, depth = _probes()
+    pts, nrm, view = _points(rng, 200, g["counts"])
+    sampler = SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3)
+    matrix = MatrixGather(ddgi_weights(pts, nrm, view, g, pos, states, depth, N, 0.3))
+    c = np.array([0.5, 1.5, 2.5, 3.0, 0.25, 7.0], np.float32)       # two configurations side by side
+    uniform = np.broadcast_to(c, (pos.shape[0], N + 2, N + 2, 6)).copy()
+    assert np.allclose(sampler(uniform), c, rtol=1e-5) and np.allclose(matrix(uniform), c, rtol=1e-5)
+    maps = rng.random((pos.shape[0], N + 2, N + 2, 6)).astype(np.float32)
+    both = sampler(maps)
+    assert both.shape == (200, 6) and np.allclose(matrix(maps), both, atol=1e-5)
+    assert np.array_equal(both[:, 3:], sampler(np.ascontiguousarray(maps[..., 3:])))

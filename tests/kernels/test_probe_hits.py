@@ -1,0 +1,69 @@
+"""Probe-ray hits as shading points and their cage visibility (workers/kernels/probe_hits.py)."""
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+import numpy as np
+
+from workers.kernels import grid as kgrid
+from workers.kernels.grid import ACTIVE, OFF
+from workers.kernels.probe_hits import hit_surfaces, probe_visibility
+from workers.scene import NormalizedScene
+
+
+def _wall(z=1.0, albedo=(0.2, 0.4, 0.6), emission=(0.0, 1.0, 0.0)):
+    """Two triangles covering [-1, 1]² at height z, facing -z (toward probes below)."""
+    q = np.array([[(-1, -1, z), (1, 1, z), (1, -1, z)], [(-1, -1, z), (-1, 1, z), (1, 1, z)]], np.float32)
+    mat = {"name": "m", "base_color": list(albedo) + [1.0], "base_color_texture": None, "emissive": list(emission),
+           "emissive_texture": None, "double_sided": False, "metallic": 0.0, "roughness": 1.0}
+    return NormalizedScene(triangles=q, normals=np.tile(np.float32([0, 0, -1]), (2, 3, 1)),
+                           uv0=np.zeros((2, 3, 2), np.float32), material=np.zeros(2, np.int32), materials=[mat])
+
+
+def test_hit_surfaces_keep_front_hits_with_normals_toward_the_probe():
+    scene = _wall()
+    dirs = np.array([[0, 0, 1], [0, 0, -1], [0.6, 0, 0.8]], np.float32)
+    # probe 0 below the wall: ray 0 hits tri 0 at (u, v) = (0.25, 0.25), ray 1 misses, ray 2 hits tri 1 from the back
+    hits = np.zeros((2, 3, 4), np.float32)
+    tri = np.full((2, 3), -1, np.int32)
+    hits[0, 0] = (1.0, 0.25, 0.25, 0.0)
+    tri[0, 0] = 0
+    hits[0, 2] = (1.25, 0.5, 0.25, 1.0)
+    tri[0, 2] = 1
+    hits[1, 2] = (1.25, 0.3, 0.3, 0.0)
+    tri[1, 2] = 1
+    s = hit_surfaces(scene, dirs, hits, tri)
+    assert s.P == 2 and s.R == 3 and sorted(s.index.tolist()) == [0, 5]
+    assert np.array_equal(s.miss, tri < 0)
+    i0 = int(np.flatnonzero(s.index == 0)[0])
+    v0, v1, v2 = scene.triangles[0]
+    assert np.allclose(s.position[i0], 0.5 * v0 + 0.25 * v1 + 0.25 * v2)
+    assert np.allclose(s.view, -dirs[[2 if k == 5 else 0 for k in s.index]])
+    assert np.all(np.einsum("ij,ij->i", s.normal, s.view) > 0)          # the side the ray arrived on
+    assert np.allclose(s.albedo, (0.2, 0.4, 0.6)) and np.allclose(s.emission, (0, 1, 0))
+    assert all(a.dtype == np.float32 for a in (s.position, s.normal, s.view, s.albedo, s.emission))
+
+
+class _Caster:
+    def __init__(self, blocked: bool):
+        self.blocked, self.rays = blocked, 0
+
+    def occluded(self, o, d, tfar):
+        self.rays += len(o)
+        return np.full(len(o), self.blocked)
+
+
+def test_probe_visibility_traces_live_cage_probes_only():
+    g = {"counts": [2, 2, 2], "origin": [0.0, 0.0, 0.0], "spacing": [1.0, 1.0, 1.0]}
+    pos = kgrid.base_positions(g["counts"], g["origin"], g["spacing"]).reshape(-1, 3).astype(np.float32)
+    states = np.full(8, ACTIVE)
+    states[[2, 5]] = OFF
+    pts = np.float32([[0.5, 0.5, 0.5], [0.2, 0.7, 0.4]])
+    nrm = np.float32([[0, 1, 0], [1, 0, 0]])
+    surf = SimpleNamespace(position=pts, normal=nrm, view=nrm)
+    open_, rays = probe_visibility(surf, g, pos, states, _Caster(False), 0.3)
+    assert open_.shape == (2, 8) and open_.dtype == np.uint8 and rays == 12
+    # corner c of the 2x2x2 cage is probe c: the live ones are visible
+    assert np.array_equal(open_, np.tile((states != OFF).astype(np.uint8), (2, 1)))
+    shut, _ = probe_visibility(surf, g, pos, states, _Caster(True), 0.3)
+    assert not shut.any()

@@ -1,0 +1,177 @@
+"""The bounce integrator: probe irradiance as the sum of the bounce series, for one lighting or a batch.
+
+The light stage (one configuration) and PRT's dataset (B configurations at once) run this same loop on the
+trace stage's cached probe rays (DDGI-I §3.4-3.5; DESIGN stage 2). Radiance along probe ray r of probe p:
+
+- a miss sees the sky (linear RGB radiance; PRT: 0);
+- a back-face hit of a single-sided surface carries 0 (DDGI-P §4.1): such hits are not in ``index``;
+- a front-face hit carries ``L = emission + albedo/π · (E_direct + E_indirect)`` (DDGI-I §3.4: indirect pass
+  §3.4.1, direct pass §3.4.2), ``E_direct`` fixed (geometry and lights do not move between bounces),
+  ``E_indirect`` the previous bounce's probe irradiance gathered at the hit (``gather``, :mod:`workers.kernels.gather`;
+  0 at the first bounce).
+
+Offline, each bounce is the full Monte Carlo estimate of DDGI-I eq 1 (DDGI-P eq 1) with no hysteresis
+(α = 0): per octahedral texel direction n, ``E(n) = π · Σ_r max(0, n·ω_r) L_r / Σ_r max(0, n·ω_r)``, the
+cosine-weighted mean radiance times π (exact for constant radiance: a furnace gives π·L). Bounce b holds the
+first b terms of the Neumann series ``E = Σ_k T^k E_0``. Each configuration stops by one rule
+(:mod:`workers.kernels.convergence`): after a fixed ``bounces``, or once its estimated light still to come is
+below ``tolerance`` of its value at every probe that matters (capped at ``max_bounces``).
+
+Batches: configuration j owns columns 3j..3j+2 of every (…, 3·B) array; a converged configuration leaves the
+batch (its columns are handed to ``retire`` and dropped), so later bounces cost only the live ones. One
+configuration gives bit for bit the numbers the light stage had before the batch form.
+
+Consumers: stages/light, kernels/prt_dataset, tests' light-stage reference. Inverse: none.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from workers.kernels.convergence import relative_tail
+from workers.kernels.grid import OFF
+from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+
+__all__ = ["irradiance_maps", "integrate", "integrate_one", "BounceLog"]
+
+
+def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.ndarray) -> np.ndarray:
+    """Octahedral irradiance with border from per-ray radiance: one bounce's probe update.
+
+    Parameters
+    ----------
+    dirs : (R, 3) float32
+        Unit ray directions (the same for every probe), world space.
+    radiance : (P, R, C) float32
+        Radiance arriving along each ray, C channels (3 per configuration).
+    n : int
+        Interior texels per side of a probe's octahedral map.
+    states : (P,) int
+        Probe states; OFF probes get 0.
+
+    Returns (P, n+2, n+2, C) float32: DDGI-I eq 1 with α = 0 (each texel the cosine-weighted mean radiance
+    times π), 1-texel octahedral border (:func:`workers.kernels.octahedral.add_border`).
+    """
+    maps = math.pi * accumulate_octahedral(dirs, radiance, oct_texel_directions(n), 1.0)   # DDGI-I eq 1, α = 0
+    maps[states == OFF] = 0.0
+    return add_border(maps).astype(np.float32)
+
+
+@dataclass
+class BounceLog:
+    """What each configuration's series did. ``bounces`` (B,) int64; per configuration, per bounce:
+    ``change`` the whole grid's relative change ``Σ|E_b − E_{b−1}| / Σ|E_b|`` and ``residual`` the light still
+    to come at the worst probe that matters (:func:`workers.kernels.convergence.relative_tail`, ∞ before the
+    third bounce)."""
+
+    bounces: np.ndarray
+    change: list = field(default_factory=list)
+    residual: list = field(default_factory=list)
+
+
+def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct: np.ndarray, dirs: np.ndarray,
+              states: np.ndarray, n: int, gather, retire, *, emission: np.ndarray | None = None, sky=None,
+              bounces: int | None, max_bounces: int, tolerance: float, report=None) -> BounceLog:
+    """Sum the bounce series of B lighting configurations (module doc) over the same cached probe-ray hits.
+
+    Parameters
+    ----------
+    index : (H,) int
+        Flat ray indices (into P·R) of the front-face hits (:class:`workers.kernels.probe_hits.HitSurfaces`).
+    miss : (P, R) bool
+        Rays that leave the scene (they see ``sky``).
+    albedo : (H, 3) float32
+        Diffuse albedo at the hits (linear RGB).
+    e_direct : (B, H, 3) float32
+        Direct irradiance at the hits per configuration (lux × colour).
+    dirs : (R, 3) float32; states : (P,) int; n : int
+        As :func:`irradiance_maps`.
+    gather : callable
+        ``gather(maps (P, n+2, n+2, 3k) float32) -> (H, 3k)``: E_indirect at the hits from the live
+        configurations' maps (:mod:`workers.kernels.gather`).
+    retire : callable
+        ``retire(ids (k,) int, radiance (P, R, 3k) float32, maps (P, n+2, n+2, 3k) float32, bounces int)``,
+        called when configurations ``ids`` stop, with their final per-ray radiance and irradiance maps
+        (column picks: not C-contiguous).
+    emission : (H, 3) float32 or None
+        Emitted radiance at the hits, the same for every configuration (PRT: None, the transfer is linear).
+    sky : (3,) float or None
+        Radiance of the misses (None: 0).
+    bounces : int or None
+        A fixed count; None: until the residual is below ``tolerance``, at most ``max_bounces``.
+    report : callable or None
+        ``report(fraction)`` after each bounce.
+    """
+    P, R = miss.shape
+    B, H = e_direct.shape[0], index.size
+    t = n + 2
+    alb = albedo / np.float32(math.pi)                                        # albedo/π, (H, 3)
+    base = (alb[:, None, :] * e_direct.transpose(1, 0, 2)).reshape(H, 3 * B)  # albedo/π · E_direct
+    if emission is not None:
+        base = np.tile(emission, (1, B)) + base                               # + emission
+    rho = np.tile(alb, (1, B))
+    radiance = np.zeros((P * R, 3 * B), np.float32)
+    if sky is not None:
+        radiance[miss.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+    maps = np.zeros((P, t, t, 3 * B), np.float32)
+    live = np.arange(B)
+    log = BounceLog(bounces=np.zeros(B, np.int64), change=[[] for _ in range(B)], residual=[[] for _ in range(B)])
+    deltas: list[np.ndarray] = []
+    cap = bounces if bounces is not None else max_bounces
+    for b in range(1, cap + 1):
+        if b == 1:
+            radiance[index] = base                                             # E_indirect = 0: the first bounce
+        else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
+            radiance[index] = base + rho * gather(maps)
+        new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)    # DDGI-I eq 1, α = 0
+        nb = live.size
+        step = np.abs(new - maps)
+        # per probe and configuration: the light still to come (workers.kernels.convergence)
+        value = np.abs(new).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
+        deltas = (deltas + [step.reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)])[-3:]
+        residual, _ = relative_tail(deltas, value)                          # ρ_p(b), max over probes that matter
+        for j, c in enumerate(live):
+            s = slice(3 * j, 3 * j + 3)
+            total = float(np.abs(new[..., s]).sum())
+            log.change[c].append(float(step[..., s].sum()) / total if total > 0 else 0.0)
+            log.residual[c].append(float(residual[j]))
+        maps = new
+        if report is not None:
+            report(b / cap)
+        if b == cap:
+            done = np.ones(nb, bool)
+        elif bounces is None:
+            done = np.asarray(residual) < tolerance
+        else:
+            done = np.zeros(nb, bool)
+        if not done.any():
+            continue
+        cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
+        log.bounces[live[done]] = b
+        retire(live[done], radiance[:, cols].reshape(P, R, -1), new[..., cols], b)
+        keep = ~done
+        if not keep.any():
+            break
+        kc = (3 * np.flatnonzero(keep)[:, None] + np.arange(3)).ravel()
+        live = live[keep]
+        deltas = [d[:, keep] for d in deltas]
+        base, rho = base[:, kc], rho[:, kc]
+        radiance = np.ascontiguousarray(radiance[:, kc])
+        maps = np.ascontiguousarray(maps[..., kc])
+    return log
+
+
+def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emission=None, sky=None,
+                  bounces: int | None, max_bounces: int, tolerance: float, report=None):
+    """:func:`integrate` for one configuration: ``e_direct`` (H, 3). Returns ``(irradiance (P, n+2, n+2, 3),
+    radiance (P, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float)."""
+    out = {}
+
+    def retire(ids, radiance, maps, b):     # C order, as the arrays the loop holds (column picks are not)
+        out["radiance"], out["maps"] = np.ascontiguousarray(radiance), np.ascontiguousarray(maps)
+
+    log = integrate(index, miss, albedo, e_direct[None], dirs, states, n, gather, retire, emission=emission,
+                    sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report)
+    return out["maps"], out["radiance"], log.change[0], log.residual[0]

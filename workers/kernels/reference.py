@@ -1,0 +1,142 @@
+"""The path-traced reference at G-buffer pixels and at surface points: direct light plus
+:func:`workers.kernels.pathtrace.indirect_irradiance` (DESIGN stage 7).
+
+The exitant radiance of a Lambertian surface is ``L_out = Le + albedo/π · (E_direct + E_indirect)``
+(the light stage's ray shading, DDGI-I §3.4); :func:`exitant_radiance` forms it per pixel.
+Consumers: stage ``reference`` (through :func:`irradiance_at_points` and :func:`reference_at_gbuffer`), tests.
+Inverse: none.
+"""
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+
+from workers.kernels import metrics as MT
+from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, scene_eps
+from workers.kernels.shading import direct_irradiance
+
+__all__ = ["refine_dark", "DARK_FRACTION", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
+
+
+def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), caster=None, eps=None, spp: int = 64,
+                         bounces: int = 4, seed: int = 0, rr_depth: int | None = None,
+                         max_paths: int = DEFAULT_MAX_PATHS, emitter_sampling: bool = True, report=None) -> dict:
+    """Direct and path-traced indirect irradiance at every shaded pixel of a G-buffer.
+
+    Returns ``{"e_direct", "e_indirect", "stderr", "radiance"}`` (H, W, 3) float32 images (0 outside
+    ``gbuffer.shaded``) and ``"stats"``. ``radiance`` = :func:`exitant_radiance`.
+    """
+    from workers.raycast import caster_for_scene
+
+    caster = caster_for_scene(scene) if caster is None else caster
+    eps = scene_eps(scene) if eps is None else float(eps)
+    H, W = gbuffer.shape
+    sel = gbuffer.shaded.ravel()
+    pts = gbuffer.position.reshape(-1, 3)[sel].astype(np.float64)
+    nrm = gbuffer.normal.reshape(-1, 3)[sel].astype(np.float64)
+    geo = gbuffer.geo_normal.reshape(-1, 3)[sel].astype(np.float64)
+    t0 = time.perf_counter()
+    e_dir = np.zeros((H * W, 3), np.float32)
+    if lights:
+        # shadow rays start at x + eps·n (shading normal, facing the camera), as in the light stage
+        e_dir[sel] = direct_irradiance(pts, nrm, list(lights), caster, eps)
+    t_direct = time.perf_counter() - t0
+    res = indirect_irradiance(scene, pts, nrm, lights, sky=sky, spp=spp, bounces=bounces, seed=seed,
+                              rr_depth=rr_depth, caster=caster, eps=eps, geo_normals=geo, max_paths=max_paths,
+                              emitter_sampling=emitter_sampling, report=report)
+    e_ind = np.zeros((H * W, 3), np.float32)
+    err = np.zeros((H * W, 3), np.float32)
+    e_ind[sel] = res.irradiance
+    err[sel] = res.stderr
+    e_dir, e_ind, err = (a.reshape(H, W, 3) for a in (e_dir, e_ind, err))
+    stats = dict(res.stats, direct_seconds=t_direct, pixels=int(sel.sum()))
+    return {"e_direct": e_dir, "e_indirect": e_ind, "stderr": err,
+            "radiance": exitant_radiance(gbuffer, e_dir, e_ind), "stats": stats}
+
+
+def exitant_radiance(gbuffer, e_direct, e_indirect) -> np.ndarray:
+    """(H, W, 3) float32 ``emission + albedo/π · (E_direct + E_indirect)`` on shaded pixels, 0 elsewhere
+    (back faces of single-sided surfaces, uncovered pixels)."""
+    e = np.asarray(e_direct, np.float32) + np.asarray(e_indirect, np.float32)
+    out = gbuffer.emission + gbuffer.albedo / np.float32(math.pi) * e
+    return np.where(gbuffer.shaded[..., None], out, 0.0).astype(np.float32)
+
+
+
+def irradiance_at_points(scene, points, normals, geo_normals, lights=(), *, sky=(0.0, 0.0, 0.0), spp: int = 64,
+                         bounces: int = 4, seed: int = 0, rr_depth: int | None = None, caster=None, eps=None,
+                         batch_points: int = 256, report=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+    """Direct irradiance, path-traced indirect irradiance and its standard error at N points.
+
+    Parameters
+    ----------
+    points, normals, geo_normals : (N, 3) float
+        World-space points (metres), unit shading normals and geometric normals on the lit side.
+    lights, sky, spp, bounces, seed, rr_depth, caster, eps
+        As :func:`workers.kernels.pathtrace.indirect_irradiance`.
+    batch_points : int
+        Points per wavefront chunk (``batch_points × spp`` paths, at most
+        :data:`workers.kernels.pathtrace.DEFAULT_MAX_PATHS`); the result does not depend on it.
+    report : callable(fraction)
+        Progress, after each chunk.
+
+    Returns
+    -------
+    ``e_direct``, ``e_indirect``, ``stderr`` (N, 3) float64 (linear RGB irradiance, W/m² per unit of the
+    lights' and sky's units) and the tracer's stats (``{}`` for N = 0).
+    """
+    from workers.raycast import caster_for_scene
+
+    n = len(points)
+    e_dir = np.zeros((n, 3))
+    e_ind = np.zeros((n, 3))
+    err = np.zeros((n, 3))
+    if n == 0:
+        if report is not None:
+            report(1.0)
+        return e_dir, e_ind, err, {}
+    caster = caster_for_scene(scene) if caster is None else caster
+    eps = scene_eps(scene) if eps is None else float(eps)
+    if lights:
+        e_dir[:] = direct_irradiance(points, normals, lights, caster, eps)
+    stats = {"rays": 0, "seconds": 0.0, "batches": 0}
+    res = indirect_irradiance(scene, points, normals, lights, sky=sky, spp=spp, bounces=bounces, seed=seed,
+                              rr_depth=rr_depth, caster=caster, eps=eps, geo_normals=geo_normals,
+                              max_paths=min(batch_points * spp, DEFAULT_MAX_PATHS), report=report)
+    e_ind[:] = res.irradiance
+    err[:] = res.stderr
+    stats.update(rays=int(res.stats["rays"]), seconds=float(res.stats["seconds"]),
+                 batches=int(math.ceil(n / batch_points)), rr_kills=int(res.stats["rr_kills"]),
+                 vertices=int(res.stats["vertices"]), below_surface=int(res.stats["below_surface"]))
+    return e_dir, e_ind, err, stats
+
+
+DARK_FRACTION = 2 * MT.LEAK_TAU
+"""Surface points whose reference luminance is at most this fraction of the mean get ``dark_spp`` paths
+(:func:`refine_dark`): twice the leak metric's threshold, so that points near it are refined too."""
+
+
+def refine_dark(trace, e_indirect, stderr, spp: int, dark_spp: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """More paths where the reference is dark: the leak metrics (:mod:`workers.kernels.point_metrics`) are means over
+    the points whose reference is at most 5% of the mean, where its relative noise is largest.
+
+    ``trace(index, paths)`` path-traces the points ``index`` with ``paths`` more paths each (another seed) and
+    returns their ``(e_indirect, stderr)``; ``e_indirect``, ``stderr`` (N, 3): the first pass's ``spp`` paths.
+    Points with luminance at most :data:`DARK_FRACTION` of the mean get ``dark_spp − spp`` more; the two estimates
+    are pooled by path count: ``E = (n₁E₁ + n₂E₂)/(n₁ + n₂)``, ``s = sqrt(n₁²s₁² + n₂²s₂²)/(n₁ + n₂)``.
+    Returns the new (N, 3) arrays and the refined indices.
+    """
+    e = np.array(e_indirect, np.float64)
+    s = np.array(stderr, np.float64)
+    y = MT.luminance(e)
+    mean = float(y.mean()) if len(y) else 0.0
+    idx = np.flatnonzero(y <= DARK_FRACTION * mean) if mean > 0 else np.zeros(0, np.int64)
+    n1, n2 = int(spp), int(dark_spp) - int(spp)
+    if n2 <= 0 or idx.size == 0:
+        return e, s, np.zeros(0, np.int64)
+    e2, s2 = trace(idx, n2)
+    e[idx] = (n1 * e[idx] + n2 * np.asarray(e2, np.float64)) / (n1 + n2)
+    s[idx] = np.sqrt((n1 * s[idx]) ** 2 + (n2 * np.asarray(s2, np.float64)) ** 2) / (n1 + n2)
+    return e, s, idx
