@@ -2,6 +2,7 @@
 (embedded Redis + real RQ worker processes + the FastAPI app)."""
 from __future__ import annotations
 
+import json
 import os
 import time
 from pathlib import Path
@@ -18,6 +19,40 @@ def shared_path(*parts: str) -> Path:
     if not p.exists():
         pytest.skip(f"{p} is absent (tests read real scenes from ../shared beside the checkout)")
     return p
+
+
+SMALL_BAKE = {"place": {"budget": 300}, "trace": {"rays_per_probe": 32, "relocate_iterations": 1},
+              "visibility": {"samples_per_cell": 2}, "masks": {"sweeps": 10}, "evaluate": {"enabled": False}}
+"""The cheap end of each costly section, for a test about what happens around a bake (queues, restarts, faults,
+auth, events, the cache, exit codes) rather than about its quality: an automatic grid of at most 300 probes,
+32 rays per probe, 2 visibility samples per cell, 10 annealing sweeps, no evaluation. The default config (an
+automatic grid of up to 24,000 probes, 256 rays, a path-traced reference) takes minutes of the CI's 2 cores."""
+
+SMALL_EVALUATE = {"enabled": True, "cameras": 1, "width": 32, "height": 24, "spp": 2, "repeats": 1, "previews": 0,
+                  "surface_points": 32, "modes": ["direct", "leaking"]}
+"""An evaluate section for SMALL_BAKE where a test needs the reference and evaluate stages to run: one camera,
+32x24 pixels, 32 surface points at 2 paths, two modes, one timed repeat, no previews."""
+
+
+def small_bake(**sections: dict) -> dict:
+    """SMALL_BAKE with ``sections`` laid over it key by key: ``small_bake(place={"counts": [5, 5, 5]})`` keeps the
+    budget (unused with counts) and the other cheap sections; a section SMALL_BAKE lacks is added as given."""
+    out = {name: dict(values) for name, values in SMALL_BAKE.items()}
+    for name, values in sections.items():
+        out[name] = {**out.get(name, {}), **values}
+    return out
+
+
+UNLIT = small_bake(scene={"sky": [0, 0, 0], "use_scene_lights": False}, place={"counts": [3, 3, 3]},
+                   visibility={"slabs": 2})
+"""A tiny bake with the scene's own lights dropped and a black sky: nothing lights it, the ingest stage warns
+``unlit_scene``."""
+
+
+def as_toml(config: dict) -> str:
+    """A config of sections of scalars and lists (no nested tables) as TOML text, for the CLI's ``--config``."""
+    return "".join(f"[{name}]\n" + "".join(f"{k} = {json.dumps(v)}\n" for k, v in values.items())
+                   for name, values in config.items())
 
 
 @pytest.fixture(scope="session")

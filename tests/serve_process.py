@@ -5,6 +5,7 @@ Shared by the CLI test, the browser tests and the service benchmark.
 from __future__ import annotations
 
 import os
+import signal
 import socket
 import subprocess
 import sys
@@ -54,3 +55,17 @@ def spawn_serve(data: Path, *, workers: int = 2, api_keys: str | None = None, lo
             text = log.read_text() if log and log.exists() else "(no log)"
             raise RuntimeError(f"kiln serve did not come up (exit {proc.returncode}):\n{text}")
         time.sleep(0.2)
+
+
+def stop_serve(proc: subprocess.Popen, timeout: float = 30.0, *, strict: bool = False) -> None:
+    """Stop ``kiln serve`` as a person at its terminal does: Ctrl-C (SIGINT), then up to ``timeout`` s for it to
+    stop its workers and Redis and exit. One still running then is killed; with ``strict`` the TimeoutExpired is
+    raised after the kill (for a test of Ctrl-C itself)."""
+    proc.send_signal(signal.SIGINT)
+    try:
+        proc.wait(timeout)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.wait(10)
+        if strict:
+            raise

@@ -19,10 +19,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
-import signal
 import statistics
 import struct
-import subprocess
 import sys
 import tempfile
 import threading
@@ -37,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from persist.catalog import Catalog  # noqa: E402
-from tests.serve_process import spawn_serve  # noqa: E402
+from tests.serve_process import spawn_serve, stop_serve  # noqa: E402
 
 
 def big_glb(path: Path, target_mb: float) -> int:
@@ -278,11 +276,7 @@ def main() -> int:
             }
         results["get_bake_latency"] = results[f"get_bake_latency_nice{default_nice}"]
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
+        stop_serve(proc)
 
     u, e = results["upload"], results["enqueue_to_start"]
     print(f"{'measure':48s} {'value':>14s}")

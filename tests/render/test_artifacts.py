@@ -25,33 +25,9 @@ import numpy as np
 import pytest
 
 from workers.render.cameras import Camera, fit_clip_planes
-from workers.render.context import RenderUnavailable, create_context
 
+from tests.render.conftest import bake_arrays, bake_grid, mask_meta
 from tests.workers.test_probes import bake_until
-
-
-@pytest.fixture(scope="module")
-def ctx():
-    try:
-        c = create_context()
-    except RenderUnavailable as e:  # pragma: no cover - depends on the machine
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
-
-def _arrays(s) -> dict:
-    out = {}
-    for st in ("light", "masks", "compress", "relocate", "trace"):
-        if st in s:
-            for n in s[st].names():
-                out[n] = s[st][n]
-    return out
-
-
-def _grid(s) -> dict:
-    p = s["place"].stats
-    return {k: p[k] for k in ("counts", "origin", "spacing")}
 
 
 def _render(ctx, scene, s, cam: Camera, modes):
@@ -59,17 +35,13 @@ def _render(ctx, scene, s, cam: Camera, modes):
     from workers.render.gbuffer import GBufferRenderer
     from workers.render.shading import GBufferInputs, ShadingRenderer, prepare_mode
 
-    arrays, grid = _arrays(s), _grid(s)
+    arrays, grid = bake_arrays(s), bake_grid(s)
     gr = GBufferRenderer(scene, ctx)
     sh = ShadingRenderer(ctx)
     try:
         gb = gr.render(fit_clip_planes(cam, bounds=np.asarray(scene.bounds)))
         for m in modes:
-            kw = {}
-            if m.startswith("mask"):
-                kw["mask_meta"] = {"samples_per_cell": s["visibility"].stats["samples_per_cell"],
-                                   "block_size": s["compress"].stats["block_size"],
-                                   "border_lo": s["compress"].stats["border_lo"]}
+            kw = {"mask_meta": mask_meta(s)} if m.startswith("mask") else {}
             sh.set_mode(prepare_mode(m, arrays, grid, **kw))
         sh.set_gbuffer(GBufferInputs.from_gbuffer(gb))
         return gb, {m: sh.render(m, 1, cam.position).astype(np.float64) for m in modes}
@@ -102,7 +74,7 @@ def test_normalized_mask_no_speckle_at_the_grid_edge(ctx, tmp_path, scene_files)
     scene, s = bake_until(tmp_path, scene_files["sealed-box"], EDGE_CFG, "compress")
     cam = Camera(position=(3.5, 3.0, 3.5), target=(0.0, 0.3, 0.0), fov_y=70, width=96, height=72)
     gb, out = _render(ctx, scene, s, cam, ["mask_normalized"])
-    g = _grid(s)
+    g = bake_grid(s)
     lo = np.asarray(g["origin"])
     hi = lo + np.asarray(g["spacing"]) * (np.asarray(g["counts"]) - 1)
     sp = np.asarray(g["spacing"])
@@ -248,7 +220,7 @@ def test_plain_mask_no_halo_around_the_doorway(tmp_path, scene_files):
     from workers.kernels.pathtrace import indirect_irradiance
 
     scene, s = bake_until(tmp_path, scene_files["two-rooms"], HALO_CFG, "compress")
-    arrays, grid = _arrays(s), _grid(s)
+    arrays, grid = bake_arrays(s), bake_grid(s)
     rng = np.random.default_rng(0)
     zz, yy = rng.uniform(0.8, 3.2, 1200), rng.uniform(0.05, 2.9, 1200)
     keep = ~((zz > 1.55) & (zz < 2.45) & (yy < 2.0))

@@ -15,18 +15,6 @@ from workers.render.cameras import Camera, auto_cameras, default_camera, fit_cli
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    from workers.render.context import RenderUnavailable, create_context
-
-    try:
-        c = create_context()
-    except RenderUnavailable as exc:
-        pytest.skip(f"no headless OpenGL here: {exc}")
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
 def scenes(tmp_path_factory):
     from workers.procedural import write_scene
 

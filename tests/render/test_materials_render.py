@@ -15,18 +15,6 @@ from workers.raycast import caster_for_scene
 from workers.render.cameras import Camera
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from workers.render.context import RenderUnavailable, create_context
-
-    try:
-        c = create_context()
-    except RenderUnavailable as exc:
-        pytest.skip(f"no headless OpenGL here: {exc}")
-    yield c
-    c.release()
-
-
 _FRAG = '''
 #include "material.glsl"
 uniform vec4 uIn[32];      // base rgb, metallic

@@ -20,9 +20,9 @@ from workers.kernels.ddgi import sample_irradiance
 from workers.kernels.grid import unpack_atlas
 from workers.kernels.shading import direct_irradiance
 from workers.raycast import RayCaster
-from workers.render.context import RenderUnavailable, create_context
 from workers.render.shading import MODES, GBufferInputs, ShadingRenderer, prepare_mode, shadow_masks
 
+from tests.render.conftest import bake_arrays, bake_grid, mask_meta
 from tests.workers.test_probes import bake_until
 
 F16 = 2.0 ** -10
@@ -33,38 +33,9 @@ CFG = {"place": {"counts": [9, 4, 5], "box": TWO_ROOMS_BOX}, "trace": {"rays_per
 
 
 @pytest.fixture(scope="module")
-def ctx():
-    try:
-        c = create_context()
-    except RenderUnavailable as e:  # pragma: no cover - depends on the machine
-        pytest.skip(str(e))
-    yield c
-    c.release()
-
-
-@pytest.fixture(scope="module")
 def two_rooms(tmp_path_factory, scene_files):
     scene, s = bake_until(tmp_path_factory.mktemp("shade"), scene_files["two-rooms"], CFG, "compress")
     return scene, s
-
-
-def _arrays(s) -> dict:
-    out = {}
-    for st in ("light", "masks", "compress", "relocate", "trace"):
-        for n in s[st].names():
-            out[n] = s[st][n]
-    return out
-
-
-def _grid(s):
-    p = s["place"].stats
-    return {k: p[k] for k in ("counts", "origin", "spacing")}
-
-
-def _mask_meta(s, cfg=CFG):
-    S = cfg["visibility"]["samples_per_cell"]
-    T = s["compress"].stats["block_size"]
-    return {"samples_per_cell": S, "block_size": T, "border_lo": s["compress"].stats["border_lo"]}
 
 
 def _points(n, rng, box):
@@ -123,7 +94,7 @@ def test_every_mode_compiles_forward_and_deferred(ctx):
 def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
     """sh_order None: the default, L2 (the bake is light.sh_order 2: sh_l2, cluster_sh_l2_{k}); 1: the L1 path."""
     scene, s = two_rooms
-    arrays, grid = _arrays(s), _grid(s)
+    arrays, grid = bake_arrays(s), bake_grid(s)
     rng = np.random.default_rng(7)
     N = 64 * 48
     p, n = _points(N, rng, TWO_ROOMS_BOX)
@@ -144,7 +115,7 @@ def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
     else:
         # the GLSL clamps SH ringing at 0; its mask lookup moves along n + v (v = giViewDir, set from uEye)
         want = np.maximum(SM.irradiance(mode, arrays, grid, p, n, views=view, sh_order=sh_order), 0)
-    res = prepare_mode(mode, arrays, grid, mask_meta=_mask_meta(s), sh_order=sh_order)
+    res = prepare_mode(mode, arrays, grid, mask_meta=mask_meta(s), sh_order=sh_order)
     if mode != "ddgi":
         assert res.info["sh_order"] == (sh_order or 2) and ("KILN_SH_L2" in res.defines) == (sh_order is None)
     r = ShadingRenderer(ctx)
@@ -218,7 +189,7 @@ def test_direct_matches_python_and_shadow_rays(ctx, two_rooms):
     sm = shadow_masks(p, n, lights, caster, 1e-3)
     r = ShadingRenderer(ctx, lights)
     try:
-        r.set_mode(prepare_mode("direct", {}, _grid(s)))
+        r.set_mode(prepare_mode("direct", {}, bake_grid(s)))
         r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((32, 64, 3)), np.zeros((32, 64, 3)),
                                     np.ones((32, 64), bool), sm.reshape(32, 64, -1)))
         got = r.render("direct", output=2).reshape(-1, 3)
@@ -250,7 +221,7 @@ def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files, sh_order):
     arrays = {a.name: a.data for a in out.artifacts}
     if PrtModel.from_arrays(arrays).gamma is not None:  # pragma: no cover - default config is linear
         pytest.skip("gamma-space PRT has no GLSL basis sum")
-    grid = _grid(s)
+    grid = bake_grid(s)
     lights = [{"type": "point", "position": [0.5, 0.6, 0.5], "intensity": 2.0, "color": [1.0, 0.8, 0.6]}]
     caster = RayCaster(scene.triangles)
     want_vol = relight(arrays, lights, caster, lightmap=False)
@@ -277,7 +248,7 @@ def test_prt_glsl_equals_relight(ctx, tmp_path, scene_files, sh_order):
 def test_time_passes_interleaves_modes(ctx, two_rooms):
     """time_passes times every mode the same number of rounds (side by side) and leaves the output alone."""
     scene, s = two_rooms
-    arrays, grid = _arrays(s), _grid(s)
+    arrays, grid = bake_arrays(s), bake_grid(s)
     rng = np.random.default_rng(11)
     p, n = _points(32 * 16, rng, TWO_ROOMS_BOX)
     r = ShadingRenderer(ctx)

@@ -13,6 +13,7 @@ import pytest
 from proto import bundle
 from proto.models import BakeConfig
 from proto.stages import expand
+from tests.conftest import SMALL_EVALUATE, UNLIT, small_bake
 
 
 def _gltf_from_glb(glb: bytes) -> bytes:
@@ -102,7 +103,7 @@ def test_upload_over_size_limit_is_413(service, scene_files):
 def test_bake_lifecycle_artifacts_bundle_and_cache(running, scene_files):
     c = running.client
     sid = running.upload(scene_files["two-rooms"]).json()["id"]
-    cfg = {"place": {"counts": [6, 3, 4]}}
+    cfg = small_bake(place={"counts": [6, 3, 4]}, evaluate=SMALL_EVALUATE)   # evaluated: the reference is cached
     r = c.post("/v1/bakes", json={"scene_id": sid, "config": cfg})
     assert r.status_code == 202, r.text
     bid = r.json()["id"]
@@ -146,7 +147,7 @@ def test_bake_lifecycle_artifacts_bundle_and_cache(running, scene_files):
     b2 = c.get(f"/v1/bakes/{r.json()['id']}").json()
     assert all(s["cached"] for s in b2["stages"])
     # only the place section changes: ingest is cached, place re-runs
-    r = c.post("/v1/bakes", json={"scene_id": sid, "config": {"place": {"spacing": 1.0}}})
+    r = c.post("/v1/bakes", json={"scene_id": sid, "config": {**cfg, "place": {"spacing": 1.0}}})
     b3 = running.wait_bake(r.json()["id"])
     assert b3["status"] == "succeeded"
     assert b3["stages"][0]["cached"] and not any(s["cached"] for s in b3["stages"][1:] if s["name"] != "reference")
@@ -166,7 +167,7 @@ def test_bake_lifecycle_artifacts_bundle_and_cache(running, scene_files):
 def test_sse_events_end_with_final_status(running, scene_files):
     c = running.client
     sid = running.upload(scene_files["cornell"]).json()["id"]
-    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": {"place": {"counts": [3, 3, 3]}}}).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake(place={"counts": [3, 3, 3]})}).json()["id"]
     events = []
     with c.stream("GET", f"/v1/bakes/{bid}/events") as r:
         assert r.headers["content-type"].startswith("text/event-stream")
@@ -222,12 +223,12 @@ def test_team_isolation_and_auth(service, scene_files):
     assert c.get("/v1/scenes").status_code == 401
     assert c.get("/v1/scenes", headers={"Authorization": "Bearer wrong-key-000"}).status_code == 401
     sid = service.upload(scene_files["cornell"], headers=red).json()["id"]
-    bid = c.post("/v1/bakes", json={"scene_id": sid}, headers=red).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake()}, headers=red).json()["id"]
     assert service.wait_bake(bid, headers=red)["status"] == "succeeded"
     assert c.get(f"/v1/scenes/{sid}", headers=blue).status_code == 404
     assert c.get(f"/v1/bakes/{bid}", headers=blue).status_code == 404
     assert c.get(f"/v1/bakes/{bid}/artifacts/lights", headers=blue).status_code == 404
-    assert c.post("/v1/bakes", json={"scene_id": sid}, headers=blue).status_code == 404
+    assert c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake()}, headers=blue).status_code == 404
     assert c.get("/v1/bakes", headers=blue).json()["total"] == 0
     assert c.get("/v1/bakes", headers=red).json()["total"] == 1
     # blue uploads the same scene: its own record, same id
@@ -240,7 +241,7 @@ def test_health_metrics_and_schema(running, scene_files):
     h = c.get("/healthz").json()
     assert h["status"] == "ok" and h["redis"] and h["catalog"]
     sid = running.upload(scene_files["cornell"]).json()["id"]
-    bid = c.post("/v1/bakes", json={"scene_id": sid}).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake()}).json()["id"]
     running.wait_bake(bid)
     m = c.get("/metrics").text
     assert "kiln_queue_depth" in m
@@ -250,12 +251,6 @@ def test_health_metrics_and_schema(running, scene_files):
     assert "place" in schema["properties"]
     assert c.get("/docs").status_code == 200
     assert "Kiln" in c.get("/").text
-
-
-# A tiny bake of two-rooms with its only light dropped and a black sky: nothing lights it.
-UNLIT = {"scene": {"sky": [0, 0, 0], "use_scene_lights": False}, "place": {"counts": [3, 3, 3]},
-         "trace": {"rays_per_probe": 32}, "visibility": {"samples_per_cell": 2, "slabs": 2},
-         "masks": {"sweeps": 10}}
 
 
 def test_bake_warnings_in_the_api_and_after_a_restart(running, scene_files):

@@ -5,7 +5,6 @@ from __future__ import annotations
 import json
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -15,8 +14,9 @@ import psutil
 import pytest
 
 from proto import bundle
-from tests.conftest import shared_path
-from tests.serve_process import free_port, spawn_serve
+from proto.models import PlaceSection
+from tests.conftest import UNLIT, as_toml, shared_path, small_bake
+from tests.serve_process import free_port, spawn_serve, stop_serve
 
 KILN = [sys.executable, "-m", "server.cli"]
 
@@ -38,7 +38,7 @@ def test_scenes_make_and_list(tmp_path):
 def test_bake_local_json_and_cache(tmp_path, scene_files):
     cache = tmp_path / "cache"
     cfg = tmp_path / "bake.toml"
-    cfg.write_text('[place]\ncounts = [4, 3, 5]\n[scene]\nsky = [0.5, 0.5, 0.5]\n'
+    cfg.write_text(as_toml(small_bake(place={"counts": [4, 3, 5]})) + '[scene]\nsky = [0.5, 0.5, 0.5]\n'
                    '[[scene.lights]]\ntype = "directional"\ndirection = [0, -1, 0]\nintensity = 2.0\n')
     r = kiln("bake", scene_files["two-rooms"], "--config", cfg, "--out", tmp_path / "out", "--json",
              "--cache", cache)
@@ -70,7 +70,10 @@ def test_bake_local_real_scene(tmp_path):
         for p in scene.parent.iterdir():
             if p.suffix in (".gltf", ".bin"):
                 f.write(p, p.name)
-    r = kiln("bake", z, "--out", tmp_path / "out", "--json", "--cache", tmp_path / "c", "--quiet")
+    # the default grid (the default budget: the spacing the rooms ask for); the other sections cheap
+    cfg = tmp_path / "small.json"
+    cfg.write_text(json.dumps(small_bake(place={"budget": PlaceSection().budget})))
+    r = kiln("bake", z, "--config", cfg, "--out", tmp_path / "out", "--json", "--cache", tmp_path / "c", "--quiet")
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert m["scene"]["lights"] == 1 and m["scene"]["triangles"] >= 30
@@ -120,7 +123,10 @@ def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):
             assert time.monotonic() < deadline, [w.nice() for w in workers]
             time.sleep(0.1)
 
-        r = kiln("bake", scene_files["cornell"], "--server", url, "--out", tmp_path / "out", "--json")
+        cfg = tmp_path / "small.json"                   # the automatic grid, small
+        cfg.write_text(json.dumps(small_bake()))
+        r = kiln("bake", scene_files["cornell"], "--server", url, "--config", cfg, "--out", tmp_path / "out",
+                 "--json")
         assert r.returncode == 0, r.stderr
         m = json.loads(r.stdout)
         assert m["bake_id"] and [s["name"] for s in m["stages"]][:2] == ["ingest", "place"]
@@ -135,12 +141,7 @@ def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):
         # the minimal page is served
         assert "Upload a scene" in httpx.get(url + "/").text
     finally:
-        proc.send_signal(signal.SIGINT)  # Ctrl-C
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            raise
+        stop_serve(proc, strict=True)  # Ctrl-C
     time.sleep(0.5)
     alive = [k for k in kids if k.is_running() and k.status() != psutil.STATUS_ZOMBIE]
     assert not alive, f"orphans left running: {[k.cmdline() for k in alive]}"
@@ -167,8 +168,7 @@ def test_bake_server_unreachable(tmp_path, scene_files):
     assert r.returncode == 5 and "cannot talk to" in r.stderr
 
 
-UNLIT_TOML = ('[scene]\nsky = [0, 0, 0]\nuse_scene_lights = false\n[place]\ncounts = [3, 3, 3]\n'
-              '[trace]\nrays_per_probe = 32\n[visibility]\nsamples_per_cell = 2\nslabs = 2\n[masks]\nsweeps = 10\n')
+UNLIT_TOML = as_toml(UNLIT)
 
 
 def _warning_lines(stderr: str) -> list[str]:
@@ -213,9 +213,4 @@ def test_bake_warnings_through_the_server(tmp_path, scene_files):
         assert r.returncode == 6 and _warning_lines(r.stderr) == lines, r.stderr
         assert (tmp_path / "o2" / "manifest.json").exists()
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop_serve(proc)

@@ -6,7 +6,8 @@ from persist.catalog import Catalog
 from tests.conftest import Service
 
 CONFIG = {"place": {"counts": [9, 4, 5], "box": {"min": [0.2, 0.2, 0.2], "max": [7.85, 2.8, 3.8]}},
-          "trace": {"rays_per_probe": 64}, "light": {"bounces": 2}, "visibility": {"samples_per_cell": 4, "slabs": 3}}
+          "trace": {"rays_per_probe": 64}, "light": {"bounces": 2}, "visibility": {"samples_per_cell": 4, "slabs": 3},
+          "evaluate": {"enabled": False}}   # the stages downstream of the split visibility field, not the reference
 
 
 def _bake(tmp_path, scene, workers: int) -> tuple[dict, dict]:

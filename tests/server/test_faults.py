@@ -10,6 +10,7 @@ import time
 import pytest
 
 from persist.catalog import Catalog
+from tests.conftest import small_bake
 
 
 def _stage_pid(data, bake_id, stage, timeout=30.0):
@@ -37,7 +38,7 @@ def test_sigkill_worker_mid_stage_bake_still_succeeds(service, scene_files):
     service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "1.5"})
     c = service.start_app()
     sid = service.upload(scene_files["two-rooms"]).json()["id"]
-    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": {"place": {"counts": [5, 5, 5]}}}).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake(place={"counts": [5, 5, 5]})}).json()["id"]
     pid = _stage_pid(service.data, bid, "place")
     assert pid not in service.pool.pids  # the work-horse, a child of the worker
     os.kill(pid, signal.SIGKILL)
@@ -55,7 +56,7 @@ def test_redis_restart_during_bake_loses_no_record(service, scene_files):
     service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "1.0"})
     c = service.start_app()
     sid = service.upload(scene_files["cornell"]).json()["id"]
-    ids = [c.post("/v1/bakes", json={"scene_id": sid, "config": {"place": {"counts": [n, 2, 2]}}}).json()["id"]
+    ids = [c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake(place={"counts": [n, 2, 2]})}).json()["id"]
            for n in (2, 3, 4)]
     _stage_pid(service.data, ids[0], "ingest")
     # restart Redis under the running bake
@@ -73,7 +74,7 @@ def test_redis_restart_during_bake_loses_no_record(service, scene_files):
 def test_api_restart_with_queued_bakes(service, scene_files):
     c = service.start_app()  # no workers yet: bakes stay queued
     sid = service.upload(scene_files["sealed-box"]).json()["id"]
-    bid = c.post("/v1/bakes", json={"scene_id": sid}).json()["id"]
+    bid = c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake()}).json()["id"]
     assert c.get(f"/v1/bakes/{bid}").json()["status"] == "queued"
     service.stop_app()
     # Redis loses the queue entirely (flush), the catalog keeps the bake: recovery re-enqueues it

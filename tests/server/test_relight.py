@@ -29,7 +29,8 @@ B = {"Authorization": "Bearer key-bbbbbbbb"}
 PRT = {"enabled": True, "configurations": 16, "measurement_points": 32, "basis": 8, "lightmap": 32,
        "scenario": {"types": ["point", "spot"], "box": {"min": [0.0, 0.1, 1.3], "max": [1.0, 0.9, 2.0]}}}
 CONFIG = {"place": {"counts": [3, 3, 3]}, "trace": {"rays_per_probe": 32},
-          "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 10}, "prt": PRT}
+          "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 10}, "prt": PRT,
+          "evaluate": {"enabled": False}}   # relighting reads the prt stage's artifacts, not the evaluation
 LIGHTS = [{"type": "point", "position": [0.5, 0.5, 1.6], "intensity": 5.0, "color": [1.0, 0.8, 0.6]},
           {"type": "spot", "position": [0.2, 0.7, 1.5], "direction": [0.3, -0.4, -1.0], "intensity": 3.0}]
 

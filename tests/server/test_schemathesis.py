@@ -18,8 +18,6 @@ checked against the schemas too. ``DELETE /v1/bakes/{id}`` keeps its generated i
 from __future__ import annotations
 
 import hashlib
-import signal
-import subprocess
 import time
 
 import httpx
@@ -28,7 +26,7 @@ import pytest
 schemathesis = pytest.importorskip("schemathesis")
 from hypothesis import HealthCheck, Phase, settings  # noqa: E402
 
-from tests.serve_process import spawn_serve  # noqa: E402
+from tests.serve_process import spawn_serve, stop_serve  # noqa: E402
 
 KEY = "schemathesis-key-0123"
 AUTH = {"Authorization": f"Bearer {KEY}"}
@@ -62,12 +60,7 @@ def kiln(tmp_path_factory, scene_files):
         yield {"url": url, "scene_id": sid, "bake_id": bid, "artifacts": sorted(a["name"] for a in bake["artifacts"]),
                "log": log}
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop_serve(proc)
 
 
 def _document() -> dict:

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import signal
 import subprocess
 import time
 from pathlib import Path
@@ -17,7 +16,7 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.serve_process import spawn_serve
+from tests.serve_process import spawn_serve, stop_serve
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = Path(os.environ.get("KILN_CHROMIUM", "/usr/bin/chromium"))
@@ -80,12 +79,7 @@ def _serve(tmp: Path, api_keys: str = ""):
     try:
         yield KilnServer(url, proc, log)
     finally:
-        proc.send_signal(signal.SIGINT)
-        try:
-            proc.wait(30)
-        except subprocess.TimeoutExpired:
-            proc.kill()
-            proc.wait(10)
+        stop_serve(proc)
 
 
 @pytest.fixture(scope="session")

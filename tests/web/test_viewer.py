@@ -15,12 +15,16 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.conftest import UNLIT
 from tests.web.conftest import ROOT
 
 pytestmark = pytest.mark.timeout(240)
 
-# A fast bake that still exercises every stage (the default grid, coarser θ).
-FAST = {"visibility.samples_per_cell": "4"}
+# A fast bake that still exercises every stage: the automatic grid under the preview preset's budget (2,000 probes,
+# not the default 24,000), coarser θ, fewer annealing sweeps, and the evaluation (on by default, as the dashboard
+# tests want) at fewer paths and surface points.
+FAST = {"place.budget": "2000", "visibility.samples_per_cell": "4", "masks.sweeps": "200", "evaluate.spp": "8",
+        "evaluate.surface_points": "256"}
 
 
 def _scene(tmp_path, name="two-rooms"):
@@ -458,12 +462,6 @@ def test_dashboard_compares_evaluate_previews(page, tmp_path, kiln_server, shots
     page.wait_for_selector("#image-zoom[hidden]", state="attached")
     page.locator("#compare").screenshot(path=str(shots / "compare-previews.png"))
     assert not page.kiln_errors, page.kiln_errors
-
-
-# two-rooms with its only light dropped and a black sky: the ingest stage warns `unlit_scene`.
-UNLIT = {"scene": {"sky": [0, 0, 0], "use_scene_lights": False}, "place": {"counts": [3, 3, 3]},
-         "trace": {"rays_per_probe": 32}, "visibility": {"samples_per_cell": 2, "slabs": 2},
-         "masks": {"sweeps": 10}}
 
 
 def test_bake_warnings_on_the_card_the_dashboard_and_the_viewer(page, tmp_path, kiln_server, shots):
