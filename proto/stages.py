@@ -50,9 +50,9 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     StageDef("anneal", 1, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),
              ("place", "trace", "visibility"), timeout=3600),
-    StageDef("masks", 1, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
+    StageDef("masks", 2, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
-    StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
+    StageDef("compress", 2, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py)
     StageDef("reference", 1, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),

@@ -334,12 +334,13 @@ def test_bad_volumes_are_refused():
 
 
 # ---------------------------------------------------------------------------- stage
-def _ctx(volumes: dict, counts, origin, spacing, S, tol=0.0):
+def _ctx(volumes: dict, counts, origin, spacing, S, tol=0.0, K=None):
     cfg = BakeConfig.model_validate({"place": {"counts": list(counts)}, "visibility": {"samples_per_cell": S},
                                      "masks": {"compress_tolerance": tol}})
     place = {"counts": list(counts), "origin": list(map(float, origin)), "spacing": list(map(float, spacing))}
+    K = K or 4 * len(volumes)
     return StageContext(config=cfg, scene_loader=lambda: None,
-                        inputs={"masks": LazyArtifacts({}, {k: (lambda v=v: v) for k, v in volumes.items()}),
+                        inputs={"masks": LazyArtifacts({"clusters": K}, {k: (lambda v=v: v) for k, v in volumes.items()}),
                                 "place": LazyArtifacts(place, {})},
                         report=lambda f: None)
 
@@ -347,6 +348,7 @@ def _ctx(volumes: dict, counts, origin, spacing, S, tol=0.0):
 @pytest.mark.parametrize("two", [False, True])
 def test_stage_run_compress(two):
     from proto.ktx2 import decode_ktx2, encode_ktx2
+    from workers.kernels.mask_atlas import decompress_channels
     from workers.stages.compress import run_compress
 
     rng = np.random.default_rng(13)
@@ -356,26 +358,28 @@ def test_stage_run_compress(two):
         vols["masks_4567"] = blocky_volume(rng, counts, S, n_boxes=3)
     out = run_compress(_ctx(vols, counts, origin, spacing, S))
     names = [a.name for a in out.artifacts]
-    assert names == ["mask_atlas_0123"] + (["mask_atlas_4567"] if two else []) + ["mask_indirection"]
+    assert names == ["mask_atlas", "mask_indirection"]
     st = out.stats
-    for key in ("blocks", "unique_blocks", "atlas_blocks", "dense_bytes", "compressed_bytes", "ratio",
-                "max_block_error", "max_sample_error", "tolerance", "layout", "block_grid", "fits_256"):
+    for key in ("channel_blocks", "constant_zero", "constant_one", "unique_blocks", "atlas_blocks", "dense_bytes",
+                "atlas_bytes", "indirection_bytes", "compressed_bytes", "ratio", "compressed_zstd_bytes",
+                "ratio_stored", "max_block_error", "max_sample_error", "tolerance", "layout", "block_grid", "fits_256"):
         assert key in st
-    assert st["blocks"] == 6 * 3 * 4 and st["tolerance"] == 0.0 and st["fits_256"]
-    assert st["max_sample_error"] <= 1e-4 and st["ratio"] > 1 and st["compressed_bytes"] < st["dense_bytes"]
+    K = 8 if two else 4
+    assert st["channel_blocks"] == 6 * 3 * 4 * K and st["tolerance"] == 0.0 and st["fits_256"]
+    assert st["max_sample_error"] <= 1e-9 and st["ratio"] > 1 and st["compressed_bytes"] < st["dense_bytes"]
+    assert st["ratio_stored"] == st["dense_bytes"] / st["compressed_zstd_bytes"]
     arts = {a.name: a for a in out.artifacts}
     meta = arts["mask_indirection"].meta
-    assert meta["samples_per_cell"] == S and meta["block_size"] == S + meta["border_lo"] + meta["border_hi"]
-    assert meta["layout"] == "cell" and meta["block_size"] == S
-    assert meta["volumes"] == [n for n in names if n.startswith("mask_atlas")]
-    ind = arts["mask_indirection"].data
-    assert ind.shape == (4, 3, 6, 4) and ind.dtype == np.uint8
-    for n, v in vols.items():
-        a = arts[n.replace("masks_", "mask_atlas_")]
-        assert a.zstd_level == 3 and a.meta == meta and a.data.dtype == np.uint8 and a.data.ndim == 4
-        np.testing.assert_array_equal(C.decompress(a.data, ind, meta), v)
-        back, _ = decode_ktx2(encode_ktx2(a.data, zstd_level=a.zstd_level))   # writable as RGBA8 3D KTX2
-        np.testing.assert_array_equal(back, a.data)
+    assert meta["samples_per_cell"] == S and meta["block_size"] == S and meta["border_lo"] == 0
+    assert meta["layout"] == "channel" and meta["clusters"] == K and meta["groups"] == K // 4
+    ind, atlas = arts["mask_indirection"].data, arts["mask_atlas"].data
+    assert ind.shape == (2 * (K // 4) * 4, 3, 6, 4) and ind.dtype == np.uint8
+    assert atlas.dtype == np.uint8 and atlas.ndim == 4 and atlas.shape[3] == 1 and arts["mask_atlas"].meta == meta
+    for x in (atlas, ind):
+        back, _ = decode_ktx2(encode_ktx2(x, zstd_level=19))               # R8 / RGBA8 3D KTX2
+        np.testing.assert_array_equal(back.reshape(x.shape), x)
+    for got, want in zip(decompress_channels(atlas, ind, meta), vols.values()):
+        np.testing.assert_array_equal(got, want)
     import json
     json.dumps(st), json.dumps(meta)                                        # JSON-able
 
@@ -385,12 +389,13 @@ def test_stage_tolerance_and_bad_input():
 
     rng = np.random.default_rng(17)
     counts, origin, spacing, S = (7, 4, 5), np.zeros(3), np.ones(3), 4
-    v = blocky_volume(rng, counts, S, n_boxes=3)
+    v = blocky_volume(rng, counts, S, n_boxes=3, levels=(0, 120, 255))
     v = np.clip(v.astype(int) + rng.integers(-2, 3, v.shape) * (rng.random(v.shape) < 0.01), 0, 255).astype(np.uint8)
     exact = run_compress(_ctx({"masks_0123": v}, counts, origin, spacing, S)).stats
     lossy = run_compress(_ctx({"masks_0123": v}, counts, origin, spacing, S, tol=0.01)).stats
     assert lossy["atlas_blocks"] < exact["atlas_blocks"] and lossy["ratio"] > exact["ratio"]
-    assert 0 < lossy["max_block_error"] <= 0.01 and lossy["max_sample_error"] <= lossy["max_block_error"] + 1e-4
+    assert exact["max_block_error"] == 0 and exact["max_sample_error"] <= 1e-9 and exact["max_read_error"] <= 1e-9
+    assert 0 < lossy["max_block_error"] <= 0.01 and lossy["max_read_error"] <= lossy["max_block_error"] + 1e-9
     with pytest.raises(StageError):
         run_compress(_ctx({"masks_0123": v[:-1]}, counts, origin, spacing, S))
     with pytest.raises(StageError):

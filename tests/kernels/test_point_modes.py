@@ -9,7 +9,7 @@ import pytest
 from workers.kernels.point_modes import available_modes, gi_fetches
 
 FULL = {"sh_l1_r", "sh_l1_g", "sh_l1_b", "irradiance", "depth_moments", "probe_positions_relocated", "probe_states",
-        "mask_indirection", "mask_atlas_0123", "cluster_sh_0_r", "cluster_weights_0123", "prt"}
+        "mask_indirection", "mask_atlas", "cluster_sh_0_r", "cluster_weights_0123", "prt"}
 
 
 def test_available_modes():
@@ -43,3 +43,21 @@ def test_ddgi_fetches_count_live_corners():
     off = {"probe_states": np.zeros((2, 2, 2, 1), np.uint8)}
     assert gi_fetches("ddgi", res, on, grid, pts, n, n)[0] == 24.0
     assert gi_fetches("ddgi", res, off, grid, pts, n, n)[0] == 8.0
+
+
+def test_mask_fetches_count_stored_channels_and_clusters():
+    """2·G indirection fetches, 2 atlas reads per channel the cell stores in the atlas (code >= 2: not all 0 or all
+    255), 7 (L2) per cluster with m_k > 0, plus A weight fetches in normalized mask GI (gi_mask.glsl)."""
+    from workers.kernels.mask_atlas import compress_channels
+
+    grid = {"counts": [2, 2, 2], "origin": [0, 0, 0], "spacing": [1, 1, 1]}
+    S = 2
+    v = np.zeros((S, S, S, 4), np.uint8)
+    v[..., 0] = 255                                        # code 1: m = 1, no atlas fetch
+    v[..., 1] = np.array([0, 200], np.uint8)[None, None, :]  # a ramp along x: stored, read twice
+    ca = compress_channels(v, grid["counts"], S, 4)
+    arrays = {"masks_0123": v, "mask_indirection": ca.indirection}
+    pts, n = np.array([[0.5, 0.5, 0.5]]), np.array([[0, 1.0, 0]])
+    res = SimpleNamespace(info={"sh_order": 2, "clusters": 4}, uniforms={"uMaskS": S, "uMaskOffset": 0.0})
+    assert gi_fetches("mask", res, arrays, grid, pts, n, n)[0] == 2 + 2 * 1 + 7 * 2
+    assert gi_fetches("mask_normalized", res, arrays, grid, pts, n, n)[0] == 2 + 2 * 1 + 7 * 2 + 1

@@ -52,11 +52,11 @@ def test_cluster_count_and_has_l2():
 def test_texture_bindings():
     names = [f"cluster_sh_{k}_{c}" for k in range(5) for c in "rgb"] + [f"cluster_sh_l2_{k}" for k in range(5)]
     b = G.texture_bindings("mask_normalized", names, 2)
-    assert list(b) == ["uMaskIndirection", "uMaskAtlas0123", "uMaskAtlas4567", "uClusterShL2", "uClusterWeights"]
+    assert list(b) == ["uMaskIndirection", "uMaskAtlas", "uClusterShL2", "uClusterWeights"]   # one atlas for any K
     assert b["uClusterShL2"] == ([f"cluster_sh_l2_{k}" for k in range(5)], "stack")
     assert b["uClusterWeights"] == (["cluster_weights_0123", "cluster_weights_4567"], "stack")
-    b1 = G.texture_bindings("mask", names[:6], 1)           # K = 2: no second atlas, no weights in plain mask GI
-    assert list(b1) == ["uMaskIndirection", "uMaskAtlas0123", "uClusterSh"] and len(b1["uClusterSh"][0]) == 6
+    b1 = G.texture_bindings("mask", names[:6], 1)           # K = 2: no weights in plain mask GI
+    assert list(b1) == ["uMaskIndirection", "uMaskAtlas", "uClusterSh"] and len(b1["uClusterSh"][0]) == 6
     assert G.texture_bindings("leaking", [], 1) == {u: ([f"sh_l1_{c}"], "volume") for u, c in
                                                      (("uShR", "r"), ("uShG", "g"), ("uShB", "b"))}
     assert G.texture_bindings("ddgi", [], 1)["uProbeData"] == (["probe_positions_relocated", "probe_states"],

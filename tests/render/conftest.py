@@ -19,12 +19,21 @@ def ctx():
 
 
 def bake_arrays(s: dict) -> dict:
-    """{artifact name: array} of the stages a GI mode reads (light, masks, compress, relocate, trace) that ran."""
+    """{artifact name: array} of the stages a GI mode reads (light, masks, compress, relocate, trace) that ran; with
+    ``masks_0123`` / ``masks_4567`` the masks the compressed atlas stands for (what the runtime samples: the
+    compression may be lossy, ``masks.compress_tolerance``)."""
     out = {}
     for st in ("light", "masks", "compress", "relocate", "trace"):
         if st in s:
             for n in s[st].names():
                 out[n] = s[st][n]
+    if "mask_atlas" in out:
+        from workers.kernels.mask_atlas import decompress_channels
+
+        meta = {"samples_per_cell": s["compress"].stats["block_size"], "clusters": s["compress"].stats["clusters"]}
+        for n, v in zip(("masks_0123", "masks_4567"), decompress_channels(out["mask_atlas"], out["mask_indirection"],
+                                                                           meta)):
+            out[n] = v
     return out
 
 

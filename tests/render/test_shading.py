@@ -278,9 +278,8 @@ def _synthetic_bake(K=5, l2=True, counts=(3, 2, 2)):
               "probe_states": np.array([0] + [1] * (P - 1), np.uint8),
               "irradiance": rng.random((ny * 8, nz * nx * 8, 4)).astype(np.float32),
               "depth_moments": rng.random((ny * 16, nz * nx * 16, 2)).astype(np.float32),
-              "mask_indirection": rng.integers(0, 255, (1, 1, 2, 4)).astype(np.uint8),
-              "mask_atlas_0123": rng.integers(0, 255, (4, 4, 8, 4)).astype(np.uint8),
-              "mask_atlas_4567": rng.integers(0, 255, (4, 4, 8, 4)).astype(np.uint8),
+              "mask_indirection": rng.integers(0, 255, (4, 1, 2, 4)).astype(np.uint8),
+              "mask_atlas": rng.integers(0, 255, (4, 4, 8, 1)).astype(np.uint8),
               "cluster_weights_0123": vol(), "cluster_weights_4567": vol()})
     for k in range(K):
         a.update({f"cluster_sh_{k}_{c}": vol() for c in "rgb"})

@@ -121,15 +121,17 @@ def test_stage_outputs_layout(tmp_path, scene_files, K):
     assert np.array_equal(np.argmax(w, axis=3)[on], g[on])
     for c in "rgb":
         total = sum(arts[f"cluster_sh_{k}_{c}"].data for k in range(K))
-        assert total.shape == (nz, ny, nx, 4) and total.dtype == np.float32
-        assert np.array_equal(total, np.where(on[..., None], s["light"][f"sh_l1_{c}"], 0))
+        assert total.shape == (nz, ny, nx, 4) and total.dtype == np.float16            # RGBA16F (issue 17)
+        assert arts[f"cluster_sh_0_{c}"].zstd_level == 19
+        assert np.array_equal(total, np.where(on[..., None], s["light"][f"sh_l1_{c}"], 0).astype(np.float16))
     # the L2 cluster volumes (sh_l2 layout) partition the probes' 9 coefficients the same way
     from workers.kernels.sh import sh_l2_atlas_depth, sh_l2_from_atlas
 
     l2 = [arts[f"cluster_sh_l2_{k}"].data for k in range(K)]
-    assert all(v.shape == (sh_l2_atlas_depth(nz), ny, nx, 4) and v.dtype == np.float32 for v in l2)
+    assert all(v.shape == (sh_l2_atlas_depth(nz), ny, nx, 4) and v.dtype == np.float16 for v in l2)
     total2 = sum(sh_l2_from_atlas(v) for v in l2)
-    assert np.array_equal(total2, np.where(on[..., None, None], s["light"]["probe_sh"], 0))
+    assert np.array_equal(total2, np.where(on[..., None, None], s["light"]["probe_sh"], 0).astype(np.float16))
+    assert m.stats["half_clamped"] == 0 and w.dtype == np.float16
     assert np.array_equal(total2[..., :4, :], np.stack([total_c for total_c in
                           (sum(arts[f"cluster_sh_{k}_{c}"].data for k in range(K)) for c in "rgb")], -1))
     # every artifact goes through the bundle format and back unchanged
@@ -174,6 +176,9 @@ def test_parity_masks_reproduce_visibility_weighting(tmp_path, scene_files, scen
     rng = np.random.default_rng(0)
     n = rng.normal(size=pts.shape)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
+    # (the cluster volumes hold the probes' SH as half floats (RGBA16F): eq 2 of the same half-rounded SH)
+    arrays = {**dict(arrays), **{k: np.asarray(arrays[k]).astype(np.float16)
+                                 for k in ("sh_l1_r", "sh_l1_g", "sh_l1_b", "sh_l2") if k in arrays}}
     # (masks read at the point itself: the runtime's normal offset moves the lookup off the sample)
     # (and with the linear L1 SH evaluation: the non-linear one is not additive; visibility_weighted is L1)
     ref = SM.irradiance("visibility_weighted", arrays, grid, pts, n, linear=True, sh_order=1)

@@ -205,12 +205,12 @@ describe('mask lookup offset (workers/kernels/samplers.MASK_OFFSET_SAMPLES)', ()
   });
 });
 
-describe('mask atlas parameters (workers/kernels/compress.py layouts)', () => {
+describe('mask atlas parameters (workers/kernels/mask_atlas.py, older compress.py layouts)', () => {
   it('reads the atlas meta, else the compress stats, else the dense masks', async () => {
     const { maskParams } = await import('../src/state/modes.js');
     const none = () => undefined;
     const meta = { samples_per_cell: 8, block_size: 8, border_lo: 0 };
-    expect(maskParams({ names: [], info: (n) => (n === 'mask_atlas_0123' ? { meta } : undefined) })).toEqual({ S: 8, T: 8, lo: 0 });
+    expect(maskParams({ names: [], info: (n) => (n === 'mask_atlas' ? { meta } : undefined) })).toEqual({ S: 8, T: 8, lo: 0 });
     const bake = (stats) => ({ stages: [{ name: 'compress', stats }] });
     expect(maskParams({ names: [], info: none, bake: bake({ block_size: 8, layout: 'cell', border_lo: 0, border_hi: 0 }) })).toEqual({ S: 8, T: 8, lo: 0 });
     expect(maskParams({ names: [], info: none, bake: bake({ block_size: 9, layout: 'shared' }) })).toEqual({ S: 8, T: 9, lo: 0 });
@@ -223,7 +223,7 @@ describe('mask atlas parameters (workers/kernels/compress.py layouts)', () => {
 describe('the mode table is proto/gi_modes.json (one source with workers/render/shading.py prepare_mode)', () => {
   const grid = { counts: [3, 2, 2], spacing: [0.5, 0.25, 1], origin: [0, 0, 0] };
   const K = 5;
-  const names = ['sh_l1_r', 'sh_l1_g', 'sh_l1_b', 'sh_l2', 'mask_indirection', 'mask_atlas_0123', 'mask_atlas_4567',
+  const names = ['sh_l1_r', 'sh_l1_g', 'sh_l1_b', 'sh_l2', 'mask_indirection', 'mask_atlas',
     'cluster_weights_0123', 'cluster_weights_4567', 'irradiance', 'depth_moments', 'probe_positions_relocated', 'probe_states',
     ...Array.from({ length: K }, (_, k) => [`cluster_sh_${k}_r`, `cluster_sh_${k}_g`, `cluster_sh_${k}_b`, `cluster_sh_l2_${k}`]).flat()];
   const artifacts = { irradiance: { width: 96, height: 16 }, depth_moments: { width: 192, height: 32 },

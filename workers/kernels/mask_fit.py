@@ -26,7 +26,7 @@ from workers.kernels.mask_field import (check_counts, check_field, check_labels,
                                         field_fractions, off_flags)
 
 __all__ = ["fit_masks", "mask_residual", "light_aware_fit", "fill_dont_care", "gaussian_filter", "quantize",
-           "cluster_volumes", "canonicalize"]
+           "cluster_volumes", "canonicalize", "half_volume"]
 
 
 # ---------------------------------------------------------------------- 1. masks (eq 5)
@@ -488,3 +488,14 @@ def canonicalize(q: np.ndarray, dont_care: np.ndarray, counts, S: int, g, K: int
     deep = dc & ~binary_dilation(~dc, structure=np.ones((3, 3, 3), bool))
     out[deep] = 0
     return np.ascontiguousarray(out, np.uint8)
+
+
+HALF_MAX = 65504.0  # the largest float16
+
+
+def half_volume(a, clamped: list) -> np.ndarray:
+    """A probe volume as stored (proto/bundle.md 5.2, RGBA16F): float16 of ``a``, magnitudes beyond the half range
+    clamped to ±65504 (their count added to ``clamped[0]``). Relative rounding error ≤ 2^-11."""
+    a = np.asarray(a, np.float32)
+    clamped[0] += int((np.abs(a) > HALF_MAX).sum())
+    return np.ascontiguousarray(np.clip(a, -HALF_MAX, HALF_MAX).astype(np.float16))

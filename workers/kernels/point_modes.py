@@ -47,11 +47,16 @@ class MaskArrays(dict):
         if dict.__contains__(self, k):
             return dict.__getitem__(self, k)
         if k in ("masks_0123", "masks_4567") and self._meta is not None \
-                and f"mask_atlas_{k[-4:]}" in self._arrays and "mask_indirection" in self._arrays:
-            from workers.kernels.compress import decompress
+                and "mask_atlas" in self._arrays and "mask_indirection" in self._arrays:
+            from proto.gi_modes import cluster_count
+            from workers.kernels.mask_atlas import decompress_channels
 
-            v = decompress(np.asarray(self._arrays[f"mask_atlas_{k[-4:]}"]),
-                           np.asarray(self._arrays["mask_indirection"]), self._meta)
+            meta = {**self._meta, "clusters": self._meta.get("clusters") or cluster_count(self._arrays)}
+            vols = decompress_channels(np.asarray(self._arrays["mask_atlas"]),
+                                       np.asarray(self._arrays["mask_indirection"]), meta)
+            if k == "masks_4567" and len(vols) < 2:
+                raise KeyError(k)
+            v = vols[0] if k == "masks_0123" else vols[1]
         else:
             v = self._arrays[k]
         dict.__setitem__(self, k, v)
@@ -119,7 +124,7 @@ def available_modes(arrays) -> list[str]:
         modes.append("leaking")
     if all(n in arrays for n in ("irradiance", "depth_moments", "probe_positions_relocated", "probe_states")):
         modes.append("ddgi")
-    if "mask_indirection" in arrays and "mask_atlas_0123" in arrays and "cluster_sh_0_r" in arrays:
+    if "mask_indirection" in arrays and "mask_atlas" in arrays and "cluster_sh_0_r" in arrays:
         modes.append("mask")
         if "cluster_weights_0123" in arrays:
             modes.append("mask_normalized")
@@ -145,13 +150,21 @@ def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarr
         live = (np.asarray(arrays["probe_states"]).reshape(-1)[cage] != OFF).sum(axis=1)
         return 8.0 + 2.0 * live                                              # 8 state/position + 2 per live corner
     if mode in ("mask", "mask_normalized"):
+        from workers.kernels.compress import mask_lookups
+        from workers.kernels.mask_atlas import FIRST_SLOT, codes_of
+
         K = res.info["clusters"]
         A = 1 + (K > 4)
         vols = [arrays["masks_0123"]] + ([arrays["masks_4567"]] if K > 4 else [])
         m = SM.mask_values(vols, points, normals, grid, float(res.uniforms.get("uMaskOffset", 0.0)), views)[:, :K]
         z = (m > 0).sum(axis=1)                                              # MD §1: clusters with m_k > 0
+        S = int(res.uniforms["uMaskS"])
+        _, cell = mask_lookups(points, grid["counts"], grid["origin"], grid["spacing"], S)
+        ci = cell.astype(np.int64)
+        codes = codes_of(arrays["mask_indirection"], K)[ci[:, 2], ci[:, 1], ci[:, 0]]
+        y = (codes >= FIRST_SLOT).sum(axis=1)                                # channels stored in the atlas
         per = 7.0 if res.info.get("sh_order") == 2 else 3.0                   # L2: 7 sub-volumes per cluster
-        return 1.0 + A + per * z + (A if mode == "mask_normalized" else 0)
+        return 2.0 * A + 2.0 * y + per * z + (A if mode == "mask_normalized" else 0)
     if mode == "prt":
         return np.full(N, float(res.info.get("coefficients", 4)) * res.info["groups"])
     raise ValueError(mode)

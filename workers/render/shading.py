@@ -26,8 +26,9 @@ the GLSL headers document each binding):
                     ``sh_l1_{r,g,b}`` 3D RGBA32F, LINEAR (L1)
 ``ddgi``            ``uProbeData`` (relocated positions + non-OFF flag, 3D RGBA32F, NEAREST), ``irradiance`` and
                     ``depth_moments`` atlases (2D, LINEAR)
-``mask``            ``mask_indirection`` (NEAREST), ``mask_atlas_*`` (LINEAR), the cluster SH volumes stacked
-``mask_normalized`` along z (3D RGBA32F; L2: the ``cluster_sh_l2_{k}`` volumes, ``KILN_SH_L2``), cluster weights
+``mask``            ``mask_indirection`` (NEAREST), ``mask_atlas`` (R8, LINEAR), the cluster SH volumes stacked
+``mask_normalized`` along z (3D, RGBA16F as stored, uploaded as float32; L2: the ``cluster_sh_l2_{k}`` volumes,
+                    ``KILN_SH_L2``), cluster weights
                     stacked (normalized only)
 ``prt``             the PRT SH basis stacked along z (all 9 coefficients of an L2 bake, ``KILN_SH_L2``, else the 4
                     of L1); per-channel coefficients as uniforms

@@ -87,19 +87,21 @@ export function wrapAtlas(ktx, counts, columns) {
 
 /**
  * Probe volumes (parsed KTX2, same size) stacked along z into one 3D texture: gi_grid.glsl giStackedUVW
- * (workers/render/shading.py stack_volumes: the bytes concatenated in slot order). RGBA32F, LINEAR.
+ * (workers/render/shading.py stack_volumes: the bytes concatenated in slot order). RGBA32F, or RGBA16F when every
+ * volume is half float (the mask stage's cluster volumes, proto/bundle.md 5.2); LINEAR.
  */
 export function stackedVolumeTexture(volumes, options = {}) {
   if (!volumes.length) throw new Error('no volumes to stack');
   const vs = volumes.map(widen);
-  const { width, height, depth, components } = vs[0];
+  const { width, height, depth, components, kind } = vs[0];
   for (const v of vs) {
-    if (v.kind !== 'float' || v.width !== width || v.height !== height || v.depth !== depth || v.components !== components) {
+    if ((v.kind !== 'float' && v.kind !== 'half') || v.kind !== kind || v.width !== width || v.height !== height
+        || v.depth !== depth || v.components !== components) {
       throw new Error(`stacked volumes must be float ${width}x${height}x${depth}x${components}, got ${v.format} ${v.width}x${v.height}x${v.depth}`);
     }
   }
   const per = vs[0].data.length;
-  const data = new Float32Array(per * vs.length);
+  const data = kind === 'half' ? new Uint16Array(per * vs.length) : new Float32Array(per * vs.length);
   vs.forEach((v, s) => data.set(v.data, s * per));
   return textureFromKTX2({ ...vs[0], data, depth: Math.max(1, depth) * vs.length, is3D: true }, options);
 }

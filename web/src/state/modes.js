@@ -91,7 +91,7 @@ export const PROBE_SH_TEXTURES = { uShR: ['sh_l1_r', 'volume'], uShG: ['sh_l1_g'
  * layout (proto/bundle.md 5.2: "cell", T = S).
  */
 export function maskParams({ names, info, bake, grid }) {
-  const meta = info('mask_atlas_0123')?.meta || info('mask_indirection')?.meta;
+  const meta = info('mask_atlas')?.meta || info('mask_indirection')?.meta;
   if (meta && meta.block_size) {
     return { S: Number(meta.samples_per_cell), T: Number(meta.block_size), lo: Number(meta.border_lo ?? 0) };
   }
