@@ -203,11 +203,11 @@ def table(rows: list[dict]) -> list[str]:
                    f"{a['stored']:9,d} {a['ratio_stored']:8.1f} {a['cluster_sh_bytes']:10,d} {a['weights_bytes']:8,d} "
                    f"{a['payload_per_probe']:8.1f}")
     out.append("")
-    out.append(f"{'run':>22s} {'tol':>6s} {'GI err mask':>12s} {'normalized':>11s} {'(half':>7s} {'masks)':>7s} "
+    out.append(f"{'run':>22s} {'tol':>8s} {'GI err mask':>12s} {'normalized':>11s} {'(half':>7s} {'masks)':>7s} "
                f"{'fetches mask before/after':>26s} {'normalized':>12s}")
     for r in rows:
         e, f = r["gi_error"], r["fetches"]
-        out.append(f"{r['scene'] + ' ' + 'x'.join(map(str, r['counts'])):>22s} {r['tolerance'] * 255:4.1f}/255 "
+        out.append(f"{r['scene'] + ' ' + 'x'.join(map(str, r['counts'])):>22s} {int(r['tolerance'] * 255 + 1e-9):4d}/255 "
                    f"{100 * e['mask']['stored']:11.3f}% {100 * e['mask_normalized']['stored']:10.3f}% "
                    f"{100 * e['mask_normalized']['half']:6.3f}% {100 * e['mask_normalized']['masks']:6.3f}% "
                    f"{f['before']['mask']:12.2f} / {f['after']['mask']:5.2f}      "

@@ -94,6 +94,21 @@ def test_tolerance_bound_and_constant_codes():
                           noisy)
 
 
+def test_tolerance_never_merges_across_zeros():
+    """A hidden cluster (0) stays hidden and a seen one stays seen: blocks within the tolerance that differ in where
+    they are 0 are not merged (merging them would add light through a wall)."""
+    counts, S = (3, 2, 2), 4
+    v = np.full((S, S, 2 * S, 4), 128, np.uint8)
+    v[..., 1:] = 0
+    v[0, 0, 0, 0] = 0                                      # cell 0: one sample of cluster 0 hidden
+    v[0, 0, S, 0] = 2                                      # cell 1: the same sample barely seen
+    ca = MA.compress_channels(v, counts, S, 4, tolerance=8 / 255)
+    assert ca.stats["atlas_blocks"] == 2
+    np.testing.assert_array_equal(MA.decompress_channels(*_parts(ca))[0], v)
+    v[0, 0, 0, 0], v[0, 0, S, 0] = 126, 120                # no zero involved: one block
+    assert MA.compress_channels(v, counts, S, 4, tolerance=8 / 255).stats["atlas_blocks"] == 1
+
+
 def _parts(ca):
     return ca.atlas, ca.indirection, ca.meta
 

@@ -53,7 +53,7 @@ export const FIELD_UI = {
   'masks.sigma': { label: 'Mask blur', unit: 'samples', advanced: true },
   'masks.light_aware': { label: 'Fit masks to the light', advanced: true },
   'masks.light_aware_penalty': { label: 'Light-fit penalty', advanced: true },
-  'masks.compress_tolerance': { label: 'Compression tolerance', help: '0 = lossless', advanced: true },
+  'masks.compress_tolerance': { label: 'Compression tolerance', help: 'largest mask error of a merged block (0 = lossless; default 24/255)', advanced: true },
 
   prt: { label: 'Relighting (PRT)', help: 'bake a transfer that relights the scene in real time with moved lights' },
   'prt.enabled': { label: 'Bake relighting', help: 'slower bake; adds the PRT mode to the viewer' },
