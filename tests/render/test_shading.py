@@ -50,6 +50,18 @@ def _as_image(a, W=64):
     return np.asarray(a, np.float32).reshape(-1, W, a.shape[-1])
 
 
+def _render_indirect(ctx, res, mode, p, n, eye) -> np.ndarray:
+    """(N, 3) E_indirect of ``mode`` (prepared ``res``) at the 64 × 48 G-buffer of points p, normals n."""
+    r = ShadingRenderer(ctx)
+    try:
+        r.set_mode(res)
+        r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((48, 64, 3)), np.zeros((48, 64, 3)),
+                                    np.ones((48, 64), bool)))
+        return r.render(mode, output=1, eye=eye).reshape(-1, 3).astype(np.float64)
+    finally:
+        r.release()
+
+
 def test_preprocessor_contract():
     src = {"a.glsl": '#include "b.glsl"\n#include "b.glsl"\nvoid main() {}\n', "b.glsl": "float x;\n",
            "c.glsl": '#include "@mode"\n', "v.glsl": "#version 330\n", "cyc.glsl": '#include "cyc2.glsl"\n',
@@ -118,14 +130,7 @@ def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
     res = prepare_mode(mode, arrays, grid, mask_meta=mask_meta(s), sh_order=sh_order)
     if mode != "ddgi":
         assert res.info["sh_order"] == (sh_order or 2) and ("KILN_SH_L2" in res.defines) == (sh_order is None)
-    r = ShadingRenderer(ctx)
-    try:
-        r.set_mode(res)
-        r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((48, 64, 3)), np.zeros((48, 64, 3)),
-                                    np.ones((48, 64), bool)))
-        got = r.render(mode, output=1, eye=eye).reshape(-1, 3).astype(np.float64)
-    finally:
-        r.release()
+    got = _render_indirect(ctx, res, mode, p, n, eye)
     scale = np.abs(want).max()
     assert scale > 0
     err = np.abs(got - want)
@@ -135,6 +140,31 @@ def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
     else:
         assert np.quantile(per_point, 0.995) <= F16, np.quantile(per_point, 0.995)
         assert per_point.max() <= (0.05 if mode == "ddgi" else 2.0 ** -8), per_point.max()
+
+
+@pytest.mark.parametrize("sh_order", [None, 1])
+def test_mask_glsl_equals_python_with_two_code_groups(ctx, tmp_path, scene_files, sh_order):
+    """K = 6: the indirection holds two groups of codes (channels 0-3, 4-7; 4 texelFetch) and the shader's second
+    half (KILN_MASK_CLUSTERS 6); GLSL = the Python samplers on the masks the atlas stands for."""
+    cfg = {**CFG, "masks": {"clusters": 6, "sweeps": 100}}
+    scene, s = bake_until(tmp_path, scene_files["two-rooms"], cfg, "compress")
+    arrays, grid = bake_arrays(s), bake_grid(s)
+    assert s["compress"]["mask_indirection"].shape[0] == 4 * (grid["counts"][2] - 1)
+    from workers.kernels.mask_atlas import FIRST_SLOT, codes_of
+
+    codes = codes_of(s["compress"]["mask_indirection"], 6)
+    assert (codes[..., 4:] >= FIRST_SLOT).any() and (codes[..., 4:] > 0).mean() > 0.1   # the second group is used
+    rng = np.random.default_rng(11)
+    p, n = _points(64 * 48, rng, TWO_ROOMS_BOX)
+    eye = np.array([4.0, 1.5, 2.0])
+    view = (eye - p) / np.linalg.norm(eye - p, axis=1, keepdims=True)
+    for mode in ("mask", "mask_normalized"):
+        want = np.maximum(SM.irradiance(mode, arrays, grid, p, n, views=view, sh_order=sh_order), 0)
+        res = prepare_mode(mode, arrays, grid, mask_meta=mask_meta(s), sh_order=sh_order)
+        assert res.info["clusters"] == 6 and res.defines["KILN_MASK_CLUSTERS"] == 6
+        got = _render_indirect(ctx, res, mode, p, n, eye)
+        per_point = np.abs(got - want).max(axis=1) / np.abs(want).max()
+        assert np.quantile(per_point, 0.995) <= F16 and per_point.max() <= 2.0 ** -8, (mode, per_point.max())
 
 
 def test_leaking_l2_glsl_equals_the_shared_fixture(ctx):
