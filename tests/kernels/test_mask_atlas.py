@@ -128,3 +128,34 @@ def test_all_constant_and_bad_input():
         MA.compress_channels(v.astype(np.float32), counts, S, 2)
     with pytest.raises(ValueError):
         MA.compress_channels(v, counts, S, 2, tolerance=1.5)
+
+
+def _greedy_reference(blocks, order, thr):
+    """The module doc's greedy clustering, plainly: each block joins the first representative (in the order made)
+    within thr of it everywhere and 0 exactly where it is 0, else it becomes one."""
+    reps, rep_of = [], {}
+    for u in order:
+        for r in reps:
+            d = np.abs(blocks[u].astype(int) - blocks[r].astype(int))
+            if d.max() <= thr and np.array_equal(blocks[u] == 0, blocks[r] == 0):
+                rep_of[u] = r
+                break
+        else:
+            reps.append(u)
+            rep_of[u] = u
+    return [rep_of[u] for u in range(len(blocks))], reps
+
+
+@pytest.mark.parametrize("thr", [1, 6, 40])
+def test_bucketed_merge_is_the_plain_greedy(thr):
+    rng = np.random.default_rng(thr)
+    S = 4
+    base = rng.choice([0, 60, 200, 255], (12, S ** 3)).astype(np.uint8)
+    blocks = np.clip(base[rng.integers(0, 12, 300)].astype(int) + rng.integers(-thr, thr + 1, (300, S ** 3))
+                     * (rng.random((300, S ** 3)) < 0.2), 0, 255).astype(np.uint8)
+    order = rng.permutation(300)
+    rep_of, err, reps = MA._merge(blocks, S, order, thr)
+    want_of, want_reps = _greedy_reference(blocks, order, thr)
+    assert list(reps) == want_reps and list(rep_of) == want_of and len(want_reps) < 300
+    assert all(np.abs(blocks[u].astype(int) - blocks[r].astype(int)).max() == e for u, (r, e) in
+               enumerate(zip(rep_of, err)))

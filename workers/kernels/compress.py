@@ -225,7 +225,7 @@ def _summaries(blocks: np.ndarray) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _greedy_merge(blocks, summaries, order, thr, keep_zeros=False):  # pragma: no cover - compiled
+def _greedy_merge(blocks, summaries, order, thr):  # pragma: no cover - compiled
     U, B = blocks.shape
     rep_of = np.empty(U, np.int64)
     err = np.zeros(U, np.int64)
@@ -247,9 +247,6 @@ def _greedy_merge(blocks, summaries, order, thr, keep_zeros=False):  # pragma: n
             m = 0
             for b in range(B):
                 d = abs(np.int64(blocks[u, b]) - np.int64(blocks[r, b]))
-                if keep_zeros and d > 0 and (blocks[u, b] == 0 or blocks[r, b] == 0):
-                    m = thr + 1                # a 0 (a hidden cluster) stays 0, a seen one stays seen
-                    break
                 if d > m:
                     m = d
                     if m > thr:

@@ -52,10 +52,11 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
+import numba
 import numpy as np
 
-from workers.kernels.compress import (MAX_TEXELS, PREFERRED_TEXELS, _greedy_merge, _summaries, atlas_layout,
-                                      cells_of, lookup_blend, mask_lookups, texture_linear)
+from workers.kernels.compress import (MAX_TEXELS, PREFERRED_TEXELS, atlas_layout, cells_of, lookup_blend,
+                                      mask_lookups, texture_linear)
 
 __all__ = ["ChannelAtlas", "compress_channels", "decompress_channels", "codes_of", "sample_channel_atlas",
            "CODE_ZERO", "CODE_ONE", "FIRST_SLOT"]
@@ -81,6 +82,82 @@ def _channel_blocks(volumes, S: int, cells, K: int) -> np.ndarray:
     cx, cy, cz = (int(c) for c in cells)
     b = v.reshape(cz, S, cy, S, cx, S, K).transpose(0, 2, 4, 6, 1, 3, 5)
     return np.ascontiguousarray(b).reshape(cz, cy, cx, K, S ** 3)
+
+
+@numba.njit(cache=True, nogil=True)
+def _merge(blocks, S, order, thr):  # pragma: no cover - compiled
+    """Greedy clustering of the module doc (``(rep_of, err, reps)``: each block's representative, its max byte
+    difference, the representatives in the order they were made). Exact and in the greedy order; candidates are
+    found through buckets of the block's three half sums (samples with x < S/2, y < S/2, z < S/2), which differ by
+    at most thr·S³/2 between blocks within thr, so only the 27 neighbouring buckets can hold a match."""
+    U, B = blocks.shape
+    h = S // 2
+    half = max(B // 2, 1)
+    width = max(thr * half + 1, (255 * half) // 24 + 1)
+    nb = (255 * half) // width + 1
+    key = np.zeros((U, 3), np.int64)
+    for u in range(U):
+        for c in range(S):
+            for b in range(S):
+                for a in range(S):
+                    v = np.int64(blocks[u, (c * S + b) * S + a])
+                    if a < h:
+                        key[u, 0] += v
+                    if b < h:
+                        key[u, 1] += v
+                    if c < h:
+                        key[u, 2] += v
+    head = np.full(nb * nb * nb, -1, np.int64)
+    tail = np.full(nb * nb * nb, -1, np.int64)
+    nxt = np.full(U, -1, np.int64)
+    rank = np.full(U, -1, np.int64)
+    rep_of = np.empty(U, np.int64)
+    err = np.zeros(U, np.int64)
+    reps = np.empty(U, np.int64)
+    nrep = 0
+    for oi in range(U):
+        u = order[oi]
+        bx, by, bz = key[u, 0] // width, key[u, 1] // width, key[u, 2] // width
+        best, best_rank, best_err = -1, U, 0
+        for dz in range(-1, 2):
+            for dy in range(-1, 2):
+                for dx in range(-1, 2):
+                    x, y, z = bx + dx, by + dy, bz + dz
+                    if x < 0 or y < 0 or z < 0 or x >= nb or y >= nb or z >= nb:
+                        continue
+                    r = head[(z * nb + y) * nb + x]
+                    while r >= 0 and rank[r] < best_rank:      # each bucket lists its reps in the order made
+                        if abs(key[u, 0] - key[r, 0]) <= thr * half and abs(key[u, 1] - key[r, 1]) <= thr * half \
+                                and abs(key[u, 2] - key[r, 2]) <= thr * half:
+                            m = 0
+                            for b in range(B):
+                                d = abs(np.int64(blocks[u, b]) - np.int64(blocks[r, b]))
+                                if d > 0 and (blocks[u, b] == 0 or blocks[r, b] == 0):
+                                    m = thr + 1          # a 0 (a hidden cluster) stays 0, a seen one stays seen
+                                    break
+                                if d > m:
+                                    m = d
+                                    if m > thr:
+                                        break
+                            if m <= thr:
+                                best, best_rank, best_err = r, rank[r], m
+                                break
+                        r = nxt[r]
+        if best < 0:
+            cell = (bz * nb + by) * nb + bx
+            if head[cell] < 0:
+                head[cell] = u
+            else:
+                nxt[tail[cell]] = u
+            tail[cell] = u
+            rank[u] = nrep
+            reps[nrep] = u
+            nrep += 1
+            rep_of[u] = u
+        else:
+            rep_of[u] = best
+            err[u] = best_err
+    return rep_of, err, reps[:nrep]
 
 
 def compress_channels(volumes, counts, S: int, clusters: int, tolerance: float = 0.0,
@@ -121,7 +198,7 @@ def compress_channels(volumes, counts, S: int, clusters: int, tolerance: float =
         inv = inv.reshape(-1)
         order = np.lexsort((first, -cnt))                 # most used first, then first appearance
         if thr > 0 and len(uniq) > 1:
-            rep_of, err, reps = _greedy_merge(uniq, _summaries(uniq.reshape(-1, 1, S, S, S, 1)), order, thr, True)
+            rep_of, err, reps = _merge(uniq, S, order, thr)
         else:
             rep_of, err, reps = np.arange(len(uniq)), np.zeros(len(uniq), np.int64), order
         slot_of_rep = np.full(len(uniq), -1, np.int64)
