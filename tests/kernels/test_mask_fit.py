@@ -134,6 +134,16 @@ def test_cluster_volumes_partition_the_probes():
     assert np.array_equal(np.argmax(w, -1)[on], g.reshape(3, 2, 4)[on])
 
 
+def test_half_volume_rounds_and_counts_the_clamped():
+    a = np.array([[0.0, 1.0, -3.14159, 1e-3], [7e4, -1e5, 65504.0, 2.0 ** -20]], np.float32)
+    clamped = [0]
+    h = F.half_volume(a, clamped)
+    assert h.dtype == np.float16 and h.flags.c_contiguous and clamped == [2]
+    assert h[1, 0] == 65504 and h[1, 1] == -65504 and h[1, 2] == 65504 and h[0, 1] == 1 and h[0, 0] == 0
+    rel = np.abs(h[0, 2:].astype(np.float64) - a[0, 2:]) / np.abs(a[0, 2:])
+    assert rel.max() <= 2.0 ** -11                           # 11 significant bits
+    assert h[1, 3] > 0                                       # subnormal, not flushed
+
 
 def test_quantize_rounds_to_bytes():
     q = F.quantize(np.array([-0.2, 0.0, 0.5, 1.0 / 255.0 * 0.49, 1.0, 1.7], np.float32))
