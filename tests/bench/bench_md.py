@@ -108,7 +108,8 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
     # compression: before (RGBA cell blocks), after lossless and as baked (channel blocks)
     cell = compress_masks(masks, counts, S, layout="cell")
     before_raw = int(sum(a.nbytes for a in cell.atlases) + cell.indirection.nbytes)
-    before_stored = int(sum(file_bytes(a, BEFORE_ZSTD) for a in cell.atlases) + file_bytes(cell.indirection, BEFORE_ZSTD))
+    before_stored = int(sum(file_bytes(a, BEFORE_ZSTD) for a in cell.atlases)
+                        + file_bytes(cell.indirection, BEFORE_ZSTD))
     lossless = compress_channels(masks, counts, S, K)
     ll_stored = file_bytes(lossless.atlas, 19) + file_bytes(lossless.indirection, 19)
     after_raw = int(comp["compressed_bytes"])
@@ -139,7 +140,8 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
     pts, nrm = sp["position"], sp["normal"]
     stored = {n: np.asarray(lazy["masks"][n]) for n in sh_names + w_names}
     decomp = decompress_channels(np.asarray(lazy["compress"]["mask_atlas"]),
-                                 np.asarray(lazy["compress"]["mask_indirection"]), {"samples_per_cell": S, "clusters": K})
+                                 np.asarray(lazy["compress"]["mask_indirection"]),
+                                 {"samples_per_cell": S, "clusters": K})
     mset = lambda vols: {"masks_0123": vols[0], **({"masks_4567": vols[1]} if len(vols) > 1 else {})}  # noqa: E731
     variants = {"reference": {**ref, **mset(masks)}, "half": {**stored, **mset(masks)},
                 "masks": {**ref, **mset(decomp)}, "stored": {**stored, **mset(decomp)}}
@@ -157,7 +159,8 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
     A = -(-K // 4)
     _, cellc = mask_lookups(pts, counts, grid["origin"], grid["spacing"], S)
     ci = cellc.astype(np.int64)
-    y = (codes_of(np.asarray(lazy["compress"]["mask_indirection"]), K)[ci[:, 2], ci[:, 1], ci[:, 0]] >= FIRST_SLOT).sum(1)
+    codes = codes_of(np.asarray(lazy["compress"]["mask_indirection"]), K)
+    y = (codes[ci[:, 2], ci[:, 1], ci[:, 0]] >= FIRST_SLOT).sum(1)
     fetches = {"before": {"mask": float((1 + A + 7 * z).mean()), "mask_normalized": float((1 + 2 * A + 7 * z).mean())},
                "after": {"mask": float((2 * A + 2 * y + 7 * z).mean()),
                          "mask_normalized": float((3 * A + 2 * y + 7 * z).mean())},
@@ -166,7 +169,8 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
         "scene": name, "counts": list(counts), "probes": P, "S": S, "K": K, "points": int(len(pts)),
         "tolerance": comp["tolerance"], "max_block_error": comp["max_block_error"],
         "dense_bytes": dense,
-        "before": {"atlas_raw": int(sum(a.nbytes for a in cell.atlases)), "indirection_raw": int(cell.indirection.nbytes),
+        "before": {"atlas_raw": int(sum(a.nbytes for a in cell.atlases)),
+                   "indirection_raw": int(cell.indirection.nbytes),
                    "raw": before_raw, "stored": before_stored, "ratio_raw": dense / before_raw,
                    "ratio_stored": dense / before_stored, "unique_blocks": cell.stats["unique_blocks"],
                    "cluster_sh_bytes": sh_before, "weights_bytes": w_before,
@@ -175,8 +179,10 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
                            "ratio_raw": lossless.stats["ratio"], "ratio_stored": dense / ll_stored,
                            "atlas_blocks": lossless.stats["atlas_blocks"]},
         "after": {"atlas_raw": int(comp["atlas_bytes"]), "indirection_raw": int(comp["indirection_bytes"]),
-                  "atlas_stored": int(info["mask_atlas"]["bytes"]), "indirection_stored": int(info["mask_indirection"]["bytes"]),
-                  "raw": after_raw, "stored": after_stored, "ratio_raw": dense / after_raw, "ratio_stored": dense / after_stored,
+                  "atlas_stored": int(info["mask_atlas"]["bytes"]),
+                  "indirection_stored": int(info["mask_indirection"]["bytes"]),
+                  "raw": after_raw, "stored": after_stored, "ratio_raw": dense / after_raw,
+                  "ratio_stored": dense / after_stored,
                   "atlas_blocks": comp["atlas_blocks"], "constant_zero": comp["constant_zero"],
                   "constant_one": comp["constant_one"], "channel_blocks": comp["channel_blocks"],
                   "cluster_sh_bytes": int(sh_after), "weights_bytes": int(w_after),
@@ -207,7 +213,8 @@ def table(rows: list[dict]) -> list[str]:
                f"{'fetches mask before/after':>26s} {'normalized':>12s}")
     for r in rows:
         e, f = r["gi_error"], r["fetches"]
-        out.append(f"{r['scene'] + ' ' + 'x'.join(map(str, r['counts'])):>22s} {int(r['tolerance'] * 255 + 1e-9):4d}/255 "
+        run = f"{r['scene']} {'x'.join(map(str, r['counts']))}"
+        out.append(f"{run:>22s} {int(r['tolerance'] * 255 + 1e-9):4d}/255 "
                    f"{100 * e['mask']['stored']:11.3f}% {100 * e['mask_normalized']['stored']:10.3f}% "
                    f"{100 * e['mask_normalized']['half']:6.3f}% {100 * e['mask_normalized']['masks']:6.3f}% "
                    f"{f['before']['mask']:12.2f} / {f['after']['mask']:5.2f}      "

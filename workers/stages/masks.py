@@ -57,7 +57,7 @@ from workers.kernels.sh import sh_l2_atlas
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 ZSTD_LEVEL = 3
-PROBE_ZSTD_LEVEL = 19   # the cluster probe volumes: small, mostly 0
+ZSTD_PROBES = 19   # the cluster probe volumes: small, mostly 0
 
 
 def _rgba(channels: np.ndarray, start: int) -> np.ndarray:
@@ -119,22 +119,21 @@ def run_masks(ctx: StageContext) -> StageOutput:
                              description="mask m·255 of clusters 4-7 per refined-grid sample"))
     for k in range(K):
         for i, c in enumerate("rgb"):
-            arts.append(Artifact(f"cluster_sh_{k}_{c}", _half(vols[k][..., i], clamped), zstd_level=PROBE_ZSTD_LEVEL,
+            arts.append(Artifact(f"cluster_sh_{k}_{c}", _half(vols[k][..., i], clamped), zstd_level=ZSTD_PROBES,
                                  description=f"L0 + L1 radiance SH of the {c} channel of cluster {k}'s probes "
                                              f"(0 elsewhere)", meta={"cluster": k}))
     probe_sh = light["probe_sh"] if "probe_sh" in light else None
     if probe_sh is not None and np.shape(probe_sh)[3] == 9:                               # L2 bake
         vols2, _ = cluster_volumes(np.asarray(probe_sh, np.float32), g, K, states)
         for k in range(K):
-            arts.append(Artifact(f"cluster_sh_l2_{k}", _half(sh_l2_atlas(vols2[k]), clamped),
-                                 zstd_level=PROBE_ZSTD_LEVEL,
+            arts.append(Artifact(f"cluster_sh_l2_{k}", _half(sh_l2_atlas(vols2[k]), clamped), zstd_level=ZSTD_PROBES,
                                  meta={"cluster": k, "layout": "three.js LightProbeGrid", "texels": 7, "padding": 1},
                                  description=f"L2 radiance SH of cluster {k}'s probes (0 elsewhere), sh_l2 layout"))
-    arts.append(Artifact("cluster_weights_0123", _half(_rgba(weights, 0), clamped), zstd_level=PROBE_ZSTD_LEVEL,
+    arts.append(Artifact("cluster_weights_0123", _half(_rgba(weights, 0), clamped), zstd_level=ZSTD_PROBES,
                          meta={"clusters": K},
                          description="g_i^k of clusters 0-3 per probe: trilinear gives w_k = Σ φ_i g_i^k"))
     if K > 4:
-        arts.append(Artifact("cluster_weights_4567", _half(_rgba(weights, 4), clamped), zstd_level=PROBE_ZSTD_LEVEL,
+        arts.append(Artifact("cluster_weights_4567", _half(_rgba(weights, 4), clamped), zstd_level=ZSTD_PROBES,
                              meta={"clusters": K},
                              description="g_i^k of clusters 4-7 per probe"))
     stats = {
