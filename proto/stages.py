@@ -55,8 +55,9 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
-    # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py)
-    StageDef("reference", 1, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
+    # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
+    # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones
+    StageDef("reference", 2, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers
     StageDef("evaluate", 2, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
