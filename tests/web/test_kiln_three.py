@@ -23,6 +23,7 @@ from __future__ import annotations
 import base64
 import functools
 import http.server
+import shutil
 import subprocess
 import sys
 import threading
@@ -57,14 +58,35 @@ def bundle_dir(tmp_path_factory, scene_files) -> Path:
 
 
 @pytest.fixture(scope="module")
-def site(bundle_dir, tmp_path_factory):
-    """A static server of web/dist (the example and its assets) and the bundle at /bundle/."""
+def half_bundle_dir(bundle_dir, tmp_path_factory) -> Path:
+    """The bundle with every 2- and 4-channel float32 KTX2 volume rewritten as RGBA16F / RG16F with Zstandard (the
+    formats issue 17 moves to), manifest updated (sha256, bytes, meta.ktx2); the rest copied as is."""
+    from proto.bundle import load_artifact, read_manifest, with_artifact, write_artifact, write_manifest
+
+    out = tmp_path_factory.mktemp("kiln-three-half") / "bundle"
+    shutil.copytree(bundle_dir, out)
+    manifest = read_manifest(out)
+    for a in manifest.artifacts:
+        if a.format == "ktx2" and a.dtype == "float32" and a.shape[-1] in (2, 4):
+            arr = load_artifact(out / a.file, a)
+            info = write_artifact(out, a.name, arr.astype(np.float16), a.stage, zstd_level=10, description=a.description,
+                                  meta={k: v for k, v in a.meta.items() if k != "ktx2"})
+            manifest = with_artifact(manifest, info)
+    write_manifest(out, manifest)
+    return out
+
+
+@pytest.fixture(scope="module")
+def site(bundle_dir, half_bundle_dir, tmp_path_factory):
+    """A static server of web/dist (the example and its assets), the bundle at /bundle/, its half-float twin at
+    /bundle-half/."""
     if not EXAMPLE.exists():
         pytest.skip(f"{EXAMPLE} is not built (cd web && npm run build)")
     root = tmp_path_factory.mktemp("site")
     for name in ("assets", "kiln-three"):
         (root / name).symlink_to(ROOT / "web" / "dist" / name)
     (root / "bundle").symlink_to(bundle_dir)
+    (root / "bundle-half").symlink_to(half_bundle_dir)
 
     class Quiet(http.server.SimpleHTTPRequestHandler):
         def log_message(self, *args):
@@ -79,7 +101,7 @@ def site(bundle_dir, tmp_path_factory):
         srv.server_close()
 
 
-def _open(browser, site, cam, **params):
+def _open(browser, site, cam, bundle="bundle", **params):
     ctx = browser.new_context(viewport={"width": 320, "height": 240})
     pg = ctx.new_page()
     errors = []
@@ -87,7 +109,7 @@ def _open(browser, site, cam, **params):
     pg.on("console", lambda m: errors.append(f"console.error: {m.text}")
           if m.type == "error" and "favicon" not in m.text and "Failed to load resource" not in m.text else None)
     (px, py, pz), (tx, ty, tz) = CAMERAS[cam]
-    q = "&".join([f"bundle=../../bundle/", f"cam={px},{py},{pz},{tx},{ty},{tz}", f"fov={FOV}"]
+    q = "&".join([f"bundle=../../{bundle}/", f"cam={px},{py},{pz},{tx},{ty},{tz}", f"fov={FOV}"]
                  + [f"{k}={v}" for k, v in params.items()])
     pg.goto(f"{site}/kiln-three/example/index.html?{q}")
     pg.wait_for_function("window.kiln !== undefined || document.getElementById('status').textContent.startsWith('error')",
@@ -279,3 +301,28 @@ def test_whole_frame_matches_the_python_renderer(pages, views, mode):
         err = rel_l1(three, py, sel)
         print(f"{cam} whole frame {mode}: rel L1 {err:.4f} (means {three[sel].mean():.4f}, {py[sel].mean():.4f})")
         assert err <= FRAME_TOL, (cam, err)
+
+
+def test_a_half_float_bundle_loads_with_no_code_change(browser, site, half_bundle_dir):
+    """Formats come from the files: the same page on the RGBA16F / RG16F + Zstandard twin of the bundle (sh_l2, the
+    cluster SH and weights, the DDGI atlases) matches the Python renderer reading that twin, every mode."""
+    from proto.bundle import read_manifest
+
+    halves = [a.name for a in read_manifest(half_bundle_dir).artifacts if a.meta.get("ktx2", {}).get("vk_format") in (83, 97)]
+    assert {"sh_l2", "irradiance", "depth_moments", "cluster_sh_l2_0", "cluster_weights_0123"} <= set(halves), halves
+    cam = "b_to_door"
+    ctx, pg = _open(browser, site, cam, bundle="bundle-half")
+    view = PythonView(half_bundle_dir, cam)
+    try:
+        off = _three(pg, "off", "lambert")
+        for three_mode, mode, offset in (("grid", "leaking", True), ("mask_normalized", "mask_normalized", False),
+                                         ("ddgi", "ddgi", False)):
+            py = view.gi(mode, normal_offset=offset)
+            sel = _lit(view, py)
+            err = rel_l1(_three(pg, three_mode, "lambert") - off, py, sel)
+            print(f"half-float bundle {three_mode}: rel L1 {err:.4f}")
+            assert err <= LAMBERT_TOL, (three_mode, err)
+        assert not pg.kiln_errors, pg.kiln_errors
+    finally:
+        view.close()
+        ctx.close()
