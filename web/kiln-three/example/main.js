@@ -4,7 +4,8 @@
  *
  * Query parameters: bundle (URL of the bundle folder, default ./bundle/), mode (grid | off | leaking | ddgi | mask |
  * mask_normalized; default grid), material (standard | lambert), cam=px,py,pz,tx,ty,tz (glTF coordinates, metres),
- * fov (vertical, degrees), exposure, shadows (0 to turn the shadow maps off).
+ * fov (vertical, degrees), exposure (default 0.4; ACES), shadows (0 to turn the shadow maps off). Without cam: the Kiln
+ * viewer's first view (web/src/view/autocamera.js, inside a room of a closed scene).
  * window.kiln exposes the state and renderLinear() (linear HDR pixels) for the browser tests.
  */
 import {
@@ -13,6 +14,7 @@ import {
 } from 'three';
 import { OrbitControls } from 'three/addons/controls/OrbitControls.js';
 import { loadKilnBundle } from '../src/index.js';
+import { autoCamera } from '../../src/view/autocamera.js';   // the Kiln viewer's first view: inside a room
 
 const q = new URLSearchParams(location.search);
 const canvas = document.getElementById('view');
@@ -20,7 +22,7 @@ const status = document.getElementById('status');
 const renderer = new WebGLRenderer({ canvas, antialias: true });
 renderer.setPixelRatio(Math.min(2, devicePixelRatio || 1));
 renderer.toneMapping = ACESFilmicToneMapping;
-renderer.toneMappingExposure = Number(q.get('exposure') || 1);
+renderer.toneMappingExposure = Number(q.get('exposure') || 0.4);
 renderer.shadowMap.enabled = q.get('shadows') !== '0';
 renderer.shadowMap.type = PCFShadowMap;
 
@@ -65,8 +67,9 @@ function setupScene(scene, bundle) {
     camera.position.set(cam[0], cam[1], cam[2]);
     controls.target.set(cam[3], cam[4], cam[5]);
   } else {
-    controls.target.copy(box.getCenter(new Vector3()));
-    camera.position.copy(controls.target).add(new Vector3(0.1, 0.05, 1).multiplyScalar(box.getSize(new Vector3()).length() * 0.6));
+    const auto = autoCamera(scene, bundle.manifest.scene?.bounds);
+    camera.position.fromArray(auto.position);
+    controls.target.fromArray(auto.target);
   }
   camera.near = 0.01;
   camera.far = box.getSize(new Vector3()).length() * 4 + 1;
