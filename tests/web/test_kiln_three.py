@@ -101,7 +101,7 @@ def site(bundle_dir, half_bundle_dir, tmp_path_factory):
         srv.server_close()
 
 
-def _open(browser, site, cam, bundle="bundle", **params):
+def _open(browser, site, cam, bundle="bundle", page="kiln-three/example/index.html", **params):
     ctx = browser.new_context(viewport={"width": 320, "height": 240})
     pg = ctx.new_page()
     errors = []
@@ -109,9 +109,9 @@ def _open(browser, site, cam, bundle="bundle", **params):
     pg.on("console", lambda m: errors.append(f"console.error: {m.text}")
           if m.type == "error" and "favicon" not in m.text and "Failed to load resource" not in m.text else None)
     (px, py, pz), (tx, ty, tz) = CAMERAS[cam]
-    q = "&".join([f"bundle=../../{bundle}/", f"cam={px},{py},{pz},{tx},{ty},{tz}", f"fov={FOV}"]
+    q = "&".join([f"bundle=../../{bundle}/" if bundle else "", f"cam={px},{py},{pz},{tx},{ty},{tz}", f"fov={FOV}"]
                  + [f"{k}={v}" for k, v in params.items()])
-    pg.goto(f"{site}/kiln-three/example/index.html?{q}")
+    pg.goto(f"{site}/{page}?{q}")
     pg.wait_for_function("window.kiln !== undefined || document.getElementById('status').textContent.startsWith('error')",
                          timeout=120_000)
     status = pg.evaluate("document.getElementById('status').textContent")
@@ -325,4 +325,28 @@ def test_a_half_float_bundle_loads_with_no_code_change(browser, site, half_bundl
         assert not pg.kiln_errors, pg.kiln_errors
     finally:
         view.close()
+        ctx.close()
+
+
+def test_the_example_reads_a_bake_from_a_kiln_server(browser, kiln_server, scene_files, pages):
+    """`kiln serve` serves the example at /app/kiln-three/example/; ?bake=ID loads that bake through the REST API (the
+    grid from its place stage, each artifact from /v1/bakes/{id}/artifacts/{name}). The same scene and config as the
+    folder bundle: the same frames."""
+    glb = scene_files["two-rooms"]
+    sid = kiln_server.api("/v1/scenes", "POST", content=glb.read_bytes(), headers={"X-Filename": glb.name})["id"]
+    b = kiln_server.wait_bake(kiln_server.api("/v1/bakes", "POST", json={"scene_id": sid, "config": BAKE})["id"],
+                              timeout=300)
+    assert b["status"] == "succeeded", b.get("error")
+    cam = "b_to_door"
+    ctx, pg = _open(browser, kiln_server.url, cam, bundle=None, page="app/kiln-three/example/index.html", bake=b["id"])
+    try:
+        for mode in ("grid", "mask_normalized"):
+            served = _three(pg, mode, "lambert") - _three(pg, "off", "lambert")
+            folder = _three(pages[cam], mode, "lambert") - _three(pages[cam], "off", "lambert")
+            sel = folder.sum(-1) > 0.02 * folder.sum(-1).mean()
+            err = rel_l1(served, folder, sel)
+            print(f"server bake vs folder bundle, {mode}: rel L1 {err:.4f}")
+            assert served[sel].mean() > 0 and err <= LAMBERT_TOL, (mode, err)
+        assert not pg.kiln_errors, pg.kiln_errors
+    finally:
         ctx.close()

@@ -2,7 +2,8 @@
  * @kiln/three example: a baked Kiln bundle in a plain three.js scene (MeshStandardMaterial from GLTFLoader, the
  * glTF's own lights with shadow maps), lit indirectly by the bake.
  *
- * Query parameters: bundle (URL of the bundle folder, default ./bundle/), mode (grid | off | leaking | ddgi | mask |
+ * Query parameters: bundle (URL of the bundle folder, default ./bundle/) or bake (a bake id on the Kiln server that
+ * serves the page, or on ?server=URL), mode (grid | off | leaking | ddgi | mask |
  * mask_normalized; default grid), material (standard | lambert), cam=px,py,pz,tx,ty,tz (glTF coordinates, metres),
  * fov (vertical, degrees), exposure (default 0.4; ACES), shadows (0 to turn the shadow maps off). Without cam: the Kiln
  * viewer's first view (web/src/view/autocamera.js, inside a room of a closed scene).
@@ -85,7 +86,10 @@ function resize() {
 }
 
 async function main() {
-  const loaded = await loadKilnBundle(q.get('bundle') || './bundle/', renderer);
+  // ?bake=ID: a bake on the Kiln server that serves this page (kiln serve: /app/kiln-three/example/), else a folder
+  const bake = q.get('bake');
+  const loaded = await loadKilnBundle(bake ? (q.get('server') || new URL('../../../', location.href).href)
+    : (q.get('bundle') || './bundle/'), renderer, { bake });
   const { scene, gi, bundle } = loaded;
   setupScene(scene, bundle);
   for (const m of materials.lambert.values()) gi.extend(m);

@@ -53,9 +53,10 @@ export class KilnBundle {
    * @param {object} manifest  its parsed manifest.json
    * @param {{renderer: import('three').WebGLRenderer, fetch?: typeof fetch}} options
    */
-  constructor(base, manifest, { renderer, fetch: fetchFn = globalThis.fetch.bind(globalThis) } = {}) {
+  constructor(base, manifest, { renderer, fetch: fetchFn = globalThis.fetch.bind(globalThis), fileUrl = null } = {}) {
     this.base = base.endsWith('/') ? base : `${base}/`;
     this.manifest = manifest;
+    this.fileUrl = fileUrl;   // (artifact info) -> URL relative to base; default: its file name in the folder
     this.fetch = fetchFn;
     this.renderer = renderer;
     this.ktx2 = renderer ? new KTX2Loader().detectSupport(renderer) : null;
@@ -91,7 +92,28 @@ export class KilnBundle {
   url(name) {
     const a = this.byName.get(name);
     if (!a) throw new BundleError(`the bundle has no artifact ${name}`);
-    return new URL(a.file, new URL(this.base, globalThis.location?.href)).href;
+    return new URL(this.fileUrl ? this.fileUrl(a) : a.file, new URL(this.base, globalThis.location?.href)).href;
+  }
+
+  /**
+   * A bake on a Kiln server instead of a bundle folder: `GET {server}/v1/bakes/{id}` (the artifact list; the grid from
+   * the place stage's stats, the bounds from the ingest stage's, as the manifest has them) and each artifact from
+   * `/v1/bakes/{id}/artifacts/{name}`. headers: e.g. {Authorization: 'Bearer KEY'}.
+   */
+  static async fromServer(server, bakeId, { headers = {}, ...options } = {}) {
+    const f = options.fetch || globalThis.fetch.bind(globalThis);
+    const authed = (url, init = {}) => f(url, { ...init, headers: { ...headers, ...(init.headers || {}) } });
+    const base = new URL(`v1/bakes/${encodeURIComponent(bakeId)}/`, new URL(server.endsWith('/') ? server : `${server}/`, globalThis.location?.href)).href;
+    const r = await authed(base.slice(0, -1));
+    if (!r.ok) throw new BundleError(`${base}: HTTP ${r.status}`);
+    const bake = await r.json();
+    if (bake.status !== 'succeeded') throw new BundleError(`bake ${bakeId} is ${bake.status}, not succeeded`);
+    const stats = (name) => (bake.stages || []).find((st) => st.name === name)?.stats || {};
+    const { counts, origin, spacing } = stats('place');
+    const manifest = { format_version: FORMAT_VERSION, bake_id: bake.id, config: bake.config, grid: { counts, origin, spacing },
+      scene: { bounds: stats('ingest').bounds }, stages: bake.stages, artifacts: bake.artifacts };
+    if (!counts) throw new BundleError(`bake ${bakeId} has no probe grid (no place stage stats)`);
+    return new KilnBundle(base, manifest, { ...options, fetch: authed, fileUrl: (a) => `artifacts/${encodeURIComponent(a.name)}` });
   }
 
   async bytes(name) {

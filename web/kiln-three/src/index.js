@@ -11,12 +11,13 @@ import { KilnGI } from './gi.js';
 /**
  * Everything at once: the manifest, the baked scene (GLTFLoader on the `scene` artifact, its lights included), the
  * LightProbeGrid (added to the scene; on, mode 'grid') and the material extension on every mesh material.
- * @param {string} base  URL of the bundle folder
+ * @param {string} base  URL of the bundle folder (or, with options.bake, of the Kiln server)
  * @param {import('three').WebGLRenderer} renderer
  * @returns {Promise<{bundle: KilnBundle, gltf: object, scene: import('three').Group, gi: KilnGI, probeGrid: object|null}>}
  */
-export async function loadKilnBundle(base, renderer, { pad = 1, fetch } = {}) {
-  const bundle = await KilnBundle.load(base, { renderer, fetch });
+export async function loadKilnBundle(base, renderer, { pad = 1, fetch, bake = null, headers } = {}) {
+  const bundle = bake ? await KilnBundle.fromServer(base, bake, { renderer, fetch, headers })
+    : await KilnBundle.load(base, { renderer, fetch });
   const gi = new KilnGI(bundle, renderer, { pad });
   const gltf = await bundle.loadScene();
   const probeGrid = bundle.has('sh_l2') ? await gi.createProbeGrid() : null;
