@@ -13,7 +13,7 @@ from proto import bundle
 from proto.atomic import atomic_write_bytes
 from proto.models import Manifest
 
-__all__ = ["export_bundle"]
+__all__ = ["export_bundle", "bake_artifacts"]
 
 
 def export_bundle(store: Store, manifest: Manifest, out_dir: str | os.PathLike) -> Path:
@@ -25,4 +25,18 @@ def export_bundle(store: Store, manifest: Manifest, out_dir: str | os.PathLike) 
         data = store.read_bytes(a.sha256)
         atomic_write_bytes(out / a.file, data)
     bundle.write_manifest(out, manifest)
+    return out
+
+
+def bake_artifacts(store: Store, bake: dict) -> list[dict]:
+    """The artifacts of a catalog bake so far (``ArtifactInfo`` dicts): its manifest's once it succeeded, else
+    those of its finished stages, read from their stored records."""
+    if bake.get("manifest"):
+        return bake["manifest"]["artifacts"]
+    out = []
+    for s in bake["stages"]:
+        if s["status"] == "succeeded":
+            rec = store.get_stage(s["cache_key"])
+            if rec:
+                out += rec["artifacts"]
     return out

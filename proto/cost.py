@@ -305,10 +305,11 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         px = pv * ev.width * ev.height
         cpn = len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0   # check-point normals
         pts = ev.surface_points + cpn
-        # dark surface points get dark_spp paths (reference.refine_dark): 5% of the points, an upper bound of what
-        # the scenes measured (two-rooms 2.6%)
-        paths = ev.surface_points * ev.spp + cpn * ev.effective_check_spp() + \
-            0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp)
+        # refined surface points (reference.refine_points): dark ones get dark_spp paths, 5% of the points at most
+        # in the scenes measured (two-rooms 2.6%); noisy ones about the first pass again (two-rooms 1.04x,
+        # zdm2 0.02x; at most REFINE_BUDGET = 1.5x)
+        paths = ev.surface_points * ev.spp * (2.0 if ev.dark_spp > ev.spp else 1.0) + \
+            cpn * ev.effective_check_spp() + 0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp)
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6
         lib = LIB_EVAL if px else LIB_RAYS                      # EGL only for the previews

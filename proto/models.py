@@ -377,10 +377,10 @@ class EvaluateSection(_Strict):
         "designer reads each one, so each gets a low-noise value (measured on two rooms: a region of a room lit "
         "only through a doorway scatters ±2% between seeds at 8192-16384 paths, up to 11% at 2048)"))
     dark_spp: Int = Field(1024, ge=0, le=262144, description=(
-        "reference: paths per surface point whose reference is dark after the first spp paths (luminance at most "
-        "twice the leak metric's threshold, 10% of the mean): the leak metrics are computed there, where the "
-        "reference is least certain (two-rooms: 54 of 2048 points dark, 33% relative noise at 64 paths); "
-        "0 or <= spp: none"))
+        "reference: the most paths per surface point. Points whose reference is dark after the first spp paths "
+        "(luminance at most twice the leak metric's threshold, 10% of the mean: the leak metrics are computed "
+        "there) get this many; points whose relative noise exceeds 20% of their light get spp·2^k up to it "
+        "(two-rooms: the indirectly lit room, 78% of the rmse noise at 128 paths); 0 or <= spp: none"))
     preview_spp: Int = Field(4, ge=1, le=4096, description="reference: paths per preview pixel (pictures only, "
                                                            "never metrics)")
     bounces: Int | None = Field(None, ge=1, le=256, description="reference: path bounces; default 64 with "

@@ -11,6 +11,7 @@ through any :class:`StageRecords` (``persist.store.Store`` is one) and return wh
 from __future__ import annotations
 
 import hashlib
+import math
 from dataclasses import dataclass, replace
 from typing import Protocol
 
@@ -54,8 +55,9 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 2, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
-    # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py)
-    StageDef("reference", 1, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
+    # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
+    # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones
+    StageDef("reference", 2, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers
     StageDef("evaluate", 2, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
@@ -202,18 +204,20 @@ def build_manifest(records: StageRecords, scene_summary: dict, config: BakeConfi
                     warnings=warnings)
 
 
-def manifest_metrics(manifest: Manifest) -> dict[str, float]:
+def manifest_metrics(manifest: Manifest | dict) -> dict[str, float]:
     """The flat metrics the catalog keeps for a finished bake (dashboards, gates, quotas).
 
     ``stage_seconds.<stage>`` per stage (seconds), ``artifact_bytes`` (the bundle's artifacts, bytes), and the
-    evaluate stage's finite quality metrics ``<mode>.<metric>`` as its stats hold them.
+    evaluate stage's finite numeric quality metrics ``<mode>.<metric>`` as its stats hold them (booleans, NaN and
+    infinities are left out). ``manifest``: the model or its JSON form (a stored or downloaded manifest).
     """
-    metrics = {f"stage_seconds.{s.name}": s.seconds for s in manifest.stages}
-    metrics["artifact_bytes"] = sum(a.bytes for a in manifest.artifacts)
-    for s in manifest.stages:  # the evaluate stage's quality metrics: "<mode>.<metric>"
-        if s.name == "evaluate":
-            metrics.update({k: v for k, v in (s.stats.get("metrics") or {}).items()
-                            if isinstance(v, (int, float)) and v == v})
+    m = manifest.model_dump(mode="json") if isinstance(manifest, Manifest) else manifest
+    metrics = {f"stage_seconds.{s['name']}": float(s.get("seconds") or 0.0) for s in m.get("stages", [])}
+    metrics["artifact_bytes"] = float(sum(a.get("bytes", 0) for a in m.get("artifacts", [])))
+    for s in m.get("stages", []):  # the evaluate stage's quality metrics: "<mode>.<metric>"
+        if s["name"] == "evaluate":
+            metrics.update({k: float(v) for k, v in ((s.get("stats") or {}).get("metrics") or {}).items()
+                            if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)})
     return metrics
 
 

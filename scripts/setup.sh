@@ -98,9 +98,9 @@ if [ -f web/package.json ]; then
     (cd web && npm ci --no-audit --no-fund --loglevel=error)
     echo "$lock_hash" > web/node_modules/.kiln-lock
   fi
-  build_hash=$(find web/src web/index.html web/vite.config.js web/package-lock.json proto/glsl -type f -print0 |
+  build_hash=$(find web/src web/index.html web/kiln-three web/vite.config.js web/package-lock.json proto/glsl proto/gi_modes.json -type f -print0 |
     LC_ALL=C sort -z | xargs -0 sha256sum | sha256sum | cut -d' ' -f1)
-  if [ ! -f web/dist/index.html ] || [ ! -f web/node_modules/.kiln-build ] ||
+  if [ ! -f web/dist/index.html ] || [ ! -f web/dist/kiln-three/example/index.html ] || [ ! -f web/node_modules/.kiln-build ] ||
      [ "$(cat web/node_modules/.kiln-build)" != "$build_hash" ]; then
     log "building the web viewer (web/dist)"
     (cd web && npm run --silent build >/dev/null)

@@ -31,6 +31,8 @@ import re
 from dataclasses import dataclass, field
 from xml.etree import ElementTree as ET
 
+from proto.stages import manifest_metrics
+
 __all__ = ["Gate", "GateError", "parse_gate", "parse_gates", "manifest_metrics", "check", "junit_xml", "GRAMMAR"]
 
 GRAMMAR = "METRIC OP NUMBER, OP one of > >= < <= == != (e.g. 'mask_normalized.leak > 0.05'; '*' matches any text)"
@@ -80,21 +82,6 @@ def parse_gate(text: str) -> Gate:
 
 def parse_gates(texts) -> list[Gate]:
     return [parse_gate(t) for t in (texts or [])]
-
-
-def manifest_metrics(manifest: dict) -> dict[str, float]:
-    """The flat metrics of a bake from its manifest, as ``proto.stages.manifest_metrics`` gives them to the catalog
-    (here without infinities and booleans)."""
-    out: dict[str, float] = {}
-    for s in manifest.get("stages", []):
-        out[f"stage_seconds.{s['name']}"] = float(s.get("seconds") or 0.0)
-    out["artifact_bytes"] = float(sum(a.get("bytes", 0) for a in manifest.get("artifacts", [])))
-    for s in manifest.get("stages", []):
-        if s["name"] == "evaluate":
-            for k, v in ((s.get("stats") or {}).get("metrics") or {}).items():
-                if isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v):
-                    out[k] = float(v)
-    return out
 
 
 def check(gates: list[Gate], metrics: dict[str, float]) -> list[Gate]:

@@ -88,3 +88,20 @@ def test_check_point_report_modes_and_regions():
     assert summary["double.region.room.mean_ratio"] == pytest.approx(2.0)
     assert check["regions"]["room"]["points"] == [0, 1]
     assert set(check["regions"]["room"]) == {"points", "same", "double"}
+
+
+def test_leak_stderr_is_conditional_on_the_dark_set():
+    """No dark point: the leak is 0 and so is its standard error, however noisy the points just above the
+    threshold (a replica does not move them into the set); with dark points it follows their noise."""
+    n = 400
+    ref = np.ones((n, 3))
+    ref[:100] = 0.06                                     # 6% of the mean (0.765): above tau = 5%, but noisy
+    test = ref * 1.5
+    d, a, e = np.zeros((n, 3)), np.full((n, 3), 0.5), np.zeros((n, 3))
+    noisy = PM.metrics_with_stderr(test, ref, 0.5 * ref, d, a, e, seed=3)
+    assert noisy["leak"] == 0.0 and noisy["leak_stderr"] == 0.0
+    ref[:100] = 0.02                                     # now dark
+    test = ref * 1.5
+    lo = PM.metrics_with_stderr(test, ref, 0.05 * ref, d, a, e, seed=3)
+    hi = PM.metrics_with_stderr(test, ref, 0.5 * ref, d, a, e, seed=3)
+    assert lo["leak"] > 0 and 0 < lo["leak_stderr"] < hi["leak_stderr"]

@@ -56,24 +56,43 @@ def test_irradiance_at_points_of_nothing():
     assert e_dir.shape == e_ind.shape == err.shape == (0, 3) and stats == {} and seen == [1.0]
 
 
-def test_refine_dark_pools_more_paths_where_the_reference_is_dark():
-    """Points at most DARK_FRACTION of the mean luminance get dark_spp - spp more paths, pooled by path count."""
-    from workers.kernels.reference import DARK_FRACTION, refine_dark
+def test_refine_points_pools_more_paths_where_the_reference_is_dark_or_noisy():
+    """Dark points (at most DARK_FRACTION of the mean) get max_spp paths; noisy ones spp·2^k, the least k that brings
+    their noise under the target relative to their light (direct + indirect, at most NOISE_CAP x the mean);
+    pooled by path count; the rest untouched; a budget on the extra paths relaxes the target."""
+    from workers.kernels.reference import DARK_FRACTION, NOISE_CAP, NOISE_TARGET, refine_points
 
-    e = np.array([[1.0] * 3, [1.0] * 3, [0.05] * 3, [0.001] * 3])       # mean 0.51: 2 and 3 are dark
-    s = np.full((4, 3), 0.04)
+    e = np.array([[1.0] * 3, [1.0] * 3, [0.05] * 3, [0.001] * 3, [1.0] * 3, [0.2] * 3])   # mean 0.5418
+    mean = 0.5418
+    s = np.full((6, 3), 0.01)
+    s[4] = 0.13              # relative to its light capped at 0.5 x mean: 0.48 -> 0.17 < 0.2 at 8 x 64 paths
+    s[5] = 0.06              # relative to its light 0.2: 0.3 -> 0.21 at 2 x, 0.15 at 4 x 64 paths
+    d = np.zeros((6, 3))
     asked = []
 
     def trace(idx, n):
         asked.append((idx.tolist(), n))
         return np.full((len(idx), 3), 0.02), np.full((len(idx), 3), 0.01)
 
-    e2, s2, idx = refine_dark(trace, e, s, 64, 1024)
-    assert 0.05 <= DARK_FRACTION * 0.51 and asked == [([2, 3], 960)] and idx.tolist() == [2, 3]
+    assert 0.05 <= DARK_FRACTION * mean < 0.2 and NOISE_CAP * mean < 1.0 and NOISE_TARGET == 0.2
+    e2, s2, paths = refine_points(trace, d, e, s, 64, 1024, budget=100)
+    assert sorted(asked) == [([2, 3], 960), ([4], 448), ([5], 192)]
+    assert paths.tolist() == [64, 64, 1024, 1024, 512, 256]
     np.testing.assert_allclose(e2[2], (64 * 0.05 + 960 * 0.02) / 1024)
     np.testing.assert_allclose(e2[3], (64 * 0.001 + 960 * 0.02) / 1024)
-    np.testing.assert_allclose(s2[3], np.sqrt((64 * 0.04) ** 2 + (960 * 0.01) ** 2) / 1024)
+    np.testing.assert_allclose(s2[3], np.sqrt((64 * 0.01) ** 2 + (960 * 0.01) ** 2) / 1024)
+    np.testing.assert_allclose(e2[4], (64 * 1.0 + 448 * 0.02) / 512)
     np.testing.assert_array_equal(e2[:2], e[:2])
-    # nothing more when dark_spp <= spp, or nothing is dark
-    assert refine_dark(trace, e, s, 64, 64)[2].size == 0 and len(asked) == 1
-    assert refine_dark(trace, np.ones((3, 3)), s[:3], 64, 1024)[2].size == 0 and len(asked) == 1
+    # direct light counts in a point's light: point 5 lit directly is no longer noisy (its light is capped at
+    # NOISE_CAP x the mean, 0.27: 0.06 / 0.27 = 0.22 -> 2 x); nor is point 4 with a tenth of its noise
+    d[5] = 10.0
+    s[4] = 0.013
+    assert refine_points(trace, d, e, s, 64, 1024, budget=100)[2].tolist() == [64, 64, 1024, 1024, 64, 128]
+    # the budget relaxes the target: at most 0.3 x N x spp = 115 extra paths -> only point 4, once (dark ones still)
+    d[5] = 0.0
+    s[4] = 0.13
+    assert refine_points(trace, d, e, s, 64, 1024, budget=0.3)[2].tolist() == [64, 64, 1024, 1024, 128, 64]
+    # nothing more when max_spp <= spp, or nothing is dark or noisy
+    asked.clear()
+    assert refine_points(trace, d, e, s, 64, 64)[2].tolist() == [64] * 6 and asked == []
+    assert refine_points(trace, d[:3], np.ones((3, 3)), s[:3] * 0, 64, 1024)[2].tolist() == [64] * 3 and asked == []

@@ -26,7 +26,12 @@ Standard errors (:func:`metrics_with_stderr`)
 The reference is a Monte Carlo estimate, so each metric carries the noise of its ``R_i``. It is propagated by a
 parametric bootstrap: ``replicas`` references ``R*_i = max(0, R_i + s_i z_i)`` with independent standard normal
 ``z_i`` per point (one per point for all three channels: a point's channels come from the same paths), the metric
-recomputed on each, its standard deviation reported as ``<metric>_stderr``. Deterministic (seeded). The exposure
+recomputed on each, its standard deviation reported as ``<metric>_stderr``. Deterministic (seeded). The leak's
+replicas keep the reference's dark set: its standard error is the noise of ``|T − R|`` at those points, given the
+set. Re-picking the set per replica would let a Gaussian tail move a point across the threshold and the score jump
+from 0 (no dark point) to a whole point's deviation — the spread of a discontinuity, not of the estimate (two-rooms,
+no dark point: ±0.07 that way). Membership itself is seldom in doubt: the points near the threshold are refined
+(:func:`workers.kernels.reference.refine_points`). The exposure
 of the tone map stays that of the reference (a display constant). This is the error of the metric as an
 estimate of its value against the exact reference at the same points; which points were drawn is not part of
 it (they are fixed per scene).
@@ -57,9 +62,9 @@ def radiance(e_direct, e_indirect, albedo, emission) -> np.ndarray:
     return np.asarray(emission) + np.asarray(albedo) / math.pi * (np.asarray(e_direct) + np.asarray(e_indirect))
 
 
-def _metrics_batch(test, refs, e_direct, albedo, emission, exposure: float) -> dict[str, np.ndarray]:
+def _metrics_batch(test, refs, e_direct, albedo, emission, exposure: float, dark=None) -> dict[str, np.ndarray]:
     """The metrics (module doc) of one test against K references ``refs`` (K, N, 3) at once: {name: (K,)}, NaN where
-    undefined (mean_ratio of a black reference)."""
+    undefined (mean_ratio of a black reference). ``dark`` (N,) bool: the leak's dark set, else each reference's."""
     t = np.asarray(test, np.float64)
     r = np.asarray(refs, np.float64)
     d, a, e = (np.asarray(x, np.float64) for x in (e_direct, albedo, emission))
@@ -72,7 +77,7 @@ def _metrics_batch(test, refs, e_direct, albedo, emission, exposure: float) -> d
     yt = MT.luminance(t)                                                              # (N,)
     yr = MT.luminance(r)                                                              # (K, N)
     mean_r = yr.mean(axis=1)
-    dark = yr <= MT.LEAK_TAU * mean_r[:, None]
+    dark = yr <= MT.LEAK_TAU * mean_r[:, None] if dark is None else np.broadcast_to(np.asarray(dark, bool), yr.shape)
     n_dark = dark.sum(axis=1)
     dev = (np.abs(yt[None] - yr) * dark).sum(axis=1) / np.maximum(n_dark, 1)
     leak = np.where((mean_r > 0) & (n_dark > 0), dev / np.where(mean_r > 0, mean_r, 1.0), 0.0)
@@ -117,7 +122,9 @@ def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas:
     out = point_metrics(test, r, e_direct, albedo, emission, exposure)
     if len(r) == 0:
         return {**out, **{f"{k}_stderr": None for k in METRICS}}
-    reps = _metrics_batch(test, _replicas(r, err, replicas, seed), e_direct, albedo, emission, exposure)
+    yr = MT.luminance(r)
+    dark = yr <= MT.LEAK_TAU * yr.mean()           # the leak's standard error is conditional on its dark set
+    reps = _metrics_batch(test, _replicas(r, err, replicas, seed), e_direct, albedo, emission, exposure, dark)
     for k in METRICS:
         xs = reps[k][np.isfinite(reps[k])]
         out[f"{k}_stderr"] = float(np.std(xs, ddof=1)) if xs.size > 1 and out[k] is not None else None

@@ -16,7 +16,7 @@ from fastapi import APIRouter, Depends, Query, Request, Response
 from fastapi.responses import JSONResponse, StreamingResponse
 
 from persist.catalog import TERMINAL, Catalog
-from persist.export import export_bundle
+from persist.export import bake_artifacts, export_bundle
 from persist.store import Store
 from proto import bundle, cost
 from proto.models import BakeConfig, Manifest
@@ -71,19 +71,6 @@ def links(bake_id: str) -> dict:
             "cancel": f"{base}/cancel"}
 
 
-def _artifact_infos(store: Store, bake: dict) -> list[dict]:
-    """Artifacts of a bake so far: the manifest's once it succeeded, else those of finished stages."""
-    if bake.get("manifest"):
-        return bake["manifest"]["artifacts"]
-    out = []
-    for s in bake["stages"]:
-        if s["status"] == "succeeded":
-            rec = store.get_stage(s["cache_key"])
-            if rec:
-                out += rec["artifacts"]
-    return out
-
-
 def bake_warnings(bake: dict, scene_warnings: list[str] | None = None) -> list[dict]:
     """The bake's warnings (``[{code, message, stage}]``): the manifest's once it succeeded (recomputed from
     its stages for manifests stored before they carried warnings), else the scene's ingest warnings and those
@@ -124,7 +111,7 @@ def public(bake: dict, store: Store | None = None, scene_warnings: list[str] | N
     if store is not None:
         out["artifacts"] = [{k: a.get(k) for k in ("name", "file", "format", "shape", "dtype", "bytes", "sha256", "stage",
                                                    "meta")}
-                            for a in _artifact_infos(store, bake)]
+                            for a in bake_artifacts(store, bake)]
         out["check_points"] = review.check_points_of(store, bake)     # evaluate.points: the check_points artifact
     out["links"] = links(bake["id"])
     return out
@@ -384,7 +371,7 @@ _RANGE_PARAMETERS = [
 def get_artifact(bake_id: str, name: str, request: Request, team: str = Depends(deps.team),
                  catalog: Catalog = Depends(deps.catalog), store: Store = Depends(deps.store)):
     bake = _get(catalog, team, bake_id)
-    infos = {a["name"]: a for a in _artifact_infos(store, bake)}
+    infos = {a["name"]: a for a in bake_artifacts(store, bake)}
     info = infos.get(name) or next((a for a in infos.values() if a["file"] == name), None)
     if info is None:
         raise ApiError(404, "artifact_not_found", f"bake {bake_id} has no artifact {name!r} (yet)")

@@ -34,12 +34,12 @@ from fastapi import APIRouter, Depends, Query
 from fastapi.responses import Response
 
 from persist.catalog import Catalog
+from persist.export import bake_artifacts
 from persist.store import Store
 from proto import bundle
 from server.api import deps
 from server.api.errors import ApiError
 from server.api.jsonbody import FiniteJSONResponse, FiniteJSONRoute
-from server.api.routes.bakes import _artifact_infos
 from server.api.schemas import RelightJSON, RelightRequest, error_responses
 from workers.relight import RelightCache, write_relit_bundle
 
@@ -62,7 +62,7 @@ def relight_bake(bake_id: str, body: RelightRequest,
     bake = catalog.get_bake(bake_id, team)
     if bake is None:
         raise ApiError(404, "bake_not_found", f"no bake {bake_id}")
-    infos = {a["name"]: a for a in _artifact_infos(store, bake)}
+    infos = {a["name"]: a for a in bake_artifacts(store, bake)}
     if "prt" not in infos:
         if not (bake.get("config") or {}).get("prt", {}).get("enabled", False):
             raise ApiError(409, "no_prt", f"bake {bake_id} has no PRT transfer: it was made with prt.enabled = false")

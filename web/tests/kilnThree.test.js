@@ -1,0 +1,175 @@
+// @kiln/three (web/kiln-three): the pure parts — the Kiln grid -> three.js LightProbeGrid mapping (box, resolution,
+// padding), the stacking of volumes, and the GLSL handed to three's onBeforeCompile.
+import { describe, expect, it } from 'vitest';
+import { cellSize, padShL2, probeGridBox, threeTexelCoord, SH_L2_TEXELS } from '../kiln-three/src/grid.js';
+import { IRRADIANCE_HOOK, modeGLSL, stackRecords } from '../kiln-three/src/gi.js';
+
+const GRID = { origin: [-0.54, -0.25, 0.1], spacing: [1.0164, 0.75, 0.5], counts: [10, 5, 6] };
+
+function rng(seed) {
+  let s = seed >>> 0;
+  return () => { s = (s * 1664525 + 1013904223) >>> 0; return s / 2 ** 32; };
+}
+
+/** An sh_l2-layout atlas whose value encodes (sub-volume, probe, channel), padding slices copied as Kiln writes them. */
+function atlas(counts) {
+  const [nx, ny, nz] = counts;
+  const data = new Float32Array(SH_L2_TEXELS * (nz + 2) * ny * nx * 4);
+  for (let s = 0; s < SH_L2_TEXELS; s++) {
+    for (let z = 0; z < nz + 2; z++) {
+      const k = Math.min(nz - 1, Math.max(0, z - 1));
+      for (let j = 0; j < ny; j++) {
+        for (let i = 0; i < nx; i++) {
+          for (let c = 0; c < 4; c++) data[((((s * (nz + 2) + z) * ny + j) * nx + i) * 4) + c] = 1000 * s + 100 * k + 10 * j + i + c / 10;
+        }
+      }
+    }
+  }
+  return data;
+}
+
+/** GL LINEAR sampling with CLAMP_TO_EDGE of channel 0 of an RGBA 3D texture at texel coordinate t (centres at +0.5). */
+function trilinear(data, [W, H, D], t) {
+  const idx = [0, 1, 2].map((a) => t[a] - 0.5);
+  const dim = [W, H, D];
+  const lo = idx.map((x, a) => Math.floor(x));
+  const f = idx.map((x, a) => x - lo[a]);
+  const at = (a, v) => Math.min(dim[a] - 1, Math.max(0, v));
+  let out = 0;
+  for (let c = 0; c < 8; c++) {
+    const o = [c & 1, (c >> 1) & 1, (c >> 2) & 1];
+    const w = o.reduce((acc, b, a) => acc * (b ? f[a] : 1 - f[a]), 1);
+    const [x, y, z] = o.map((b, a) => at(a, lo[a] + b));
+    out += w * data[((z * H + y) * W + x) * 4];
+  }
+  return out;
+}
+
+/** three's lightprobes_pars_fragment lookup of sub-volume s (its uvw clamp and atlas z, without the normal offset). */
+function threeSample(data, box, p, s) {
+  const [nx, ny, nz] = box.resolution;
+  const uvw = p.map((x, a) => Math.min(1 - 0.5 / box.resolution[a], Math.max(0.5 / box.resolution[a], (x - box.min[a]) / box.size[a])));
+  const depth = SH_L2_TEXELS * (nz + 2);
+  const z = ((uvw[2] * nz + 1 + s * (nz + 2)) / depth) * depth;
+  return trilinear(data, [nx, ny, depth], [uvw[0] * nx, uvw[1] * ny, z]);
+}
+
+/** Kiln's gi_grid.glsl lookup (giProbeTexel + giPaddedStackedUVW) of sub-volume s in the atlas as stored. */
+function kilnSample(data, grid, p, s) {
+  const [nx, ny, nz] = grid.counts;
+  const t = p.map((x, a) => Math.min(grid.counts[a] - 0.5, Math.max(0.5, (x - grid.origin[a]) / grid.spacing[a] + 0.5)));
+  return trilinear(data, [nx, ny, SH_L2_TEXELS * (nz + 2)], [t[0], t[1], t[2] + 1 + s * (nz + 2)]);
+}
+
+describe('probeGridBox', () => {
+  it('puts the Kiln probes at the centres of three\'s cells', () => {
+    const box = probeGridBox(GRID);
+    expect(box.resolution).toEqual([10, 5, 6]);
+    for (let a = 0; a < 3; a++) {
+      expect(box.min[a]).toBeCloseTo(GRID.origin[a] - GRID.spacing[a] / 2, 12);
+      expect(box.max[a]).toBeCloseTo(GRID.origin[a] + GRID.spacing[a] * (GRID.counts[a] - 0.5), 12);
+      expect(box.size[a] / box.resolution[a]).toBeCloseTo(GRID.spacing[a], 12);   // three's probeSpacing
+      expect(box.center[a]).toBeCloseTo((box.min[a] + box.max[a]) / 2, 12);
+    }
+  });
+
+  it('gives three the texel coordinate Kiln computes, padded or not', () => {
+    const r = rng(7);
+    for (const pad of [0, 1, 2]) {
+      const box = probeGridBox(GRID, pad);
+      expect(box.resolution).toEqual(GRID.counts.map((n) => n + 2 * pad));
+      for (let n = 0; n < 50; n++) {
+        const p = GRID.origin.map((o, a) => o + (r() * 1.4 - 0.2) * GRID.spacing[a] * GRID.counts[a]);
+        const t = threeTexelCoord(box, p);
+        p.forEach((x, a) => expect(t[a]).toBeCloseTo((x - GRID.origin[a]) / GRID.spacing[a] + 0.5 + pad, 9));
+      }
+    }
+  });
+
+  it('keeps a one-probe axis finite', () => {
+    const g = { origin: [0, 1, 0], spacing: [0.5, 0, 0.25], counts: [4, 1, 3] };
+    expect(cellSize(g)).toEqual([0.5, 0.5, 0.25]);
+    const box = probeGridBox(g);
+    expect(box.size.every((x) => x > 0 && Number.isFinite(x))).toBe(true);
+    expect(box.min[1]).toBeCloseTo(0.75, 12);
+    expect(box.max[1]).toBeCloseTo(1.25, 12);
+    expect(cellSize({ origin: [0, 0, 0], spacing: [0, 0, 0], counts: [1, 1, 1] })).toEqual([1, 1, 1]);
+  });
+
+  it('refuses malformed grids', () => {
+    expect(() => probeGridBox({ ...GRID, counts: [10, 0, 6] })).toThrow(RangeError);
+    expect(() => probeGridBox({ ...GRID, origin: [0, NaN, 0] })).toThrow(RangeError);
+    expect(() => probeGridBox({ ...GRID, spacing: [1, 1] })).toThrow(RangeError);
+  });
+});
+
+describe('padShL2', () => {
+  const counts = [4, 3, 5];
+  const src = atlas(counts);
+
+  it('adds border copies and keeps the layout', () => {
+    const { data, counts: c, depth } = padShL2(src, counts, 1);
+    expect(c).toEqual([6, 5, 7]);
+    expect(depth).toBe(SH_L2_TEXELS * 9);
+    expect(data).toBeInstanceOf(Float32Array);
+    const [mx, my, mz] = c;
+    const get = (s, z, y, x) => data[(((s * (mz + 2) + z) * my + y) * mx + x) * 4];
+    expect(get(0, 1, 0, 0)).toBe(0);                  // padded corner = probe (0, 0, 0)
+    expect(get(3, 2, 1, 1)).toBe(3000);               // first interior probe of sub-volume 3
+    expect(get(6, mz, my - 1, mx - 1)).toBe(6000 + 100 * 4 + 10 * 2 + 3);   // last probe
+    expect(get(2, 0, 2, 3)).toBe(get(2, 1, 2, 3));    // the sub-volume's own padding slices
+    expect(get(2, mz + 1, 2, 3)).toBe(get(2, mz, 2, 3));
+  });
+
+  it('keeps half-float bits as they are', () => {
+    const half = Uint16Array.from(src, (x) => x % 65536);
+    const out = padShL2(half, counts, 2).data;
+    expect(out).toBeInstanceOf(Uint16Array);
+    expect(out.length).toBe(SH_L2_TEXELS * (5 + 4 + 2) * (3 + 4) * (4 + 4) * 4);
+  });
+
+  it('makes three\'s lookup equal Kiln\'s clamped lookup up to a cell outside the probes', () => {
+    const g = { origin: [0.3, -0.2, 1.0], spacing: [0.8, 0.6, 0.5], counts };
+    const { data } = padShL2(src, counts, 1);
+    const box = probeGridBox(g, 1);
+    const plain = probeGridBox(g, 0);
+    const r = rng(3);
+    let outside = 0;
+    for (let n = 0; n < 200; n++) {
+      const p = g.origin.map((o, a) => o + (r() * (counts[a] + 1) - 1) * g.spacing[a]);   // probes' box ± 1 cell
+      const s = n % SH_L2_TEXELS;
+      expect(threeSample(data, box, p, s)).toBeCloseTo(kilnSample(src, g, p, s), 6);
+      if (p.some((x, a) => x < plain.min[a] || x > plain.max[a])) outside += 1;
+    }
+    expect(outside).toBeGreaterThan(20);   // the test reached points the unpadded box leaves unlit
+    // unpadded, inside the probes' box: the same
+    const q = [0.9, 0.4, 1.7];
+    expect(threeSample(src, plain, q, 4)).toBeCloseTo(kilnSample(src, g, q, 4), 6);
+  });
+
+  it('refuses an atlas of the wrong size', () => {
+    expect(() => padShL2(src.subarray(4), counts)).toThrow(RangeError);
+  });
+});
+
+describe('material extension', () => {
+  it('hands three the mode\'s proto/glsl without a version line, view direction first', () => {
+    const code = modeGLSL('mode_mask_normalized.glsl', { KILN_SH_L2: true, KILN_MASK_CLUSTERS: 4 });
+    expect(code).not.toMatch(/^\s*#\s*version/m);
+    expect(code).toMatch(/#define KILN_SH_L2/);
+    expect(code).toMatch(/#define KILN_MASK_CLUSTERS 4/);
+    expect(code.match(/vec3 giViewDir =/g)).toHaveLength(1);
+    expect(code.indexOf('vec3 giViewDir')).toBeLessThan(code.indexOf('vec3 giIndirectIrradiance('));
+    expect(modeGLSL('mode_leaking.glsl', { KILN_SH_L2: true })).toMatch(/vec3 giViewDir =/);  // leaking lacks gi_view
+    expect(IRRADIANCE_HOOK).toMatch(/irradiance \+= uKilnIndirectScale \* giIndirectIrradiance/);
+  });
+
+  it('stacks volumes along z as gi_grid.glsl giStackedUVW reads them', () => {
+    const v = (x) => ({ kind: 'half', components: 4, width: 2, height: 1, depth: 1, is3D: true, data: new Uint16Array(8).fill(x) });
+    const s = stackRecords([v(1), v(2), v(3)]);
+    expect(s.depth).toBe(3);
+    expect(s.data).toBeInstanceOf(Uint16Array);
+    expect(Array.from(s.data.subarray(8, 16))).toEqual(Array(8).fill(2));
+    expect(() => stackRecords([v(1), { ...v(2), width: 3 }])).toThrow();
+  });
+});
