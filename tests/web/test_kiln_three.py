@@ -138,6 +138,14 @@ class PythonView:
         from workers.render.gbuffer import GBufferRenderer
 
         self.manifest, self.arrays = open_bundle(bundle_dir)
+        if "mask_atlas" in self.arrays:      # the masks the (possibly lossy) atlas stands for: what the runtime reads
+            from workers.kernels.mask_atlas import decompress_channels
+
+            meta = next(a.meta for a in self.manifest.artifacts if a.name == "mask_atlas")
+            self.arrays = dict(self.arrays)
+            for n, v in zip(("masks_0123", "masks_4567"), decompress_channels(self.arrays["mask_atlas"],
+                                                                               self.arrays["mask_indirection"], meta)):
+                self.arrays[n] = v
         self.scene = ingest_file(bundle_dir / "scene.glb")
         pos, target = CAMERAS[cam]
         self.cam = fit_clip_planes(Camera(position=pos, target=target, fov_y=FOV, width=W, height=H),
@@ -156,7 +164,7 @@ class PythonView:
 
         kw = {}
         if mode.startswith("mask"):
-            meta = next(a.meta for a in self.manifest.artifacts if a.name == "mask_atlas_0123")
+            meta = next(a.meta for a in self.manifest.artifacts if a.name == "mask_atlas")
             kw["mask_meta"] = {k: meta[k] for k in ("samples_per_cell", "block_size", "border_lo")}
         if mode == "ddgi":
             kw["self_shadow_bias"] = self.manifest.config["light"]["self_shadow_bias"]

@@ -90,8 +90,8 @@ export class KilnGI {
       uKilnIndirectScale: { value: 1 },
       uGridOrigin: { value: g.origin.slice() }, uGridSpacing: { value: g.spacing.slice() }, uGridCounts: { value: g.counts.slice() },
     };
-    // a slot for every sampler any mode declares: one a program declares but no binding fills (the 4567 atlas with
-    // K <= 4, the weights in plain mask GI) then gets three's empty texture of its type instead of unit 0, where a
+    // a slot for every sampler any mode declares: one a program declares but no binding fills (the weights in plain
+    // mask GI) then gets three's empty texture of its type instead of unit 0, where a
     // texture of the other type would make the draw fail
     for (const name of MODE_SAMPLERS) this.uniforms[name] = { value: null };
   }
