@@ -12,12 +12,43 @@ Per probe, from one spherical ray cast (:func:`workers.raycast.probes.trace_prob
 
 A new offset is kept only when it stays within the limit on every axis (RTXGI). Consumer: stage
 ``relocate`` (5 iterations, DDGI-P §5: "runs for 5 iterations"). Inverse: none.
+
+**Rescue** (:func:`rescue`, after the iterations; not in the paper): DDGI-P §6.1 turns off the probes the grid
+constrains too much to leave a wall ("some probes are too constrained by the grid structure"). With the RTXGI
+limit of 0.45 spacing that is every probe deeper than 0.45 spacing in a solid — on a budget-bound grid in a
+cube-brush level (zdm2-sauerbraten: 2.19 m spacing, walls a metre or more thick) 7,319 of 20,387 probes, 4,652 of
+them next to live ones, each leaving a hole in the cages of the rooms beside it. A probe still inside after the
+iterations may move anywhere within ``rescue_limit`` (just under one spacing per axis: the 8 cells around its
+grid point) to the nearest free-space point found by its rays: each ray that leaves the solid through a back face
+gives a candidate, the exit point moved ``margin`` along the exit face's outward normal; the candidates within
+the limit, nearest the grid position first (no two within ``margin``), are each tested with a spherical ray set
+(:func:`free_space`: at most half the inside threshold of back faces, no front face nearer than half the margin)
+and the probe takes the first that passes. A probe whose rays leave the solid nowhere within the limit (deep
+inside a solid: nothing to shade within its cells) stays, and the trace stage turns it OFF. The interpolation
+needs nothing new: DDGI's weights and the θ field's occlusion rays already use the relocated position, and the
+light stage re-shades from it; the volumes interpolated by grid position (leaking SH) take the probe's value one
+cell or less from its grid point, as they take a relocated one's at 0.45.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["relocation_step"]
+from workers.kernels.sampling import fibonacci_sphere, random_rotation
+
+__all__ = ["relocation_step", "exit_candidates", "free_space", "rescue", "RESCUE_CANDIDATES", "RESCUE_RAYS",
+           "RESCUE_MARGIN"]
+
+RESCUE_CANDIDATES = 6
+"""Candidate positions tested per stuck probe (the nearest distinct exits)."""
+
+RESCUE_RAYS = 64
+"""Rays of the free-space test of each candidate."""
+
+CHUNK_PROBES = 2048
+"""Probes per batch of :func:`exit_candidates` (its arrays are chunk × rays × 3)."""
+
+RESCUE_MARGIN = 0.1
+"""Distance kept from the exit face, × the smallest spacing (RTXGI's probeMinFrontfaceDistance is 0.1 spacing)."""
 
 
 def relocation_step(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, dirs: np.ndarray,
@@ -79,3 +110,117 @@ def relocation_step(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, dirs: 
     # keep a new offset only within the limit on every axis (RTXGI)
     ok = np.all(np.abs(full) <= limit + 1e-9, axis=1)
     return np.where(ok[:, None], full, offsets)
+
+
+def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back: np.ndarray, tri: np.ndarray,
+                    dirs: np.ndarray, normals: np.ndarray, limit: np.ndarray, margin: float,
+                    k: int = RESCUE_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rays of probes inside a solid leave it: up to ``k`` candidate positions per probe.
+
+    Parameters
+    ----------
+    base, positions : (P, 3) float
+        Grid positions and the current (relocated) positions the rays start from, world space, metres.
+    t, back, tri : (P, R)
+        The rays' hit distances (inf = miss), back-face flags and triangles (-1 = miss).
+    dirs : (R, 3) float
+        Unit ray directions (the same for every probe).
+    normals : (T, 3) float
+        Unit geometric normals of the triangles (any orientation: the outward one is the one along the ray).
+    limit : (3,) float
+        Per-axis limit of ``candidate − base``, metres.
+    margin : float
+        How far the candidate lies from the exit face, along its normal, metres.
+
+    Returns ``(cand (P, k, 3) float64, ok (P, k) bool)``: per probe the back-face exits moved ``margin`` out, within
+    the limit, nearest ``base`` first, no two closer than ``margin``; ``ok`` False for unused slots.
+    """
+    P, R = t.shape
+    cand = np.zeros((P, k, 3))
+    ok = np.zeros((P, k), bool)
+    d = np.asarray(dirs, np.float64)
+    for a in range(0, P, CHUNK_PROBES):                                        # bounds the (chunk, R, 3) arrays
+        b = min(a + CHUNK_PROBES, P)
+        tc = np.asarray(t[a:b], np.float64)
+        use = np.asarray(back[a:b], bool) & np.isfinite(tc)
+        n = np.asarray(normals, np.float64)[np.where(use, tri[a:b], 0)]         # (c, R, 3)
+        n *= np.where(np.einsum("crj,rj->cr", n, d) < 0, -1.0, 1.0)[..., None]  # outward: along the exiting ray
+        c = positions[a:b, None, :] + d[None] * np.where(use, tc, 0.0)[..., None] + margin * n
+        use &= np.all(np.abs(c - base[a:b, None, :]) <= limit, axis=2)
+        dist = np.where(use, np.linalg.norm(c - base[a:b, None, :], axis=2), np.inf)
+        order = np.argsort(dist, axis=1, kind="stable")
+        rows = np.arange(b - a)
+        got = np.zeros(b - a, np.int64)
+        for j in range(R):                                                     # greedy, nearest first
+            r = order[:, j]
+            q = c[rows, r]
+            take = use[rows, r] & (got < k)
+            if not take.any():
+                if not use[rows, r].any():
+                    break                                                      # sorted: the rest are unused too
+                continue
+            near = np.linalg.norm(cand[a + rows] - q[:, None, :], axis=2) < margin
+            take &= ~np.any(near & ok[a + rows], axis=1)
+            i = a + rows[take]
+            cand[i, got[take]] = q[take]
+            ok[i, got[take]] = True
+            got[take] += 1
+    return cand, ok
+
+
+def free_space(t: np.ndarray, back: np.ndarray, margin: float, backface_fraction: float) -> np.ndarray:
+    """(N,) bool: the point of each row of rays is in free space — at most half of ``backface_fraction`` of its
+    rays hit back faces (stricter than the inside test, so that the trace stage's own rays agree) and no front
+    face is nearer than ``margin / 2``. ``t`` (N, R) hit distances (inf = miss), ``back`` (N, R) bool."""
+    R = t.shape[1]
+    front = np.where(back, np.inf, t).min(axis=1)
+    return (back.sum(axis=1) <= 0.5 * backface_fraction * R) & (front >= 0.5 * margin)
+
+
+def rescue(caster, base: np.ndarray, offsets: np.ndarray, double_sided: np.ndarray, limit: np.ndarray,
+           margin: float, backface_fraction: float, rays_per_probe: int, rng: np.random.Generator,
+           check: np.ndarray | None = None, k: int = RESCUE_CANDIDATES,
+           test_rays: int = RESCUE_RAYS) -> tuple[np.ndarray, dict]:
+    """Move the probes still inside geometry to the nearest free-space point within ``limit`` (module doc).
+
+    ``base`` (P, 3) grid positions and ``offsets`` (P, 3) the offsets after the DDGI-P §5 iterations, world space,
+    metres; ``limit`` (3,) per-axis offset limit, metres; ``margin`` metres; ``double_sided`` (T,) bool as in
+    :func:`workers.raycast.probes.trace_probes`; ``rng`` draws the two ray-set rotations; ``check`` the indices of
+    the probes that may be inside (default all: the others are not traced). Returns the new offsets (P, 3) float64
+    and stats: ``inside`` (probes found inside), ``rescued``, ``rays``, ``ray_seconds``.
+    """
+    from workers.raycast.probes import trace_probes
+
+    offsets = np.array(offsets, np.float64, copy=True)
+    stats = {"inside": 0, "rescued": 0, "rays": 0, "ray_seconds": 0.0}
+    dirs = (fibonacci_sphere(rays_per_probe).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
+    test_dirs = (fibonacci_sphere(test_rays).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
+    check = np.arange(base.shape[0]) if check is None else np.asarray(check, np.int64)
+    pos = base[check] + offsets[check]
+    t, tri, _, _, back, sec = trace_probes(caster, pos, dirs, double_sided)
+    stats["rays"] += t.size
+    stats["ray_seconds"] += sec
+    inside = np.flatnonzero(back.sum(axis=1) > backface_fraction * dirs.shape[0])   # Fig 7 / Fig 10's test
+    stuck = check[inside]
+    stats["inside"] = int(stuck.size)
+    if stuck.size == 0:
+        return offsets, stats
+    tris = np.asarray(caster.triangles, np.float64)
+    nrm = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-30)[:, None]
+    cand, ok = exit_candidates(base[stuck], pos[inside], t[inside], back[inside], tri[inside], dirs, nrm,
+                               np.asarray(limit, np.float64), margin, k)
+    flat = cand[ok]
+    if flat.shape[0] == 0:
+        return offsets, stats
+    tt, _, _, _, bb, sec = trace_probes(caster, flat, test_dirs, double_sided)
+    stats["rays"] += tt.size
+    stats["ray_seconds"] += sec
+    good = np.zeros(ok.shape, bool)
+    good[ok] = free_space(tt, bb, margin, backface_fraction)
+    first = np.argmax(good, axis=1)
+    hit = good.any(axis=1)
+    idx = stuck[hit]
+    offsets[idx] = cand[hit, first[hit]] - base[idx]
+    stats["rescued"] = int(hit.sum())
+    return offsets, stats
