@@ -17,8 +17,9 @@ its rays find (nothing there to shade: OFF is right, whatever its neighbours);
 
 and how far the probes moved (the largest offset, as a fraction of the spacing, and how many moved further than
 the DDGI-P §5 limit of 0.45 spacing). ``--full`` runs the whole default bake (with a sun and a sky added, as
-bench_probes does: the scene has no lights) and prints the seconds of every stage and their sum. Prints a table and
-the numbers as JSON on the last line. Wall-clock seconds on a shared machine are indicative only.
+bench_probes does: the scene has no lights) and prints the seconds of every stage and their sum, wall clock and CPU
+(the process's time on all threads: on a shared machine the wall clock depends on the other load, CPU time less).
+Prints a table and the numbers as JSON on the last line.
 """
 from __future__ import annotations
 
@@ -84,13 +85,14 @@ def run(scene_path: Path, overrides: dict, full: bool) -> dict:
     with tempfile.TemporaryDirectory() as tmp:
         store = Store(tmp)
         sid = store.put_bytes(scene.to_bytes())
-        times, recs = {}, {}
+        times, cpu, recs = {}, {}, {}
         for st, _ in plan(sid, cfg):
             if not full and st.name not in ("ingest", "place", "relocate", "trace"):
                 continue
-            t0 = time.perf_counter()
+            t0, c0 = time.perf_counter(), time.process_time()
             rec, _ = pipeline.execute_stage(store, sid, cfg, st.name)
             times[st.name] = time.perf_counter() - t0
+            cpu[st.name] = time.process_time() - c0
             recs[st.name] = pipeline._lazy(store, rec)
         place, rel, tr = recs["place"].stats, recs["relocate"].stats, recs["trace"].stats
         nx, ny, nz = place["counts"]
@@ -116,6 +118,7 @@ def run(scene_path: Path, overrides: dict, full: bool) -> dict:
             "moved_beyond_045": int((frac.max(axis=1) > 0.45 + 1e-6).sum()),
             "max_offset_fraction": float(frac.max()) if frac.size else 0.0,
             "seconds": times, "total_seconds": sum(times.values()),
+            "cpu_seconds": cpu, "total_cpu_seconds": sum(cpu.values()),
         }
         return out
 
@@ -146,6 +149,8 @@ def main() -> int:
           f"{ok['free_in_cells']:18d} {ok['solid_cells']:16d} {r['relocate'].get('moved', 0):8d} "
           f"{r['relocate'].get('rescued') or 0:8d} {r['moved_beyond_045']:8d} {r['max_offset_fraction']:11.3f}")
     print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in r["seconds"].items()) + f"; total {r['total_seconds']:.1f}")
+    print("CPU seconds (all threads; less sensitive to other load): "
+          + ", ".join(f"{k} {v:.1f}" for k, v in r["cpu_seconds"].items()) + f"; total {r['total_cpu_seconds']:.1f}")
     print(json.dumps(r))
     return 0
 
