@@ -94,3 +94,19 @@ def test_free_space_needs_few_back_faces_and_no_close_front_face():
     back = np.array([[False] * 4, [True, False, False, False], [False] * 4, [False] * 4])
     # row 1: 1 of 4 back faces > half of 0.25; row 2: a front face 4 cm away < 0.1 / 2
     np.testing.assert_array_equal(free_space(t, back, 0.1, 0.25), [True, False, False, True])
+
+
+def test_exit_candidates_stay_in_the_grid_box():
+    """A probe of the grid's outer layer (x = 0, the box's lo face) whose nearest exit leads out of the box (−x):
+    that candidate is dropped (no cells there), the one inside the box is kept."""
+    from workers.kernels.relocation import exit_candidates
+
+    t = np.array([[0.3, 0.1, 3.0, 3.0]])
+    back = np.array([[True, True, False, False]])
+    tri = np.array([[0, 1, 2, 2]])
+    normals = np.array([[1, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    args = (np.zeros((1, 3)), np.zeros((1, 3)), t, back, tri, AXES, normals, np.full(3, 0.95), 0.1)
+    cand, ok = exit_candidates(*args, k=2)
+    np.testing.assert_allclose(cand[0, ok[0]], [[-0.2, 0, 0], [0.4, 0, 0]])
+    cand, ok = exit_candidates(*args, k=2, box=(np.zeros(3), np.ones(3)))
+    np.testing.assert_allclose(cand[0, ok[0]], [[0.4, 0, 0]])

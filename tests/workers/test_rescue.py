@@ -3,7 +3,8 @@
 The scene: a 4 x 3 x 4 m room carved out of a solid block (an outward-facing box from -8 to 12 m around an
 inward-facing room box): everything between the two boxes is solid, every ray from there hits a back face. A grid of
 1 m spacing puts a column of probes 0.5 m inside the room's x = 0 wall (DDGI-P §5's limit of 0.45 spacing cannot get
-them out), one 1.5 m inside it and two deeper.
+them out), one 1.5 m inside it and two deeper. And two-rooms at 8 x 8 x 8, whose outer layer sits on the exterior
+walls' outer faces.
 """
 from __future__ import annotations
 

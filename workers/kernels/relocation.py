@@ -19,9 +19,10 @@ limit of 0.45 spacing that is every probe deeper than 0.45 spacing in a solid �
 cube-brush level (zdm2-sauerbraten: 2.19 m spacing, walls a metre or more thick) 7,319 of 20,387 probes, 4,652 of
 them next to live ones, each leaving a hole in the cages of the rooms beside it. A probe still inside after the
 iterations may move anywhere within ``rescue_limit`` (just under one spacing per axis: the 8 cells around its
-grid point) to the nearest free-space point found by its rays: each ray that leaves the solid through a back face
-gives a candidate, the exit point moved ``margin`` along the exit face's outward normal; the candidates within
-the limit, nearest the grid position first (no two within ``margin``), are each tested with a spherical ray set
+grid point, those of them inside the grid's box) to the nearest free-space point found by its rays: each time a
+ray leaves a solid through a back face (its first ``RESCUE_CROSSINGS`` hits: a probe on a wall's outer face first
+hits that face) gives a candidate, the exit point moved ``margin`` along the exit face's outward normal; the
+candidates within the limit and the grid's box, nearest the grid position first (no two within ``margin``), are each tested with a spherical ray set
 (:func:`free_space`: at most half the inside threshold of back faces, no front face nearer than half the margin)
 and the probe takes the first that passes. A probe whose rays leave the solid nowhere within the limit (deep
 inside a solid: nothing to shade within its cells) stays, and the trace stage turns it OFF. The interpolation
@@ -36,7 +37,7 @@ import numpy as np
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
 
 __all__ = ["relocation_step", "exit_candidates", "free_space", "rescue", "RESCUE_CANDIDATES", "RESCUE_RAYS",
-           "RESCUE_MARGIN"]
+           "RESCUE_CROSSINGS", "RESCUE_MARGIN"]
 
 RESCUE_CANDIDATES = 6
 """Candidate positions tested per stuck probe (the nearest distinct exits)."""
@@ -46,6 +47,9 @@ RESCUE_RAYS = 64
 
 CHUNK_PROBES = 2048
 """Probes per batch of :func:`exit_candidates` (its arrays are chunk × rays × 3)."""
+
+RESCUE_CROSSINGS = 3
+"""Hits followed along each ray of a stuck probe (the exits past the first hit: a wall's outer face, another solid)."""
 
 RESCUE_MARGIN = 0.1
 """Distance kept from the exit face, × the smallest spacing (RTXGI's probeMinFrontfaceDistance is 0.1 spacing)."""
@@ -114,7 +118,7 @@ def relocation_step(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, dirs: 
 
 def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back: np.ndarray, tri: np.ndarray,
                     dirs: np.ndarray, normals: np.ndarray, limit: np.ndarray, margin: float,
-                    k: int = RESCUE_CANDIDATES) -> tuple[np.ndarray, np.ndarray]:
+                    k: int = RESCUE_CANDIDATES, box: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Where the rays of probes inside a solid leave it: up to ``k`` candidate positions per probe.
 
     Parameters
@@ -131,6 +135,9 @@ def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back
         Per-axis limit of ``candidate − base``, metres.
     margin : float
         How far the candidate lies from the exit face, along its normal, metres.
+    box : ((3,), (3,)) float, optional
+        The grid's box (first and last probe layers): candidates outside it are dropped (a probe of the outer
+        layer has no cells beyond it; moved there it would shade nothing).
 
     Returns ``(cand (P, k, 3) float64, ok (P, k) bool)``: per probe the back-face exits moved ``margin`` out, within
     the limit, nearest ``base`` first, no two closer than ``margin``; ``ok`` False for unused slots.
@@ -147,6 +154,8 @@ def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back
         n *= np.where(np.einsum("crj,rj->cr", n, d) < 0, -1.0, 1.0)[..., None]  # outward: along the exiting ray
         c = positions[a:b, None, :] + d[None] * np.where(use, tc, 0.0)[..., None] + margin * n
         use &= np.all(np.abs(c - base[a:b, None, :]) <= limit, axis=2)
+        if box is not None:
+            use &= np.all((c >= np.asarray(box[0])) & (c <= np.asarray(box[1])), axis=2)
         dist = np.where(use, np.linalg.norm(c - base[a:b, None, :], axis=2), np.inf)
         order = np.argsort(dist, axis=1, kind="stable")
         rows = np.arange(b - a)
@@ -177,16 +186,53 @@ def free_space(t: np.ndarray, back: np.ndarray, margin: float, backface_fraction
     return (back.sum(axis=1) <= 0.5 * backface_fraction * R) & (front >= 0.5 * margin)
 
 
+def _later_hits(caster, origins, dirs, t, back, tri, double_sided, reach):
+    """The first ``RESCUE_CROSSINGS`` hits along each ray: (P, R·C) t, back, tri (column c·R + r = hit c of ray r),
+    the rays cast and their seconds. A ray goes on past a hit nearer than ``reach`` (beyond it no exit can be
+    within the limit): a probe on a wall's outer face (its first hit a front face at t = 0) or behind another
+    solid still finds the exit into the room beyond."""
+    import time
+
+    P, R = t.shape
+    ts, bs, trs = [t], [back], [tri]
+    n, sec = 0, 0.0
+    ds = np.asarray(double_sided, bool)
+    eps = 1e-5 * float(getattr(caster, "scale", 1.0))
+    cur = np.asarray(t, np.float64)
+    for _ in range(RESCUE_CROSSINGS - 1):
+        go = np.isfinite(cur) & (cur < reach)
+        nt = np.full((P, R), np.inf, np.float32)
+        nb = np.zeros((P, R), bool)
+        ntr = np.full((P, R), -1, np.int64)
+        pi, ri = np.nonzero(go)
+        if pi.size:
+            t0 = time.perf_counter()
+            h = caster.intersect(origins[pi].astype(np.float32), dirs[ri], tnear=cur[pi, ri] + eps)
+            sec += time.perf_counter() - t0
+            n += pi.size
+            hit = h.tri >= 0
+            b = h.backface & hit
+            if ds.any():
+                b &= ~ds[np.where(hit, h.tri, 0)]
+            nt[pi, ri], nb[pi, ri], ntr[pi, ri] = h.t, b, h.tri
+        ts.append(nt)
+        bs.append(nb)
+        trs.append(ntr)
+        cur = nt.astype(np.float64)
+    return np.concatenate(ts, axis=1), np.concatenate(bs, axis=1), np.concatenate(trs, axis=1), n, sec
+
+
 def rescue(caster, base: np.ndarray, offsets: np.ndarray, double_sided: np.ndarray, limit: np.ndarray,
            margin: float, backface_fraction: float, rays_per_probe: int, rng: np.random.Generator,
-           check: np.ndarray | None = None, k: int = RESCUE_CANDIDATES,
+           check: np.ndarray | None = None, box: tuple | None = None, k: int = RESCUE_CANDIDATES,
            test_rays: int = RESCUE_RAYS) -> tuple[np.ndarray, dict]:
     """Move the probes still inside geometry to the nearest free-space point within ``limit`` (module doc).
 
     ``base`` (P, 3) grid positions and ``offsets`` (P, 3) the offsets after the DDGI-P §5 iterations, world space,
     metres; ``limit`` (3,) per-axis offset limit, metres; ``margin`` metres; ``double_sided`` (T,) bool as in
     :func:`workers.raycast.probes.trace_probes`; ``rng`` draws the two ray-set rotations; ``check`` the indices of
-    the probes that may be inside (default all: the others are not traced). Returns the new offsets (P, 3) float64
+    the probes that may be inside (default all: the others are not traced); ``box`` the grid's box (lo, hi), which
+    the probes stay in (:func:`exit_candidates`). Returns the new offsets (P, 3) float64
     and stats: ``inside`` (probes found inside), ``rescued``, ``rays``, ``ray_seconds``.
     """
     from workers.raycast.probes import trace_probes
@@ -208,8 +254,12 @@ def rescue(caster, base: np.ndarray, offsets: np.ndarray, double_sided: np.ndarr
     tris = np.asarray(caster.triangles, np.float64)
     nrm = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
     nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-30)[:, None]
-    cand, ok = exit_candidates(base[stuck], pos[inside], t[inside], back[inside], tri[inside], dirs, nrm,
-                               np.asarray(limit, np.float64), margin, k)
+    t, back, tri, n_more, sec = _later_hits(caster, pos[inside], dirs, t[inside], back[inside], tri[inside],
+                                            double_sided, float(np.linalg.norm(limit)) * 2.0)
+    stats["rays"] += n_more
+    stats["ray_seconds"] += sec
+    cand, ok = exit_candidates(base[stuck], pos[inside], t, back, tri, np.tile(dirs, (RESCUE_CROSSINGS, 1)), nrm,
+                               np.asarray(limit, np.float64), margin, k, box)
     flat = cand[ok]
     if flat.shape[0] == 0:
         return offsets, stats

@@ -5,8 +5,8 @@ Fibonacci pattern under a fresh random rotation (seeded; :func:`workers.raycast.
 applies the Fig 7 optimizer per probe (:func:`workers.kernels.relocation.relocation_step`), with the offset
 limit ``max_offset × spacing`` (RTXGI). Back faces of double-sided materials count as front faces (a thin
 double-sided plane has no inside). Then the probes still inside geometry move to the nearest free-space point
-within ``rescue_offset × spacing`` (:func:`workers.kernels.relocation.rescue`; ``rescue_offset = 0``: none, as
-DDGI-P), keeping ``0.1 × min spacing`` from the surface they leave through; stats ``inside`` (before the rescue),
+within ``rescue_offset × spacing`` and the grid's box (:func:`workers.kernels.relocation.rescue`;
+``rescue_offset = 0``: none, as DDGI-P), keeping ``0.1 × min spacing`` from the surface they leave through; stats ``inside`` (before the rescue),
 ``rescued``.
 
 Outputs: ``probe_offsets`` and ``probe_positions_relocated``, (nz, ny, nx, 3) float32 volumes,
@@ -56,7 +56,8 @@ def run_relocate(ctx: StageContext) -> StageOutput:
     res = {"inside": None, "rescued": 0}
     if sec.rescue_offset > sec.max_offset and P:
         offsets, res = rescue(caster, base, offsets, ds, sec.rescue_offset * spacing, RESCUE_MARGIN * min_spacing,
-                              sec.backface_fraction, sec.rays_per_probe, rng, check=check)
+                              sec.backface_fraction, sec.rays_per_probe, rng, check=check,
+                              box=(base.min(axis=0), base.max(axis=0)))
         rays += res["rays"]
         ray_seconds += res["ray_seconds"]
     ctx.report(1.0)
