@@ -28,9 +28,11 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    zdm2-sauerbraten (``f`` = 0.47): 1.63 m instead of 2.19 m, but 44,850 probes instead of 20,387 (12,057 OFF)
    and 1.9x the bake's CPU time (99 s instead of 52 s, tests/bench/bench_offprobes.py ``--full``), still 1.65x
    the 0.98 m its rooms ask — no uniform grid meets that within the budget. The record gives the spacing the free
-   volume would allow (``spacing_free_volume``) and its probe count. Adaptive density (finer near geometry, as
-   Unity's Adaptive Probe Volumes) is not built: every consumer (the bundle's uniform KTX2 volumes, the θ field
-   and masks, the GLSL / JavaScript samplers, three.js's LightProbeGrid) indexes a uniform grid.
+   volume would allow (``spacing_free_volume``, 1.52 m on zdm2) and its probe count (51,168), both before the layer
+   fit of step 4 (which stretches the spacing by up to 12% and drops layers over the budget: the bake above).
+   Adaptive density (finer near geometry, as Unity's Adaptive Probe Volumes) is not built: every consumer (the
+   bundle's uniform KTX2 volumes, the θ field and masks, the GLSL / JavaScript samplers, three.js's
+   LightProbeGrid) indexes a uniform grid.
 4. **Layers between walls**: per axis, the grid's phase (and its spacing, within -12%..+12% of the chosen
    one; never finer while the budget binds) is chosen so that axis-aligned faces (walls, floors, ceilings,
    weighted by area) lie as far as possible from probe layers: a thin wall sits midway between two layers
@@ -209,7 +211,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     ``budget_bound`` (bool), ``wall_thickness_p5`` (m or None), ``samples_per_cell``, ``free_fraction`` (of the
     planning points in the box, outside solids), ``budget_volume`` ("box": the volume the budget is spread over,
     solid included), ``spacing_free_volume`` (m) and ``probes_free_volume`` (what spreading it over the free volume
-    alone would give; the spacing when the budget does not bind) and ``reason``.
+    alone would give, before the layer fit; the spacing when the budget does not bind) and ``reason``.
     """
     lo, hi = (np.asarray(b, np.float64) for b in bounds)
     free = ~fs.inside
