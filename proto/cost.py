@@ -258,7 +258,10 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         add("place", 0.0, LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE + P * 24, P * 12, rays=False)
     else:
         add("place", PLANNING_SECONDS * rays_scale, LIB_RAYS + scene_mem + 40 * MB + P * 24, P * 12)
-    add("relocate", config.trace.relocate_iterations * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
+    # the rescue of probes still inside (kernels/relocation.rescue): about one more iteration (zdm2: 36% of the
+    # probes inside, each with its rays, their later hits and 6 x 64 test rays)
+    rescue = 1 if config.trace.rescue_offset > config.trace.max_offset else 0
+    add("relocate", (config.trace.relocate_iterations + rescue) * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
         LIB_RAYS + scene_mem + N * RAY_MEM["relocate"], P * 24)
     dt = config.trace.depth_texels + 2
     add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale, LIB_RAYS + scene_mem + N * RAY_MEM["trace"],

@@ -206,6 +206,10 @@ class TraceSection(_Strict):
     rays_per_probe: Int = Field(256, ge=16, le=4096, description="rays per probe, spherical Fibonacci pattern")
     relocate_iterations: Int = Field(5, ge=0, le=20, description="iterations of the DDGI-P Fig 7 optimizer")
     max_offset: Float = Field(0.45, ge=0.0, le=0.5, description="relocation limit, fraction of the spacing per axis")
+    rescue_offset: Float = Field(0.95, ge=0.0, lt=1.0,
+                                 description="a probe still inside geometry after the iterations moves to the "
+                                             "nearest free space within this fraction of the spacing per axis "
+                                             "(0: off, as DDGI-P)")
     backface_fraction: Float = Field(0.25, gt=0.0, lt=1.0,
                                      description="a probe seeing more backfaces than this is inside geometry")
     depth_texels: Int = Field(16, ge=4, le=64, description="octahedral depth-moment map size per probe (+1 border)")

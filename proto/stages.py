@@ -41,8 +41,8 @@ REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "ch
 STAGES: tuple[StageDef, ...] = (
     # 2: stats["warnings"] (unlit_scene, light_outside_scene); 3: the `scene` artifact (GLB)
     StageDef("ingest", 3, ("scene",), (), timeout=600),
-    StageDef("place", 5, ("place", "seed"), ("ingest",), timeout=600),
-    StageDef("relocate", 1, ("trace", "seed"), ("ingest", "place"), timeout=3600),
+    StageDef("place", 6, ("place", "seed"), ("ingest",), timeout=600),
+    StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
     # against the probe's own map (workers/kernels/sh.py sh_l2_floor)

@@ -61,3 +61,52 @@ def test_probes_are_independent(seed):
     together = step(t, back)
     for p in range(5):
         np.testing.assert_array_equal(together[p], step(t[p], back[p])[0])
+
+
+def test_exit_candidates_nearest_first_within_the_limit_and_distinct():
+    """Back-face exits along ±x at 0.5 and 0.8 m, +y at 2 m (beyond a 0.95 m limit), a front face along −y:
+    candidates = exit + 0.1 m along the exit face's outward normal, nearest the grid position first."""
+    from workers.kernels.relocation import exit_candidates
+
+    t = np.array([[0.5, 0.8, 2.0, 0.3]])
+    back = np.array([[True, True, True, False]])
+    tri = np.array([[0, 1, 2, 3]])
+    normals = np.array([[-1, 0, 0], [1, 0, 0], [0, 1, 0], [0, 1, 0]], float)   # any orientation: made outward
+    cand, ok = exit_candidates(np.zeros((1, 3)), np.zeros((1, 3)), t, back, tri, AXES, normals, np.full(3, 0.95),
+                               0.1, k=3)
+    np.testing.assert_array_equal(ok, [[True, True, False]])
+    np.testing.assert_allclose(cand[0, :2], [[0.6, 0, 0], [-0.9, 0, 0]])
+    # from a relocated start, distances still count from the grid position (0.2 m along +x: 0.6 + 0.2 = 0.8 first)
+    cand, ok = exit_candidates(np.zeros((1, 3)), np.array([[0.2, 0, 0]]), t, back, tri, AXES, normals,
+                               np.full(3, 0.95), 0.1, k=3)
+    np.testing.assert_allclose(cand[0, ok[0]], [[-0.7, 0, 0], [0.8, 0, 0]])
+    # two exits closer than the margin give one candidate
+    cand, ok = exit_candidates(np.zeros((1, 3)), np.zeros((1, 3)), np.array([[0.5, 0.55, 3.0, 3.0]]), back, tri,
+                               np.array([[1, 0, 0], [1, 0.01, 0], [0, 1, 0], [0, -1, 0]], float), normals,
+                               np.full(3, 0.95), 0.1, k=3)
+    assert ok.sum() == 1
+
+
+def test_free_space_needs_few_back_faces_and_no_close_front_face():
+    from workers.kernels.relocation import free_space
+
+    t = np.array([[1.0, 1.0, 1.0, 1.0], [1.0, 1.0, 1.0, 1.0], [0.04, 1.0, 1.0, 1.0], [np.inf] * 4])
+    back = np.array([[False] * 4, [True, False, False, False], [False] * 4, [False] * 4])
+    # row 1: 1 of 4 back faces > half of 0.25; row 2: a front face 4 cm away < 0.1 / 2
+    np.testing.assert_array_equal(free_space(t, back, 0.1, 0.25), [True, False, False, True])
+
+
+def test_exit_candidates_stay_in_the_grid_box():
+    """A probe of the grid's outer layer (x = 0, the box's lo face) whose nearest exit leads out of the box (−x):
+    that candidate is dropped (no cells there), the one inside the box is kept."""
+    from workers.kernels.relocation import exit_candidates
+
+    t = np.array([[0.3, 0.1, 3.0, 3.0]])
+    back = np.array([[True, True, False, False]])
+    tri = np.array([[0, 1, 2, 2]])
+    normals = np.array([[1, 0, 0], [1, 0, 0], [0, 1, 0]], float)
+    args = (np.zeros((1, 3)), np.zeros((1, 3)), t, back, tri, AXES, normals, np.full(3, 0.95), 0.1)
+    cand, ok = exit_candidates(*args, k=2)
+    np.testing.assert_allclose(cand[0, ok[0]], [[-0.2, 0, 0], [0.4, 0, 0]])
+    cand, ok = exit_candidates(*args, k=2, box=(np.zeros(3), np.ones(3)))
+    np.testing.assert_allclose(cand[0, ok[0]], [[0.4, 0, 0]])

@@ -104,3 +104,28 @@ def test_open_scene_gets_probes_everywhere(scene_files):
     s, (counts, origin, spacing, auto) = _plan(scene_files["sealed-box"])
     assert auto["kind"] == "open"
     np.testing.assert_allclose(auto["box"], s.bounds, atol=1e-9)
+
+
+def test_the_budget_counts_the_whole_box_and_the_record_says_what_free_space_would_allow(tmp_path):
+    """A 12 x 3 x 12 m room around a solid 8 x 2 x 8 m block (30% of the box): the budget bounds the whole grid,
+    solid included (budget_volume "box"); grid.auto records the free fraction the planning points found and the
+    finer spacing that spreading the budget over the free volume alone would give, with its larger probe count."""
+    b = GltfBuilder()
+    m = b.material(pbrMetallicRoughness={"baseColorFactor": [0.5, 0.5, 0.5, 1], "metallicFactor": 0.0})
+    pos, nrm, idx = box_inward([0, 0, 0], [12, 3, 12])
+    b.mesh(pos, idx, normals=nrm, material=m)
+    pos, nrm, idx = box_inward([2, 0.5, 2], [10, 2.5, 10])
+    b.mesh(pos, idx[:, [0, 2, 1]], normals=-nrm, material=m)         # the block: outward-facing, a solid
+    (tmp_path / "block.glb").write_bytes(b.glb())
+    s = ingest_file(tmp_path / "block.glb")
+    fs = analyze_free_space(caster_for_scene(s), s.bounds, double_sided_triangles(s))
+    counts, _, spacing, auto = choose_grid(s.bounds, fs, budget=500)
+    assert auto["budget_bound"] and np.prod(counts) <= 500 and auto["budget_volume"] == "box"
+    assert 0.6 < auto["free_fraction"] < 0.8                        # 1 - 128 / 432 = 0.70
+    assert auto["spacing_free_volume"] < 0.95 * auto["spacing"] and auto["probes_free_volume"] > 500
+    assert "solid" in auto["reason"] and f"{auto['probes_free_volume']} probes" in auto["reason"]
+    # a box with no solid in it: the free volume is the box, nothing to add to the reason
+    r = ingest_file(_room(tmp_path, [12, 3, 12], "open-room"))
+    fs = analyze_free_space(caster_for_scene(r), r.bounds, double_sided_triangles(r))
+    _, _, _, a_room = choose_grid(r.bounds, fs, budget=500)
+    assert a_room["budget_bound"] and a_room["free_fraction"] > 0.99 and "solid" not in a_room["reason"]

@@ -101,13 +101,14 @@ def test_sealed_box_no_leak_with_cells_straddling_the_walls(tmp_path, scene_file
 
 def test_buried_probes_are_dilated_in_the_runtime_volumes(tmp_path, scene_files):
     """sealed-box's floor slab is 10 cm thick: a grid whose bottom layer sits at its middle with 10 cm spacing cannot
-    move out (0.45 x spacing = 4.5 cm < 5 cm), so that layer is OFF. probe_sh keeps them at 0; the volumes leaking GI
-    samples (sh_l1_*, sh_l2) give each the value of the probe above it (its only live neighbour), so the floor is not
-    read half dark."""
+    move out (0.45 x spacing = 4.5 cm < 5 cm) without the rescue (``rescue_offset = 0``, DDGI-P alone; the default
+    rescue moves them out: tests/workers/test_rescue.py), so that layer is OFF. probe_sh keeps them at 0; the volumes
+    leaking GI samples (sh_l1_*, sh_l2) give each the value of the probe above it (its only live neighbour), so the
+    floor is not read half dark."""
     from workers.kernels import samplers as SM
 
     cfg = {"place": {"counts": [3, 3, 3], "box": {"min": [1.5, -0.05, 1.5], "max": [1.7, 0.15, 1.7]}},
-           "trace": {"rays_per_probe": 128}, "light": {"bounces": 2}}
+           "trace": {"rays_per_probe": 128, "rescue_offset": 0.0}, "light": {"bounces": 2}}
     _, s = bake_until(tmp_path, scene_files["sealed-box"], cfg, "light")
     states = s["trace"]["probe_states"].reshape(3, 3, 3)
     assert np.all(states[:, 0, :] == OFF) and np.all(states[:, 1:, :] != OFF)

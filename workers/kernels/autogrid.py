@@ -21,7 +21,18 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    (a 4 x 3 x 4 m room gives about 1.5 m); spacing = ``ℓ / ROOM_DIVISIONS`` (default 6: about 0.25 m in such a
    room), never finer than ``min_spacing``, and coarser where the probe budget requires:
    ``s ≥ (V / budget)^(1/3)`` for the box volume V (a uniform grid: the budget binds on large levels — the
-   manifest says so).
+   manifest says so). V is the whole box, solid included, on purpose: ``place.budget`` is the most probes the
+   grid holds (the presets' and the server's cost estimates rest on it), and a probe in a solid costs memory in
+   every volume and its rays in relocate and trace. Counting only the free volume ``V_free = f·V`` (``f`` the
+   fraction of planning points in the box outside solids, recorded as ``free_fraction``) was measured on
+   zdm2-sauerbraten (``f`` = 0.47): 1.63 m instead of 2.19 m, but 44,850 probes instead of 20,387 (12,057 OFF)
+   and 1.9x the bake's CPU time (99 s instead of 52 s, tests/bench/bench_offprobes.py ``--full``), still 1.65x
+   the 0.98 m its rooms ask — no uniform grid meets that within the budget. The record gives the spacing the free
+   volume would allow (``spacing_free_volume``, 1.52 m on zdm2) and its probe count (51,168), both before the layer
+   fit of step 4 (which stretches the spacing by up to 12% and drops layers over the budget: the bake above).
+   Adaptive density (finer near geometry, as Unity's Adaptive Probe Volumes) is not built: every consumer (the
+   bundle's uniform KTX2 volumes, the θ field and masks, the GLSL / JavaScript samplers, three.js's
+   LightProbeGrid) indexes a uniform grid.
 4. **Layers between walls**: per axis, the grid's phase (and its spacing, within -12%..+12% of the chosen
    one; never finer while the budget binds) is chosen so that axis-aligned faces (walls, floors, ceilings,
    weighted by area) lie as far as possible from probe layers: a thin wall sits midway between two layers
@@ -197,7 +208,10 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
 
     See the module doc, steps 2-4. The record: ``box`` (min, max), ``kind`` ("enclosed" or "open"),
     ``enclosed_fraction``, ``room_scale`` (m), ``spacing_wanted`` and ``spacing`` (m), ``budget``,
-    ``budget_bound`` (bool), ``wall_thickness_p5`` (m or None), ``samples_per_cell`` and ``reason``.
+    ``budget_bound`` (bool), ``wall_thickness_p5`` (m or None), ``samples_per_cell``, ``free_fraction`` (of the
+    planning points in the box, outside solids), ``budget_volume`` ("box": the volume the budget is spread over,
+    solid included), ``spacing_free_volume`` (m) and ``probes_free_volume`` (what spreading it over the free volume
+    alone would give, before the layer fit; the spacing when the budget does not bind) and ``reason``.
     """
     lo, hi = (np.asarray(b, np.float64) for b in bounds)
     free = ~fs.inside
@@ -223,16 +237,24 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     wanted = max(scale / divisions, min_spacing)
     live = ext[ext > 1e-9]
     volume = float(np.prod(live)) if live.size else 0.0
-    s = wanted
 
     def count(sp):
         return int(np.prod([math.ceil(e / sp - 1e-9) + 1 if e > 1e-9 else 1 for e in ext]))
 
-    if count(s) > budget and live.size:
-        s = max(s, (volume / budget) ** (1.0 / live.size))
-        while count(s) > budget:                       # rounding of the per-axis counts
-            s *= 1.02
+    def fit(b):                                      # the spacing that fits b probes over the box
+        sp = wanted
+        if count(sp) > b and live.size:
+            sp = max(sp, (volume / b) ** (1.0 / live.size))
+            while count(sp) > b:                     # rounding of the per-axis counts
+                sp *= 1.02
+        return sp
+
+    s = fit(budget)
     bound_now = s > wanted * 1.0001
+    in_box = np.all((fs.points >= blo - 1e-9) & (fs.points <= bhi + 1e-9), axis=1)
+    free_fraction = float((~fs.inside[in_box]).mean()) if in_box.any() else 1.0
+    # not used (module doc, step 3): the budget spread over the free volume alone, i.e. budget / f probes in the box
+    s_free = fit(budget / max(free_fraction, 1e-3))
     counts = np.array([math.ceil(e / s - 1e-9) + 1 if e > 1e-9 else 1 for e in ext], np.int64)
     spacing = np.where(counts > 1, s, 0.0)
     origin = (blo + bhi) / 2 - spacing * (counts - 1) / 2
@@ -266,14 +288,19 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     reason = (f"{kind} scene: room scale {scale:.2f} m (median free distance of the planning rays) / "
               f"{divisions:g} = {wanted:.3f} m")
     if bound:
-        reason += f"; the budget of {budget} probes sets {s:.3f} m (a uniform grid: coarser than the rooms ask)"
+        reason += f"; the budget of {budget} probes sets {s:.3f} m (a uniform grid: coarser than the rooms ask"
+        if free_fraction < 0.95:
+            reason += (f"; the budget counts the whole box, {1 - free_fraction:.0%} of it solid: spread over the free "
+                       f"volume alone it would give {s_free:.3f} m and {count(s_free)} probes")
+        reason += ")"
     if w5 is not None:
         reason += f"; thinnest walls {w5:.3f} m -> {S} visibility samples per cell"
         if field_bound:
             reason += f" (the field budget of {field_budget} samples allows no more)"
     auto = {"box": [blo.tolist(), bhi.tolist()], "kind": kind, "enclosed_fraction": frac_enclosed,
             "room_scale": scale, "spacing_wanted": wanted, "spacing": s, "budget": int(budget),
-            "budget_bound": bool(bound), "wall_thickness_p5": w5,
+            "budget_bound": bool(bound), "wall_thickness_p5": w5, "free_fraction": free_fraction,
+            "budget_volume": "box", "spacing_free_volume": float(s_free), "probes_free_volume": count(s_free),
             "layer_phase": phases, "layer_score": scores, "spacing_per_axis": [float(x) for x in spacing], "samples_per_cell": S, "reason": reason,
             "planning_rays": int(fs.rays)}
     return counts, origin, spacing, auto

@@ -126,7 +126,8 @@ def dilate_off(values: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, int]:
     (live probes, or OFF probes of an earlier layer), like texture padding. OFF probes in a region of the grid
     without any live probe keep their value. Returns (a new array, number of probes filled).
 
-    Why: a probe inside a solid deeper than the relocation can move it (DDGI-P §5: 0.45 spacing) is OFF; its value
+    Why: a probe inside a solid deeper than the relocation can move it (DDGI-P §5: 0.45 spacing; the rescue: its 8
+    cells, :func:`workers.kernels.relocation.rescue`) is OFF; its value
     is 0, and the modes that interpolate a volume trilinearly without visibility (leaking SH, three.js's
     LightProbeGrid) would blend that 0 into every cell it is a corner of, darkening the surfaces of the solid.
     Modes that know the state (DDGI, mask, normalized mask) give OFF probes weight 0 and never read these values.

@@ -12,12 +12,47 @@ Per probe, from one spherical ray cast (:func:`workers.raycast.probes.trace_prob
 
 A new offset is kept only when it stays within the limit on every axis (RTXGI). Consumer: stage
 ``relocate`` (5 iterations, DDGI-P §5: "runs for 5 iterations"). Inverse: none.
+
+**Rescue** (:func:`rescue`, after the iterations; not in the paper): DDGI-P §6.1 turns off the probes the grid
+constrains too much to leave a wall ("some probes are too constrained by the grid structure"). With the RTXGI
+limit of 0.45 spacing that is every probe deeper than 0.45 spacing in a solid — on a budget-bound grid in a
+cube-brush level (zdm2-sauerbraten: 2.19 m spacing, walls a metre or more thick) 7,319 of 20,387 probes, 4,652 of
+them next to live ones, each leaving a hole in the cages of the rooms beside it. A probe still inside after the
+iterations may move anywhere within ``rescue_limit`` (just under one spacing per axis: the 8 cells around its
+grid point, those of them inside the grid's box) to the nearest free-space point found by its rays: each time a
+ray leaves a solid through a back face (its first ``RESCUE_CROSSINGS`` hits: a probe on a wall's outer face first
+hits that face) gives a candidate, the exit point moved ``margin`` along the exit face's outward normal; the
+candidates within the limit and the grid's box, nearest the grid position first (no two within ``margin``), are each tested with a spherical ray set
+(:func:`free_space`: at most half the inside threshold of back faces, no front face nearer than half the margin)
+and the probe takes the first that passes. A probe whose rays leave the solid nowhere within the limit (deep
+inside a solid: nothing to shade within its cells) stays, and the trace stage turns it OFF. The interpolation
+needs nothing new: DDGI's weights and the θ field's occlusion rays already use the relocated position, and the
+light stage re-shades from it; the volumes interpolated by grid position (leaking SH) take the probe's value one
+cell or less from its grid point, as they take a relocated one's at 0.45.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["relocation_step"]
+from workers.kernels.sampling import fibonacci_sphere, random_rotation
+
+__all__ = ["relocation_step", "exit_candidates", "free_space", "rescue", "RESCUE_CANDIDATES", "RESCUE_RAYS",
+           "RESCUE_CROSSINGS", "RESCUE_MARGIN"]
+
+RESCUE_CANDIDATES = 6
+"""Candidate positions tested per stuck probe (the nearest distinct exits)."""
+
+RESCUE_RAYS = 64
+"""Rays of the free-space test of each candidate."""
+
+CHUNK_PROBES = 2048
+"""Probes per batch of :func:`exit_candidates` (its arrays are chunk × rays × 3)."""
+
+RESCUE_CROSSINGS = 3
+"""Hits followed along each ray of a stuck probe (the exits past the first hit: a wall's outer face, another solid)."""
+
+RESCUE_MARGIN = 0.1
+"""Distance kept from the exit face, × the smallest spacing (RTXGI's probeMinFrontfaceDistance is 0.1 spacing)."""
 
 
 def relocation_step(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, dirs: np.ndarray,
@@ -79,3 +114,163 @@ def relocation_step(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, dirs: 
     # keep a new offset only within the limit on every axis (RTXGI)
     ok = np.all(np.abs(full) <= limit + 1e-9, axis=1)
     return np.where(ok[:, None], full, offsets)
+
+
+def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back: np.ndarray, tri: np.ndarray,
+                    dirs: np.ndarray, normals: np.ndarray, limit: np.ndarray, margin: float,
+                    k: int = RESCUE_CANDIDATES, box: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Where the rays of probes inside a solid leave it: up to ``k`` candidate positions per probe.
+
+    Parameters
+    ----------
+    base, positions : (P, 3) float
+        Grid positions and the current (relocated) positions the rays start from, world space, metres.
+    t, back, tri : (P, R)
+        The rays' hit distances (inf = miss), back-face flags and triangles (-1 = miss).
+    dirs : (R, 3) float
+        Unit ray directions (the same for every probe).
+    normals : (T, 3) float
+        Unit geometric normals of the triangles (any orientation: the outward one is the one along the ray).
+    limit : (3,) float
+        Per-axis limit of ``candidate − base``, metres.
+    margin : float
+        How far the candidate lies from the exit face, along its normal, metres.
+    box : ((3,), (3,)) float, optional
+        The grid's box (first and last probe layers): candidates outside it are dropped (a probe of the outer
+        layer has no cells beyond it; moved there it would shade nothing).
+
+    Returns ``(cand (P, k, 3) float64, ok (P, k) bool)``: per probe the back-face exits moved ``margin`` out, within
+    the limit, nearest ``base`` first, no two closer than ``margin``; ``ok`` False for unused slots.
+    """
+    P, R = t.shape
+    cand = np.zeros((P, k, 3))
+    ok = np.zeros((P, k), bool)
+    d = np.asarray(dirs, np.float64)
+    for a in range(0, P, CHUNK_PROBES):                                        # bounds the (chunk, R, 3) arrays
+        b = min(a + CHUNK_PROBES, P)
+        tc = np.asarray(t[a:b], np.float64)
+        use = np.asarray(back[a:b], bool) & np.isfinite(tc)
+        n = np.asarray(normals, np.float64)[np.where(use, tri[a:b], 0)]         # (c, R, 3)
+        n *= np.where(np.einsum("crj,rj->cr", n, d) < 0, -1.0, 1.0)[..., None]  # outward: along the exiting ray
+        c = positions[a:b, None, :] + d[None] * np.where(use, tc, 0.0)[..., None] + margin * n
+        use &= np.all(np.abs(c - base[a:b, None, :]) <= limit, axis=2)
+        if box is not None:
+            use &= np.all((c >= np.asarray(box[0])) & (c <= np.asarray(box[1])), axis=2)
+        dist = np.where(use, np.linalg.norm(c - base[a:b, None, :], axis=2), np.inf)
+        order = np.argsort(dist, axis=1, kind="stable")
+        rows = np.arange(b - a)
+        got = np.zeros(b - a, np.int64)
+        for j in range(R):                                                     # greedy, nearest first
+            r = order[:, j]
+            q = c[rows, r]
+            take = use[rows, r] & (got < k)
+            if not take.any():
+                if not use[rows, r].any():
+                    break                                                      # sorted: the rest are unused too
+                continue
+            near = np.linalg.norm(cand[a + rows] - q[:, None, :], axis=2) < margin
+            take &= ~np.any(near & ok[a + rows], axis=1)
+            i = a + rows[take]
+            cand[i, got[take]] = q[take]
+            ok[i, got[take]] = True
+            got[take] += 1
+    return cand, ok
+
+
+def free_space(t: np.ndarray, back: np.ndarray, margin: float, backface_fraction: float) -> np.ndarray:
+    """(N,) bool: the point of each row of rays is in free space — at most half of ``backface_fraction`` of its
+    rays hit back faces (stricter than the inside test, so that the trace stage's own rays agree) and no front
+    face is nearer than ``margin / 2``. ``t`` (N, R) hit distances (inf = miss), ``back`` (N, R) bool."""
+    R = t.shape[1]
+    front = np.where(back, np.inf, t).min(axis=1)
+    return (back.sum(axis=1) <= 0.5 * backface_fraction * R) & (front >= 0.5 * margin)
+
+
+def _later_hits(caster, origins, dirs, t, back, tri, double_sided, reach):
+    """The first ``RESCUE_CROSSINGS`` hits along each ray: (P, R·C) t, back, tri (column c·R + r = hit c of ray r),
+    the rays cast and their seconds. A ray goes on past a hit nearer than ``reach`` (beyond it no exit can be
+    within the limit): a probe on a wall's outer face (its first hit a front face at t = 0) or behind another
+    solid still finds the exit into the room beyond."""
+    import time
+
+    P, R = t.shape
+    ts, bs, trs = [t], [back], [tri]
+    n, sec = 0, 0.0
+    ds = np.asarray(double_sided, bool)
+    eps = 1e-5 * float(getattr(caster, "scale", 1.0))
+    cur = np.asarray(t, np.float64)
+    for _ in range(RESCUE_CROSSINGS - 1):
+        go = np.isfinite(cur) & (cur < reach)
+        nt = np.full((P, R), np.inf, np.float32)
+        nb = np.zeros((P, R), bool)
+        ntr = np.full((P, R), -1, np.int64)
+        pi, ri = np.nonzero(go)
+        if pi.size:
+            t0 = time.perf_counter()
+            h = caster.intersect(origins[pi].astype(np.float32), dirs[ri], tnear=cur[pi, ri] + eps)
+            sec += time.perf_counter() - t0
+            n += pi.size
+            hit = h.tri >= 0
+            b = h.backface & hit
+            if ds.any():
+                b &= ~ds[np.where(hit, h.tri, 0)]
+            nt[pi, ri], nb[pi, ri], ntr[pi, ri] = h.t, b, h.tri
+        ts.append(nt)
+        bs.append(nb)
+        trs.append(ntr)
+        cur = nt.astype(np.float64)
+    return np.concatenate(ts, axis=1), np.concatenate(bs, axis=1), np.concatenate(trs, axis=1), n, sec
+
+
+def rescue(caster, base: np.ndarray, offsets: np.ndarray, double_sided: np.ndarray, limit: np.ndarray,
+           margin: float, backface_fraction: float, rays_per_probe: int, rng: np.random.Generator,
+           check: np.ndarray | None = None, box: tuple | None = None, k: int = RESCUE_CANDIDATES,
+           test_rays: int = RESCUE_RAYS) -> tuple[np.ndarray, dict]:
+    """Move the probes still inside geometry to the nearest free-space point within ``limit`` (module doc).
+
+    ``base`` (P, 3) grid positions and ``offsets`` (P, 3) the offsets after the DDGI-P §5 iterations, world space,
+    metres; ``limit`` (3,) per-axis offset limit, metres; ``margin`` metres; ``double_sided`` (T,) bool as in
+    :func:`workers.raycast.probes.trace_probes`; ``rng`` draws the two ray-set rotations; ``check`` the indices of
+    the probes that may be inside (default all: the others are not traced); ``box`` the grid's box (lo, hi), which
+    the probes stay in (:func:`exit_candidates`). Returns the new offsets (P, 3) float64
+    and stats: ``inside`` (probes found inside), ``rescued``, ``rays``, ``ray_seconds``.
+    """
+    from workers.raycast.probes import trace_probes
+
+    offsets = np.array(offsets, np.float64, copy=True)
+    stats = {"inside": 0, "rescued": 0, "rays": 0, "ray_seconds": 0.0}
+    dirs = (fibonacci_sphere(rays_per_probe).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
+    test_dirs = (fibonacci_sphere(test_rays).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
+    check = np.arange(base.shape[0]) if check is None else np.asarray(check, np.int64)
+    pos = base[check] + offsets[check]
+    t, tri, _, _, back, sec = trace_probes(caster, pos, dirs, double_sided)
+    stats["rays"] += t.size
+    stats["ray_seconds"] += sec
+    inside = np.flatnonzero(back.sum(axis=1) > backface_fraction * dirs.shape[0])   # Fig 7 / Fig 10's test
+    stuck = check[inside]
+    stats["inside"] = int(stuck.size)
+    if stuck.size == 0:
+        return offsets, stats
+    tris = np.asarray(caster.triangles, np.float64)
+    nrm = np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])
+    nrm /= np.maximum(np.linalg.norm(nrm, axis=1), 1e-30)[:, None]
+    t, back, tri, n_more, sec = _later_hits(caster, pos[inside], dirs, t[inside], back[inside], tri[inside],
+                                            double_sided, float(np.linalg.norm(limit)) * 2.0)
+    stats["rays"] += n_more
+    stats["ray_seconds"] += sec
+    cand, ok = exit_candidates(base[stuck], pos[inside], t, back, tri, np.tile(dirs, (RESCUE_CROSSINGS, 1)), nrm,
+                               np.asarray(limit, np.float64), margin, k, box)
+    flat = cand[ok]
+    if flat.shape[0] == 0:
+        return offsets, stats
+    tt, _, _, _, bb, sec = trace_probes(caster, flat, test_dirs, double_sided)
+    stats["rays"] += tt.size
+    stats["ray_seconds"] += sec
+    good = np.zeros(ok.shape, bool)
+    good[ok] = free_space(tt, bb, margin, backface_fraction)
+    first = np.argmax(good, axis=1)
+    hit = good.any(axis=1)
+    idx = stuck[hit]
+    offsets[idx] = cand[hit, first[hit]] - base[idx]
+    stats["rescued"] = int(hit.sum())
+    return offsets, stats

@@ -27,6 +27,7 @@ export const FIELD_UI = {
   'trace.rays_per_probe': { label: 'Rays per probe', help: 'more rays: less noise, longer bake' },
   'trace.relocate_iterations': { label: 'Relocation steps', help: 'how hard probes are pushed out of walls', advanced: true },
   'trace.max_offset': { label: 'Max probe offset', help: 'how far a probe may move, fraction of the spacing', advanced: true },
+  'trace.rescue_offset': { label: 'Rescue offset', help: 'how far a probe stuck in a wall may move to free space, fraction of the spacing (0: off)', advanced: true },
   'trace.backface_fraction': { label: 'Inside-wall threshold', help: 'a probe seeing more backfaces than this is switched off', advanced: true },
   'trace.depth_texels': { label: 'Depth map size', unit: 'texels', help: 'per-probe distance map resolution', advanced: true },
   'trace.depth_sharpness': { label: 'Depth sharpness', help: 'how strongly depth tests cut light at walls', advanced: true },
