@@ -220,7 +220,7 @@ def test_variants_round_trip_through_the_bundle_format(tmp_path, scene_files, pr
     ds = sprt.prt_dataset(ctx)
     out = sprt.prt_output(ctx, ds)
     arts = {a.name: a.data for a in out.artifacts}
-    infos = [bundle.write_artifact(tmp_path / "b", a.name, a.data, "prt", format=a.format) for a in out.artifacts]
+    infos = [a.write(tmp_path / "b", "prt") for a in out.artifacts]
     loaded = {i.name: bundle.load_artifact(tmp_path / "b" / i.file, i) for i in infos}
     from workers.raycast import RayCaster
 
