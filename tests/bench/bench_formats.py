@@ -15,7 +15,8 @@ indirect irradiance with the Python twins of the runtime shaders (``workers.kern
   normals, view = normal.
 
 Error = relative RMSE ‖E_q − E_f‖₂ / ‖E_f‖₂ over all points and the 3 channels (target ≤ 0.5%), plus the 99th
-percentile of the per-point relative error |E_q − E_f| / (|E_f| + 1% of the mean |E_f|). Bytes per probe: the
+percentile, the largest and the share of points over 1% and 10% of the per-point relative error
+|E_q − E_f| / (|E_f| + 1% of the mean |E_f|) (norms over rgb). Bytes per probe: the
 level (uncompressed) and the file with Zstandard at the bundle's default level, float32 and the new format.
 Prints a table per scene and the numbers as JSON on the last line.
 """
@@ -129,7 +130,8 @@ def errors(e_q: np.ndarray, e_f: np.ndarray) -> dict:
     rel = float(np.sqrt(((e_q - e_f) ** 2).sum()) / max(np.sqrt((e_f ** 2).sum()), 1e-30))
     mag = np.linalg.norm(e_f, axis=1)
     per = np.linalg.norm(e_q - e_f, axis=1) / (mag + 0.01 * mag.mean() + 1e-30)
-    return {"relative_rmse": rel, "p99_relative": float(np.percentile(per, 99)), "max_relative": float(per.max())}
+    return {"relative_rmse": rel, "p99_relative": float(np.percentile(per, 99)), "max_relative": float(per.max()),
+            "over_1pct": float((per > 0.01).mean()), "over_10pct": float((per > 0.1).mean())}
 
 
 def variants(arrays) -> dict:
@@ -236,13 +238,14 @@ def main() -> int:
             print(f"{art:>14s} {a['float32']:>20s} {a['format']:>24s} {pp['float32']:11.1f} {pp['float32_zstd']:7.1f} "
                   f"{pp['new']:6.1f} {pp['new_zstd']:7.1f} {a['texel_relative_rmse']:9.2e}"
                   + (f"  fallback: {a['fallback']}" if a["fallback"] else ""))
-        print(f"{'change':>24s} {'points':>8s} {'mode':>11s} {'rel RMSE':>9s} {'p99 rel':>9s} {'max rel':>9s}  target")
+        print(f"{'change':>24s} {'points':>8s} {'mode':>11s} {'rel RMSE':>9s} {'p99 rel':>9s} {'max rel':>9s} "
+              f"{'>1%':>7s} {'>10%':>7s}  target")
         for vname, per_set in r["changes"].items():
             for s, per_mode in per_set.items():
                 for m, e in per_mode.items():
                     ok = "ok" if e["relative_rmse"] <= 0.005 else "OVER 0.5%"
                     print(f"{vname:>24s} {s:>8s} {m:>11s} {e['relative_rmse']:9.2e} {e['p99_relative']:9.2e} "
-                          f"{e['max_relative']:9.2e}  {ok}")
+                          f"{e['max_relative']:9.2e} {e['over_1pct']:7.2%} {e['over_10pct']:7.2%}  {ok}")
     print(json.dumps(results))
     return 0
 
