@@ -56,7 +56,7 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("masks", 1, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 1, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
-    # prt 2: the npy tables as KTX2 tables (proto/bundle.md 5.3)
+    # prt 2: the npy tables as KTX2 tables, the SH basis volumes RGBA16F (proto/bundle.md 5.3)
     StageDef("prt", 2, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py)
     StageDef("reference", 1, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),

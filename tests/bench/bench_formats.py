@@ -1,13 +1,15 @@
 """Storage formats of the bundle (issue 17, item 1): bytes and the GI error each format adds against float32.
 
     .venv/bin/python tests/bench/bench_formats.py [--scenes two-rooms,cornell,zdm2] [--budget 1500] [--points 20000]
+                                                  [--zdm2-grid 16x8x16] [--prt]
 
 Per scene it bakes place, relocate, trace and light in this process with the real pipeline, once with every
 float artifact kept in float32 (``workers.kernels.precision`` patched to store float32), then applies the
 shipped formats (the precision functions as the stages call them, written and read back through
 ``proto.ktx2``) to that bake's artifacts one change at a time and all together, and reconstructs each GI mode's
 indirect irradiance with the Python twins of the runtime shaders (``workers.kernels.point_modes``:
-``leaking`` L2 ``sh_l2``, ``leaking`` L1 ``sh_l1_*``, ``ddgi`` on the octahedral atlases and depth moments) at
+``leaking`` L2 ``sh_l2``, ``leaking`` L1 ``sh_l1_*``, ``ddgi`` on the octahedral atlases and depth moments; with
+``--prt`` also ``prt``, relit for the bake's lights, with its SH basis volumes in half floats) at
 
 - ``free``: random points in the probe box outside every solid (6 axis rays see no back face), random unit
   normals, view = normal;
@@ -45,12 +47,13 @@ from workers.kernels.point_modes import mode_irradiance  # noqa: E402
 
 ZDM2 = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
 SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0, "color": [1.0, 0.95, 0.9]}
-STAGES = ("ingest", "place", "relocate", "trace", "light")
+STAGES = ("ingest", "place", "relocate", "trace", "light", "prt")
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float64)
 
 
 def _float32_only():
-    """Patch the precision module so that the stages keep float32 (the reference bake); returns an undo."""
+    """Patch the precision module so that the stages keep float32 (the reference bake); returns an undo. The PRT
+    basis is float32 there too: the float32 bake's arrays are what :func:`variants` quantizes."""
     saved = precision.half, precision.rgb_ufloat
 
     def keep(a):
@@ -82,9 +85,12 @@ def bake(scene, config: dict) -> dict:
             arrays["depth_moments"] = np.asarray(recs["trace"]["depth_moments"])
             arrays["probe_states"] = np.asarray(recs["trace"]["probe_states"])
             arrays["probe_positions_relocated"] = np.asarray(recs["relocate"]["probe_positions_relocated"])
+            if "prt" in recs and "prt" in recs["prt"]:          # PRT on: its section, tables and basis volumes
+                arrays.update({n: recs["prt"][n] for n in recs["prt"].names()})
             place = recs["place"].stats
             grid = {k: place[k] for k in ("counts", "origin", "spacing")}
-            return {"arrays": arrays, "grid": grid, "bias": cfg.light.self_shadow_bias}
+            return {"arrays": arrays, "grid": grid, "bias": cfg.light.self_shadow_bias,
+                    "lights": recs["ingest"]["lights"]["lights"]}
     finally:
         undo()
 
@@ -152,12 +158,19 @@ def variants(arrays) -> dict:
     if "sh_l2" in arrays:
         shipped["sh_l2"] = precision.half(arrays["sh_l2"])[:2]
     out["all (as shipped)"] = (shipped, ["leaking", "leaking_l1", "ddgi"])
+    if "prt" in arrays:                    # the PRT SH basis volumes in half floats (the prt stage's _basis)
+        basis = [n for group in arrays["prt"]["sh"]["basis"] for n in group]
+        out["prt_sh_basis RGBA16F"] = ({n: precision.half(arrays[n])[:2] for n in basis}, ["prt"])
     return out
 
 
-def modes_at(arrays, grid, pts, bias, modes) -> dict:
+def modes_at(arrays, grid, pts, bias, modes, lights=(), caster=None) -> dict:
     out = {}
     for m in modes:
+        if m == "prt":                     # relit for the bake's own lights (shadow rays), read like leaking
+            out[m] = mode_irradiance("prt", arrays, grid, pts["position"], pts["normal"], pts["view"],
+                                     lights=lights, caster=caster)
+            continue
         a = arrays
         if m == "leaking_l1":                      # the L1 volumes alone (bakes with light.sh_order = 1)
             a = {k: v for k, v in arrays.items() if k != "sh_l2"}
@@ -172,8 +185,12 @@ def run_scene(name: str, scene, config: dict, n_points: int) -> dict:
     P = int(np.prod(grid["counts"]))
     rng = np.random.default_rng(7)
     sets = {"free": free_points(scene, grid, n_points, rng), "surface": surface_points(scene, n_points)}
+    from workers.raycast import caster_for_scene
+
+    caster = caster_for_scene(scene)
     all_modes = ["leaking", "leaking_l1", "ddgi"] if "sh_l2" in arrays else ["leaking_l1", "ddgi"]
-    ref = {s: modes_at(arrays, grid, pts, b["bias"], all_modes) for s, pts in sets.items()}
+    all_modes += ["prt"] if "prt" in arrays else []
+    ref = {s: modes_at(arrays, grid, pts, b["bias"], all_modes, b["lights"], caster) for s, pts in sets.items()}
     res = {"probes": P, "counts": grid["counts"], "points": {s: len(p["position"]) for s, p in sets.items()},
            "artifacts": {}, "changes": {}}
     # bytes per probe, float32 vs the shipped format
@@ -196,7 +213,8 @@ def run_scene(name: str, scene, config: dict, n_points: int) -> dict:
         for art, (data, vk) in changed.items():
             q[art] = _roundtrip(data, vk)
         res["changes"][vname] = {
-            s: {m: errors(e, ref[s][m]) for m, e in modes_at(q, grid, pts, b["bias"], modes).items()}
+            s: {m: errors(e, ref[s][m])
+                for m, e in modes_at(q, grid, pts, b["bias"], modes, b["lights"], caster).items()}
             for s, pts in sets.items()}
     return res
 
@@ -208,6 +226,7 @@ def main() -> int:
     ap.add_argument("--zdm2-grid", default="16x8x16")
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--points", type=int, default=20000)
+    ap.add_argument("--prt", action="store_true", help="also bake PRT and measure its SH basis in half floats")
     args = ap.parse_args()
     from workers.procedural import make_scene
 
@@ -228,6 +247,8 @@ def main() -> int:
                 scene = ingest_file(f.name)
             config = {"place": {"budget": args.budget}, "trace": {"rays_per_probe": args.rays},
                       "evaluate": {"enabled": False}}
+        if args.prt:
+            config["prt"] = {"enabled": True}
         results["scenes"][name] = r = run_scene(name, scene, config, args.points)
         nx, ny, nz = r["counts"]
         print(f"\n{name}: {nx}x{ny}x{nz} = {r['probes']} probes; points {r['points']}; zstd level {DEFAULT_ZSTD_LEVEL}")

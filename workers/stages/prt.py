@@ -1,31 +1,24 @@
 """Stage ``prt``: a relightable, data-driven transfer (PRT §3-5; DESIGN stage 6).
 
-Reads ingest (bounds), place (grid), relocate (probe positions), trace (cached probe-ray hits, depth
-moments, states) and light (only for ordering and cache keys; its settings come from ``config.light``).
-Off unless ``config.prt.enabled``: then it returns no artifacts and stats ``{"enabled": false}``.
+Reads ingest (bounds), place (grid), relocate (probe positions), trace (cached probe-ray hits, float32 depth moments,
+states), light (for ordering and cache keys; settings from ``config.light``). Off unless ``config.prt.enabled``.
 
-An adapter: scenario, measurement points, dataset (the light stage's bounce integrator with ``config.light``'s
-settings, per configuration alone: emission excluded, sky 0) and fit are :mod:`workers.kernels.prt_dataset`,
-seeded by the bake seed; this module reads the inputs and packs the artifacts.
-
+An adapter: scenario, measurement points, dataset (the light stage's bounce integrator, per configuration alone:
+emission excluded, sky 0) and fit are :mod:`workers.kernels.prt_dataset`, seeded by the bake seed.
 Artifacts (stage ``prt``; the layout is documented in ``proto/bundle.md`` by the lead):
 
 ========================= ================================ ===========================================
 name                      shape, format                    content
 ========================= ================================ ===========================================
-``prt``                   json                             the PRT section: settings, sizes, artifact
-                                                           names, per-target fit statistics
+``prt``                   json                             the PRT section: settings, sizes, names, fits
 ``prt_lights``            json                             ``{"configurations": [[light, ...], ...]}``
-``prt_points``            table (M·S, 9) float32           position xyz (m), normal xyz, albedo rgb of
-                                                           each measurement sample, grouped by point
+``prt_points``            table (M·S, 9) float32           position (m), normal, albedo per sample, by point
 ``prt_point_offsets``     table (M + 1,) int32             point m averages rows offsets[m]:offsets[m+1]
 ``prt_sh_transfer``       table (C, n, D + 1) float32      mono: C = 3 (R, G, B), D = M; multi: C = 1,
                                                            D = 3M (x interleaved rgb); acts on [x, ‖x‖]
-``prt_sh_basis_c{k}_g{g}`` ktx2 (nz, ny, nx, 4) float32   SH coefficient k of slots 4g..4g+3 (mono;
-                                                           slot 0 = mean); multi: slot g's rgb, a = 0
+``prt_sh_basis_c{k}_g{g}`` ktx2 (nz, ny, nx, 4) RGBA16F   SH coefficient k of slots 4g..4g+3 (0: mean; multi: g)
 ``prt_lm_transfer``       table (C, n, D + 1) float32      as prt_sh_transfer, for the lightmap
-``prt_lm_basis_g{g}``     ktx2 (R, R, 4) float32           lightmap slots 4g..4g+3 (multi: slot g rgb),
-                                                           dilated 2 texels
+``prt_lm_basis_g{g}``     ktx2 (R, R, 4) float32           lightmap slots 4g..4g+3 (multi: g rgb), dilated
 ``prt_lm_mask``           ktx2 (R, R) uint8 (R8)           0 empty, 1 sampled texel, 2 dilated
 ``prt_lm_uv``             table (T, 3, 2) float32          the lightmap UV of every triangle corner
 ========================= ================================ ===========================================
@@ -38,6 +31,7 @@ import time
 
 import numpy as np
 
+from workers.kernels import precision
 from workers.kernels.grid import unpack_atlas
 from workers.kernels.prt_dataset import PrtDataset, PrtTooLarge, build_dataset, fit_targets
 from workers.kernels.prt_scenario import triangle_areas
@@ -50,6 +44,13 @@ PRT_SEED_SALT = 0x505254
 
 def _full_depth(tr) -> str:
     return "depth_moments_full" if "depth_moments_full" in tr else "depth_moments"   # float32 (trace stage 2)
+
+
+def _basis(name: str, vol, k: int, g: int, channels: str) -> Artifact:
+    """A probe-SH basis volume, in half floats where they hold it (its PRT error: tests/bench/bench_formats.py)."""
+    data, vk, prec = precision.half(vol)
+    return Artifact(name, data, vk_format=vk, description=f"PRT probe basis: SH coefficient {k}, slot group {g}",
+                    meta={"coefficient": k, "group": g, "channels": channels, **prec})
 
 
 def prt_dataset(ctx: StageContext) -> PrtDataset:
@@ -89,9 +90,8 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
     points, lm, (N, P, K), t3 = ds.points, ds.lightmap, ds.sh.shape[:3], time.perf_counter()
     fitted = fit_targets(ds, basis=sec.basis, ridge=sec.ridge, gamma=sec.gamma, channels=sec.channels,
                          lightmap=sec.lightmap)
-    artifacts = [Artifact(name, np.ascontiguousarray(vol, np.float32), description=f"PRT probe basis: SH coefficient"
-                          f" {k}, slot group {g}", meta={"coefficient": k, "group": g, "channels": sec.channels})
-                 for k, group in enumerate(fitted.sh_volumes) for g, (name, vol) in enumerate(group)]
+    artifacts = [_basis(name, vol, k, g, sec.channels) for k, group in enumerate(fitted.sh_volumes)
+                 for g, (name, vol) in enumerate(group)]
     artifacts.append(Artifact("prt_sh_transfer", np.asarray(fitted.sh.transfer, np.float32), table=True,
                               description="PRT transfer to the probe SH basis coefficients (PRT eq 14)"))
     lm_info = None

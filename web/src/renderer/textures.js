@@ -8,6 +8,7 @@ import {
   ClampToEdgeWrapping, Data3DTexture, DataTexture, DataUtils, FloatType, HalfFloatType, LinearFilter,
   NearestFilter, RGBAFormat, RGBFormat, RGFormat, RedFormat, UnsignedByteType, UnsignedInt101111Type,
 } from 'three';
+import { texelsAsNumbers } from '../loader/ktx2.js';
 
 const FORMATS = { 1: RedFormat, 2: RGFormat, 4: RGBAFormat };
 
@@ -97,7 +98,10 @@ export function wrapAtlas(ktx, counts, columns) {
  */
 export function stackedVolumeTexture(volumes, options = {}) {
   if (!volumes.length) throw new Error('no volumes to stack');
-  const vs = volumes.map(widen);
+  let vs = volumes.map(widen);
+  if (vs.some((v) => v.kind !== vs[0].kind)) {  // half and float volumes together (one fell back): all float
+    vs = vs.map((v) => (v.kind === 'half' ? { ...v, kind: 'float', data: texelsAsNumbers(v) } : v));
+  }
   const { width, height, depth, components, kind } = vs[0];
   for (const v of vs) {
     if (!['float', 'half'].includes(v.kind) || v.kind !== kind || v.width !== width || v.height !== height
