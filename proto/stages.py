@@ -45,7 +45,7 @@ STAGES: tuple[StageDef, ...] = (
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
     StageDef("trace", 2, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
-    # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance R11G11B10F, SH volumes RGBA16F,
+    # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance and SH volumes RGBA16F,
     # probe_sh a KTX2 table (issue 17)
     StageDef("light", 5, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),

@@ -154,7 +154,7 @@ def variants(arrays) -> dict:
     }
     if "sh_l2" in arrays:
         out["sh_l2 RGBA16F"] = ({"sh_l2": precision.half(arrays["sh_l2"])[:2]}, ["leaking"])
-    shipped = {"irradiance": irr_u[:2], "depth_moments": dep[:2], **l1}
+    shipped = {"irradiance": irr_h[:2], "depth_moments": dep[:2], **l1}
     if "sh_l2" in arrays:
         shipped["sh_l2"] = precision.half(arrays["sh_l2"])[:2]
     out["all (as shipped)"] = (shipped, ["leaking", "leaking_l1", "ddgi"])
@@ -162,6 +162,21 @@ def variants(arrays) -> dict:
         basis = [n for group in arrays["prt"]["sh"]["basis"] for n in group]
         out["prt_sh_basis RGBA16F"] = ({n: precision.half(arrays[n])[:2] for n in basis}, ["prt"])
     return out
+
+
+def flat_field() -> dict:
+    """The packed 11/11/10 floats on a flat field: grey irradiance v (0.01 … 1000, log-spaced) stored once and read
+    back, as every texel and hence any filtered reconstruction of a uniformly lit region reads it. Rounding does not
+    average out there: the error is the format's own (≤ 2^-7 relative for R and G, 2^-6 for B)."""
+    v = np.exp(np.linspace(np.log(0.01), np.log(1000.0), 200001)).astype(np.float32)
+    rgb = np.repeat(v[:, None], 3, axis=1)
+    rel = {}
+    for name, (data, vk, _) in (("R11G11B10F", precision.rgb_ufloat(rgb[None])),
+                                ("RGBA16F", precision.half(np.concatenate([rgb, np.ones_like(rgb[:, :1])], 1)[None]))):
+        q = _roundtrip(data, vk).reshape(len(v), -1)[:, :3]
+        e = np.sqrt((((q - rgb) / rgb) ** 2).mean(axis=1))       # relative RMSE over rgb, per grey value
+        rel[name] = {"max": float(e.max()), "mean": float(e.mean()), "share_over_0.5pct": float((e > 0.005).mean())}
+    return rel
 
 
 def modes_at(arrays, grid, pts, bias, modes, lights=(), caster=None) -> dict:
@@ -193,21 +208,31 @@ def run_scene(name: str, scene, config: dict, n_points: int) -> dict:
     ref = {s: modes_at(arrays, grid, pts, b["bias"], all_modes, b["lights"], caster) for s, pts in sets.items()}
     res = {"probes": P, "counts": grid["counts"], "points": {s: len(p["position"]) for s, p in sets.items()},
            "artifacts": {}, "changes": {}}
-    # bytes per probe, float32 vs the shipped format
-    shipped = {"irradiance": precision.rgb_ufloat(arrays["irradiance"]),
+    # bytes per probe, float32 vs the shipped format (and the packed irradiance, measured, not shipped)
+    shipped = {"irradiance": precision.half(arrays["irradiance"]),
+               "irradiance (packed)": precision.rgb_ufloat(arrays["irradiance"]),
                "depth_moments": precision.half(arrays["depth_moments"]),
                **{f"sh_l1_{c}": precision.half(arrays[f"sh_l1_{c}"]) for c in "rgb"}}
     if "sh_l2" in arrays:
         shipped["sh_l2"] = precision.half(arrays["sh_l2"])
-    f32 = {"irradiance": "R32G32B32A32_SFLOAT", "depth_moments": "R32G32_SFLOAT", "sh_l2": "R32G32B32A32_SFLOAT",
-           **{f"sh_l1_{c}": "R32G32B32A32_SFLOAT" for c in "rgb"}}
+    for group in (arrays["prt"]["sh"]["basis"] if "prt" in arrays else []):
+        shipped.update({n: precision.half(arrays[n]) for n in group})
+    f32 = {"depth_moments": "R32G32_SFLOAT"}
     for art, (data, vk, meta) in shipped.items():
-        r32, z32 = _bytes(arrays[art], f32[art])
+        src = art.split(" ")[0]
+        r32, z32 = _bytes(arrays[src], f32.get(src, "R32G32B32A32_SFLOAT"))
         rn, zn = _bytes(data, vk)
-        res["artifacts"][art] = {"float32": f32[art], "format": vk, "per_probe": {
+        res["artifacts"][art] = {"float32": f32.get(src, "R32G32B32A32_SFLOAT"), "format": vk, "per_probe": {
             "float32": r32 / P, "float32_zstd": z32 / P, "new": rn / P, "new_zstd": zn / P},
             "texel_relative_rmse": meta["precision"]["relative_rmse"],
             "fallback": meta["precision"].get("fallback") or meta["precision"].get("fallback_from")}
+    basis = [k for k in res["artifacts"] if k.startswith("prt_sh_basis_")]
+    if basis:                              # one row for the PRT basis volumes: bytes summed, the largest texel error
+        rows = [res["artifacts"].pop(k) for k in basis]
+        res["artifacts"][f"prt_sh_basis_* ({len(rows)})"] = {
+            **rows[0], "per_probe": {k: sum(r["per_probe"][k] for r in rows) for k in rows[0]["per_probe"]},
+            "texel_relative_rmse": max(r["texel_relative_rmse"] for r in rows),
+            "fallback": next((r["fallback"] for r in rows if r["fallback"]), None)}
     for vname, (changed, modes) in variants(arrays).items():
         q = dict(arrays)
         for art, (data, vk) in changed.items():
@@ -230,7 +255,11 @@ def main() -> int:
     args = ap.parse_args()
     from workers.procedural import make_scene
 
-    results = {"zstd_level": DEFAULT_ZSTD_LEVEL, "scenes": {}}
+    results = {"zstd_level": DEFAULT_ZSTD_LEVEL, "flat_field": flat_field(), "scenes": {}}
+    print("flat grey field, relative RMSE over rgb of the stored value (0.01-1000, 200001 values):")
+    for name, f in results["flat_field"].items():
+        print(f"  {name:>11s}: max {f['max']:.3%}, mean {f['mean']:.3%}, over 0.5% at {f['share_over_0.5pct']:.1%} "
+              f"of the values")
     for name in args.scenes.split(","):
         if name == "zdm2":
             if not ZDM2.exists():
@@ -252,11 +281,11 @@ def main() -> int:
         results["scenes"][name] = r = run_scene(name, scene, config, args.points)
         nx, ny, nz = r["counts"]
         print(f"\n{name}: {nx}x{ny}x{nz} = {r['probes']} probes; points {r['points']}; zstd level {DEFAULT_ZSTD_LEVEL}")
-        print(f"{'artifact':>14s} {'float32':>20s} {'stored as':>24s} {'B/probe f32':>11s} {'+zstd':>7s} "
+        print(f"{'artifact':>21s} {'float32':>20s} {'stored as':>24s} {'B/probe f32':>11s} {'+zstd':>7s} "
               f"{'new':>6s} {'+zstd':>7s} {'texel err':>9s}")
         for art, a in r["artifacts"].items():
             pp = a["per_probe"]
-            print(f"{art:>14s} {a['float32']:>20s} {a['format']:>24s} {pp['float32']:11.1f} {pp['float32_zstd']:7.1f} "
+            print(f"{art:>21s} {a['float32']:>20s} {a['format']:>24s} {pp['float32']:11.1f} {pp['float32_zstd']:7.1f} "
                   f"{pp['new']:6.1f} {pp['new_zstd']:7.1f} {a['texel_relative_rmse']:9.2e}"
                   + (f"  fallback: {a['fallback']}" if a["fallback"] else ""))
         print(f"{'change':>24s} {'points':>8s} {'mode':>11s} {'rel RMSE':>9s} {'p99 rel':>9s} {'max rel':>9s} "

@@ -156,9 +156,9 @@ def test_stored_formats_of_trace_and_light(tmp_path, scene_files, scene_name):
                                                           "probe_sh")}
     far = scene_name == "furnace"
     assert fmt == {"depth_moments": "R32G32_SFLOAT" if far else "R16G16_SFLOAT",
-                   "irradiance": "B10G11R11_UFLOAT_PACK32", "sh_l1_r": "R16G16B16A16_SFLOAT", "sh_l2": "R16G16B16A16_SFLOAT", "probe_sh": "R32_SFLOAT"}
+                   "irradiance": "R16G16B16A16_SFLOAT", "sh_l1_r": "R16G16B16A16_SFLOAT", "sh_l2": "R16G16B16A16_SFLOAT", "probe_sh": "R32_SFLOAT"}
     assert infos["probe_sh"]["meta"]["ktx2"]["table"] and infos["probe_sh"]["shape"] == [3, 4, 3, 9, 3]
-    assert infos["irradiance"]["meta"]["precision"]["format"] == "B10G11R11_UFLOAT_PACK32"
+    assert infos["irradiance"]["meta"]["precision"]["format"] == "R16G16B16A16_SFLOAT"
     assert infos["depth_moments_full"]["meta"]["internal"] and infos["sh_l1_full"]["meta"]["internal"]
     tr, li = (pipeline._lazy(store, recs[n]) for n in ("trace", "light"))
     assert tr["depth_moments_full"].dtype == np.float32
@@ -166,4 +166,4 @@ def test_stored_formats_of_trace_and_light(tmp_path, scene_files, scene_name):
     assert np.array_equal(tr["depth_moments"], depth)
     assert ("> 65504" in infos["depth_moments"]["meta"]["precision"].get("fallback", "")) == far
     assert np.array_equal(li["sh_l1_r"], li["sh_l1_full"][..., 0].astype(np.float16))
-    assert li["irradiance"].dtype == np.float32 and li["irradiance"].shape[-1] == 3   # decoded 11/11/10 floats
+    assert li["irradiance"].dtype == np.float16 and li["irradiance"].shape[-1] == 4

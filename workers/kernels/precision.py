@@ -17,7 +17,9 @@ function                    formats, first that fits            fits when
 Both also fall back (to float32) when the largest magnitude is below :data:`SMALLEST_SCALE`, where half's
 subnormal spacing would be a visible part of the signal. Rounding is to nearest even (numpy's ``astype(float16)``,
 :func:`proto.ktx2.pack_b10g11r11`), so the same input always gives the same bytes. What each format adds to the GI
-error of the runtime modes is measured by ``tests/bench/bench_formats.py``.
+error of the runtime modes is measured by ``tests/bench/bench_formats.py``. The stages use :func:`half` (depth moments,
+SH volumes, irradiance, the PRT basis); :func:`rgb_ufloat` is measured but not used for the irradiance: on a flatly
+lit region its rounding does not average out, and a grey value's error reaches 0.89% (over 0.5% for 38% of values).
 """
 from __future__ import annotations
 

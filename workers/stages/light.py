@@ -20,7 +20,7 @@ they take their live neighbours' values (:func:`workers.kernels.grid.dilate_off`
 darkened by the 0 of the probes buried in it (stats ``off_dilated``).
 
 Outputs (formats: :mod:`workers.kernels.precision`, GI error: tests/bench/bench_formats.py; proto/bundle.md 5.1):
-``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 3) R11G11B10F (else RGBA16F/32F, a = 1), octahedral n×n per probe
+``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) RGBA16F (else RGBA32F; a = 1), octahedral n×n per probe
 with border; ``probe_sh`` (nz, ny, nx, 9|4, 3) float32 table, radiance SH (three.js order, :mod:`workers.kernels.sh`);
 ``sh_l1_{r,g,b}`` (nz, ny, nx, 4) RGBA16F, each channel's L0 and L1 (leaking L1); with ``light.sh_order`` 2 (default)
 ``sh_l2`` (7·(nz+2), ny, nx, 4) RGBA16F, three.js LightProbeGrid layout (:func:`workers.kernels.sh.sh_l2_atlas`);
@@ -132,7 +132,7 @@ def run_light(ctx: StageContext) -> StageOutput:
             "scene.max_albedo")})
     if warnings:
         stats["warnings"] = warnings
-    irr, irr_vk, irr_meta = precision.rgb_ufloat(pack_atlas(rgba, counts))
+    irr, irr_vk, irr_meta = precision.half(pack_atlas(rgba, counts))     # not R11G11B10F: up to 0.9% on flat light
     arts = [Artifact("irradiance", irr, vk_format=irr_vk, description="octahedral probe irradiance with border",
                      meta={"tile": sec.irradiance_texels + 2, "texels": sec.irradiance_texels, **irr_meta}),
             Artifact("probe_sh", shv, table=True, description="radiance SH per probe (three.js order), linear RGB"),

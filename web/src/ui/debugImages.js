@@ -23,7 +23,7 @@ function toCanvas(canvas, width, height, fill) {
 
 const srgb8 = (c) => Math.round(255 * Math.min(1, Math.max(0, c <= 0.0031308 ? c * 12.92 : 1.055 * c ** (1 / 2.4) - 0.055)));
 
-/** Irradiance atlas (R11G11B10F, RGBA16F or RGBA32F): linear RGB scaled so the 99th percentile is 1, then sRGB. */
+/** Irradiance atlas (RGBA16F, RGBA32F or the packed R11G11B10F): linear RGB scaled so the 99th percentile is 1, then sRGB. */
 export function drawIrradianceAtlas(canvas, atlas) {
   const { width: W, height: H, components: C } = atlas;
   const data = texelsAsNumbers(atlas);
