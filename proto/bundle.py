@@ -54,6 +54,12 @@ GLB_MAGIC = b"glTF"
 ZIP_DATE_TIME = (1980, 1, 1, 0, 0, 0)
 """Timestamp of every zip entry, so that the same bundle always zips to the same bytes."""
 MAX_ARTIFACT_BYTES = 1 << 32
+DEFAULT_ZSTD_LEVEL = 3
+"""Zstandard level of a KTX2 artifact written without ``zstd_level`` (0 writes it uncompressed): level 3 keeps
+within ~15% of level 10's size at 4x its speed on this project's atlases (tests/bench/bench_formats.py)."""
+TABLE_FORMATS = {"f4": "R32_SFLOAT", "f2": "R16_SFLOAT", "i4": "R32_SINT", "u4": "R32_UINT", "u2": "R16_UINT",
+                 "u1": "R8_UINT"}
+"""KTX2 format of a table artifact (``write_artifact(..., table=True)``) by numpy dtype (kind + bytes)."""
 _CHUNK = 1 << 20
 
 
@@ -122,12 +128,17 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
                    stage: str, *, format: Literal["ktx2", "npy", "json", "png", "glb"] = "ktx2",
                    vk_format: int | str | None = None, zstd_level: int | None = None,
                    description: str = "", meta: dict[str, Any] | None = None,
-                   volume: bool | None = None) -> ArtifactInfo:
+                   volume: bool | None = None, table: bool = False) -> ArtifactInfo:
     """Write one artifact file into ``bundle_dir`` (created if missing); return its manifest entry.
 
     * ``ktx2``: ``array`` is ``(H, W[, C])`` or ``(D, H, W, C)`` (``volume=True`` makes a
-      3-axis array a one-channel ``(D, H, W)`` volume); ``vk_format``/``zstd_level`` as
-      in :func:`proto.ktx2.write_ktx2`. The format details go to ``meta["ktx2"]``.
+      3-axis array a one-channel ``(D, H, W)`` volume); ``vk_format`` as in
+      :func:`proto.ktx2.write_ktx2`; ``zstd_level`` None is :data:`DEFAULT_ZSTD_LEVEL`, 0 no
+      supercompression. The format details go to ``meta["ktx2"]``.
+      ``table=True``: any array of shape ``(n0, n1, ...)`` as a one-channel 2D texture of
+      height n0 and width n1·n2·… (1 for a 1-D array) in the format :data:`TABLE_FORMATS`
+      gives its dtype (``meta["ktx2"]["table"] = true``; proto/bundle.md 3); it loads back
+      in its own shape.
     * ``npy``: any non-object array, saved with ``allow_pickle=False``.
     * ``json``: ``array`` is a dict (numpy scalars/arrays are converted; NaN refused).
     * ``png`` / ``glb``: ``array`` is the encoded file's bytes (PNG signature / GLB header checked).
@@ -139,7 +150,16 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
     meta = dict(meta or {})
     if format == "ktx2":
         arr = np.asarray(array)
-        data = encode_ktx2(arr, vk_format, zstd_level, volume=volume)
+        level = DEFAULT_ZSTD_LEVEL if zstd_level is None else (zstd_level or None)
+        texture = arr
+        if table:
+            key = f"{arr.dtype.kind}{arr.dtype.itemsize}"
+            if key not in TABLE_FORMATS or arr.ndim == 0 or arr.size == 0:
+                raise ValueError(f"table artifact {name!r}: dtype {arr.dtype} shape {arr.shape} has no table format; "
+                                 f"convert to one of {sorted(TABLE_FORMATS)}")
+            vk_format = vk_format or TABLE_FORMATS[key]
+            texture = arr.reshape(arr.shape[0], -1 if arr.ndim > 1 else 1, 1)
+        data = encode_ktx2(texture, vk_format, level, volume=False if table else volume)
         _, info = decode_ktx2(data)  # cheap for our sizes; proves the file reads back
         shape, dtype = list(arr.shape), info["dtype"]
         dims = [info["pixel_width"], info["pixel_height"], info["pixel_depth"]]
@@ -149,10 +169,11 @@ def write_artifact(bundle_dir: str | os.PathLike[str], name: str, array: np.ndar
             "supercompression": info["supercompression_name"],
             "pixel_size": info["pixel_size"],
             "size": dims,  # width, height, depth (0 for 2D)
+            **({"table": True} if table else {}),
         })
     elif format == "npy":
-        if vk_format is not None or zstd_level is not None:
-            raise ValueError("vk_format/zstd_level apply to ktx2 artifacts only")
+        if vk_format is not None or zstd_level is not None or table:
+            raise ValueError("vk_format/zstd_level/table apply to ktx2 artifacts only")
         arr = np.asarray(array)
         if arr.dtype.hasobject:
             raise ValueError(f"npy artifact {name!r}: object arrays cannot be saved without pickles")
@@ -254,7 +275,8 @@ def load_artifact(path_or_bytes: str | os.PathLike[str] | bytes | bytearray | me
     """Decode one artifact file; with ``verify`` its size and sha256 must match ``info``.
 
     KTX2 arrays come back in ``info.shape`` (e.g. without the channel axis when written
-    that way); PNG previews and GLB scenes come back as their encoded bytes (1-D uint8).
+    that way, or a table's own shape: any shape with the texture's number of values, read in
+    level order); PNG previews and GLB scenes come back as their encoded bytes (1-D uint8).
     """
     if isinstance(path_or_bytes, (str, os.PathLike)):
         data = Path(path_or_bytes).read_bytes()
@@ -273,7 +295,9 @@ def load_artifact(path_or_bytes: str | os.PathLike[str] | bytes | bytearray | me
         except KTX2Error as exc:
             raise BundleError(f"{where}: {exc}") from exc
         want = tuple(info.shape)
-        if want != arr.shape and not (arr.shape[-1] == 1 and want == arr.shape[:-1]):
+        table = bool((info.meta.get("ktx2") or {}).get("table"))
+        if want != arr.shape and not (arr.shape[-1] == 1 and want == arr.shape[:-1]) \
+                and not (table and int(np.prod(want, dtype=np.int64)) == arr.size):
             raise BundleError(f"{where}: texture of shape {arr.shape} does not fit manifest shape {info.shape}")
         return _check_dtype(arr.reshape(info.shape), info, where)
     if info.format == "npy":

@@ -4,7 +4,8 @@ The subset (see ``proto/bundle.md`` for the byte layout):
 
 * one mip level (``levelCount`` 1), no array layers (``layerCount`` 0), one face;
   2D (``pixelDepth`` 0) or 3D textures;
-* the uncompressed formats of :data:`FORMATS` only;
+* the uncompressed formats of :data:`FORMATS` only (one packed one, ``B10G11R11_UFLOAT_PACK32``, read and
+  written as float32 RGB arrays: :func:`pack_b10g11r11`);
 * ``supercompressionScheme`` 0 (none) or 2 (Zstandard, one frame per level);
 * a Basic Data Format Descriptor as the Khronos Data Format spec (1.3/1.4) and
   libktx's ``vk2dfd`` define it for the format;
@@ -41,7 +42,9 @@ __all__ = [
     "decode_ktx2",
     "encode_ktx2",
     "format_for",
+    "pack_b10g11r11",
     "read_ktx2",
+    "unpack_b10g11r11",
     "write_ktx2",
 ]
 
@@ -88,19 +91,25 @@ class VkFormatInfo:
 
     vk_format: int
     name: str
-    dtype: np.dtype  # little-endian element type
+    dtype: np.dtype  # little-endian element type (of the packed word for a packed format)
     channels: int
-    suffix: str  # UNORM, SRGB, SFLOAT, UINT, SINT
+    suffix: str  # UNORM, SRGB, SFLOAT, UFLOAT, UINT, SINT
+    packed_bits: tuple[int, ...] = ()  # packed formats: bits per channel from bit 0 (R first)
 
     @property
     def type_size(self) -> int:
-        """KTX ``typeSize``: bytes of one component."""
+        """KTX ``typeSize``: bytes of one component (of the packed word for a ``_PACK32`` format)."""
         return self.dtype.itemsize
 
     @property
     def texel_size(self) -> int:
         """Bytes of one texel (the texel block size of an uncompressed format)."""
-        return self.dtype.itemsize * self.channels
+        return self.dtype.itemsize * (1 if self.packed_bits else self.channels)
+
+    @property
+    def array_dtype(self) -> np.dtype:
+        """The numpy dtype of the decoded array: float32 for the packed float format, else ``dtype``."""
+        return np.dtype("<f4") if self.packed_bits else self.dtype
 
     @property
     def level_alignment(self) -> int:
@@ -130,6 +139,7 @@ FORMATS: dict[int, VkFormatInfo] = {
         _fmt(103, "R32G32_SFLOAT", "<f4", 2, "SFLOAT"),
         _fmt(106, "R32G32B32_SFLOAT", "<f4", 3, "SFLOAT"),
         _fmt(109, "R32G32B32A32_SFLOAT", "<f4", 4, "SFLOAT"),
+        VkFormatInfo(122, "B10G11R11_UFLOAT_PACK32", np.dtype("<u4"), 3, "UFLOAT", (11, 11, 10)),
     )
 }
 """Supported formats by VkFormat number."""
@@ -171,6 +181,56 @@ def _lookup(vk_format: int | str) -> VkFormatInfo:
                      + ", ".join(f"{f.vk_format} {f.name}" for f in FORMATS.values()))
 
 
+# --------------------------------------------------------------------------- packed floats
+
+UFLOAT11_MAX = 65024.0
+"""Largest finite value of the 11- and 10-bit unsigned floats (B10G11R11_UFLOAT_PACK32): (2 - 2^-6) · 2^15."""
+
+
+def _to_ufloat(x: np.ndarray, mantissa: int) -> np.ndarray:
+    """float32 -> unsigned small float bits (5-bit exponent, bias 15, ``mantissa`` bits), round to nearest even.
+
+    Negative values and NaN become 0, values above the largest finite one that largest value (no infinities
+    are written). As the GL/Vulkan conversion rules for these formats (Vulkan spec "Unsigned 11-Bit/10-Bit
+    Floating-Point Numbers").
+    """
+    x = np.nan_to_num(np.asarray(x, np.float32), nan=0.0, posinf=UFLOAT11_MAX, neginf=0.0)
+    largest = np.float32((2.0 - 2.0 ** -mantissa) * 2.0 ** 15)
+    x = np.clip(x, 0.0, largest).astype(np.float32)
+    shift = 23 - mantissa
+    bits = x.view(np.uint32).astype(np.int64)
+    # normal range: rebias the exponent (127 -> 15) and round the mantissa, carries run into the exponent
+    v = bits - ((127 - 15) << 23)
+    normal = (v + ((1 << (shift - 1)) - 1) + ((v >> shift) & 1)) >> shift
+    # below the smallest normal 2^-14: multiples of 2^(-14 - mantissa), np.rint rounds half to even
+    sub = np.rint(x.astype(np.float64) * 2.0 ** (14 + mantissa)).astype(np.int64)
+    return np.where(x < np.float32(2.0 ** -14), sub, normal).astype(np.uint32)
+
+
+def _from_ufloat(bits: np.ndarray, mantissa: int) -> np.ndarray:
+    """Unsigned small float bits -> float32 (exponent 31: inf / NaN)."""
+    bits = bits.astype(np.int64)
+    e, m = bits >> mantissa, bits & ((1 << mantissa) - 1)
+    val = np.where(e == 0, m * 2.0 ** (-14 - mantissa),
+                   (1.0 + m / float(1 << mantissa)) * np.exp2(e.astype(np.float64) - 15.0))
+    val = np.where(e == 31, np.where(m == 0, np.inf, np.nan), val)
+    return val.astype(np.float32)
+
+
+def pack_b10g11r11(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) float RGB -> (...) uint32 B10G11R11_UFLOAT_PACK32 words (R bits 0-10, G 11-21, B 22-31)."""
+    rgb = np.asarray(rgb)
+    return (_to_ufloat(rgb[..., 0], 6) | (_to_ufloat(rgb[..., 1], 6) << np.uint32(11))
+            | (_to_ufloat(rgb[..., 2], 5) << np.uint32(22))).astype(np.uint32)
+
+
+def unpack_b10g11r11(words: np.ndarray) -> np.ndarray:
+    """(...) uint32 B10G11R11_UFLOAT_PACK32 words -> (..., 3) float32 RGB."""
+    w = np.asarray(words, np.uint32)
+    return np.stack([_from_ufloat(w & 0x7FF, 6), _from_ufloat((w >> 11) & 0x7FF, 6),
+                     _from_ufloat(w >> 22, 5)], axis=-1)
+
+
 # --------------------------------------------------------------------------- DFD
 
 
@@ -179,6 +239,12 @@ def _expected_samples(fmt: VkFormatInfo) -> list[tuple[int, int, int, int, int]]
 
     As libktx's ``createDFDUnpacked`` (little-endian, one sample per channel).
     """
+    if fmt.packed_bits:  # createDFDPacked, little-endian: one sample per channel from bit 0
+        out, offset = [], 0
+        for i, bits in enumerate(fmt.packed_bits):
+            out.append((offset, bits - 1, _CHANNEL_IDS[i] | KHR_DF_SAMPLE_DATATYPE_FLOAT, 0, _F32_ONE))
+            offset += bits
+        return out
     bits = fmt.type_size * 8
     out = []
     for i in range(fmt.channels):
@@ -387,8 +453,9 @@ def encode_ktx2(array: np.ndarray, vk_format: int | str | None = None, zstd_leve
         fmt = format_for(array.dtype, c)
     else:
         fmt = _lookup(vk_format)
-        if array.dtype.kind != fmt.dtype.kind or array.dtype.itemsize != fmt.dtype.itemsize:
-            raise ValueError(f"{fmt.name} needs {fmt.dtype.name} data, got {array.dtype}; convert it first")
+        want = fmt.array_dtype
+        if array.dtype.kind != want.kind or array.dtype.itemsize != want.itemsize:
+            raise ValueError(f"{fmt.name} needs {want.name} data, got {array.dtype}; convert it first")
         d, h, w, c = _image_shape(array, fmt.channels, volume)
     if zstd_level is not None and not (1 <= zstd_level <= 22):
         raise ValueError(f"zstd_level must be in 1..22, got {zstd_level}")
@@ -396,7 +463,10 @@ def encode_ktx2(array: np.ndarray, vk_format: int | str | None = None, zstd_leve
     if zstd_level is not None:
         entries.setdefault("KTXwriterScParams", f"--zstd {zstd_level}")
 
-    raw = np.ascontiguousarray(array, dtype=fmt.dtype).tobytes()
+    if fmt.packed_bits:
+        raw = np.ascontiguousarray(pack_b10g11r11(array.reshape(-1, 3)), dtype=fmt.dtype).tobytes()
+    else:
+        raw = np.ascontiguousarray(array, dtype=fmt.dtype).tobytes()
     if zstd_level is None:
         scheme, level_data = SUPERCOMPRESSION_NONE, raw
     else:
@@ -500,7 +570,10 @@ def decode_ktx2(data: bytes | bytearray | memoryview) -> tuple[np.ndarray, dict[
         raw = payload
 
     shape = (d, h, w, fmt.channels) if d else (h, w, fmt.channels)
-    array = np.frombuffer(raw, dtype=fmt.dtype).reshape(shape).astype(fmt.dtype.newbyteorder("="))
+    if fmt.packed_bits:
+        array = unpack_b10g11r11(np.frombuffer(raw, dtype=fmt.dtype)).reshape(shape)
+    else:
+        array = np.frombuffer(raw, dtype=fmt.dtype).reshape(shape).astype(fmt.dtype.newbyteorder("="))
     info = {
         "vk_format": vk,
         "format_name": fmt.name,

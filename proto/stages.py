@@ -43,18 +43,22 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("ingest", 3, ("scene",), (), timeout=600),
     StageDef("place", 6, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
-    StageDef("trace", 1, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
+    # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
+    StageDef("trace", 2, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
-    # against the probe's own map (workers/kernels/sh.py sh_l2_floor)
-    StageDef("light", 4, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance and SH volumes RGBA16F,
+    # probe_sh a KTX2 table (issue 17)
+    StageDef("light", 5, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
-    StageDef("anneal", 1, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),
+    # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)
+    StageDef("anneal", 2, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),
              ("place", "trace", "visibility"), timeout=3600),
     StageDef("masks", 2, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 2, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
-    StageDef("prt", 1, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
+    # prt 2: the npy tables as KTX2 tables, the SH basis volumes RGBA16F (proto/bundle.md 5.3)
+    StageDef("prt", 2, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones
     StageDef("reference", 2, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),

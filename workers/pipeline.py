@@ -103,9 +103,7 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
     infos = []
     with tempfile.TemporaryDirectory(dir=store.root / "tmp") as tmp:
         for art in out.artifacts:
-            info = bundle.write_artifact(tmp, art.name, art.data, stage, format=art.format,
-                                         vk_format=art.vk_format, zstd_level=art.zstd_level,
-                                         description=art.description, meta=art.meta)
+            info = art.write(tmp, stage)
             store.put_file(Path(tmp) / info.file, move=True, sha256=info.sha256)
             infos.append(info.model_dump())
     rec = {"stage": stage, "cache_key": key, "seconds": seconds, "stats": out.stats, "artifacts": infos}

@@ -4,14 +4,16 @@
 direct vector against the bake's scene (Embree, :func:`workers.raycast.caster_for_scene`), reconstructs the
 indirect of the given lights (:func:`workers.prt_relight.relight`, PRT eq 10 + §4.2) and writes it as a bundle
 folder (proto/bundle.md): one stage, ``relight``, and these artifacts, the light stage's names and layouts
-(proto/bundle.md §5.1) so that a viewer swaps them in for the baked ones:
+(proto/bundle.md §5.1) so that a viewer swaps them in for the baked ones (a *table*: a one-channel R32_SFLOAT
+KTX2 2D texture of the array's rows, proto/bundle.md §3; KTX2 files Zstandard-supercompressed):
 
 ================ ================================== =====================================================
-``probe_sh``     npy (nz, ny, nx, K, 3) float32      radiance SH per probe (three.js order, K = 9 or 4)
-``sh_l1_r/g/b``  ktx2 (nz, ny, nx, 4) RGBA32F        L0 + L1 of one colour channel per probe
+``probe_sh``     table (nz, ny, nx, K, 3) float32    radiance SH per probe (three.js order, K = 9 or 4)
+``sh_l1_r/g/b``  ktx2 (nz, ny, nx, 4) RGBA16F        L0 + L1 of one colour channel per probe (as the light
+                                                     stage: :func:`workers.kernels.precision.half`)
 ``lightmap``     ktx2 (R, R, 4) RGBA32F              indirect irradiance rgb, a = 1 on covered texels
                                                      (only when the bake has a lightmap and it is asked for)
-``prt_direct``   npy (M, 3) float32                  the direct vector at the measurement points
+``prt_direct``   table (M, 3) float32                the direct vector at the measurement points
 ``relight``      json                                the request's lights and timings (seconds)
 ================ ================================== =====================================================
 
@@ -132,6 +134,9 @@ def write_relit_bundle(store, bake: dict, scene: dict, infos: dict[str, dict], l
     cache : RelightCache or None
         Keeps the unpacked model and the scene's ray caster between calls.
     """
+    import numpy as np
+
+    from workers.kernels.precision import half
     from workers.prt_relight import relight
     from workers.raycast import caster_for_scene
     from workers.scene import NormalizedScene
@@ -157,16 +162,18 @@ def write_relit_bundle(store, bake: dict, scene: dict, infos: dict[str, dict], l
             "direct_norm": [float(v) for v in (out["prt_direct"] ** 2).sum(axis=0) ** 0.5],
             "note": "indirect light of these lights only (no emission, scene lights or sky)"}
     folder = Path(folder)
-    arts = [bundle.write_artifact(folder, "probe_sh", out["probe_sh"], "relight", format="npy",
-                                  description="relit radiance SH per probe (three.js order), linear RGB")]
+    arts = [bundle.write_artifact(folder, "probe_sh", np.asarray(out["probe_sh"], np.float32), "relight",
+                                  table=True, description="relit radiance SH per probe (three.js order), linear RGB")]
     for c in "rgb":
-        arts.append(bundle.write_artifact(folder, f"sh_l1_{c}", out[f"sh_l1_{c}"], "relight",
+        data, vk, meta = half(out[f"sh_l1_{c}"])
+        arts.append(bundle.write_artifact(folder, f"sh_l1_{c}", data, "relight", vk_format=vk, meta=meta,
                                           description=f"relit L0 + L1 radiance SH of the {c} channel per probe"))
     if "lightmap" in out:
         arts.append(bundle.write_artifact(folder, "lightmap", out["lightmap"], "relight",
                                           description="relit indirect irradiance, a = 1 on covered texels",
                                           meta={"uv": "prt_lm_uv"}))
-    arts.append(bundle.write_artifact(folder, "prt_direct", out["prt_direct"], "relight", format="npy",
+    arts.append(bundle.write_artifact(folder, "prt_direct", np.asarray(out["prt_direct"], np.float32), "relight",
+                                      table=True,
                                       description="direct vector at the measurement points"))
     arts.append(bundle.write_artifact(folder, "relight", info, "relight", format="json",
                                       description="the request's lights and timings"))

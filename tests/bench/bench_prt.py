@@ -217,8 +217,7 @@ def main(argv=None) -> dict:
         out = prt_output(ctx, ds, t0)
         t_stage = time.perf_counter() - t0
         t1 = time.perf_counter()
-        infos = [bundle.write_artifact(tmp / "bundle", a.name, a.data, "prt", format=a.format, meta=a.meta)
-                 for a in out.artifacts]
+        infos = [a.write(tmp / "bundle", "prt") for a in out.artifacts]
         t_write = time.perf_counter() - t1
         bake = {"ingest_upload_s": t_ingest, **{f"{k}_s": v for k, v in secs.items()},
                 "prt_stage_s": t_stage, "prt_write_s": t_write,

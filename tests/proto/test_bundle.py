@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from proto.bundle import (
+    DEFAULT_ZSTD_LEVEL,
     MANIFEST_NAME,
     BundleError,
     artifact_file_name,
@@ -53,7 +54,7 @@ def bundle(tmp_path, arrays):
     d = tmp_path / "bundle"
     infos = [
         write_artifact(d, "sh_l1", arrays["sh_l1"], "light", zstd_level=5, description="L1 SH"),
-        write_artifact(d, "masks", arrays["masks"], "masks", meta={"k": 4}),
+        write_artifact(d, "masks", arrays["masks"], "masks", meta={"k": 4}, zstd_level=0),  # 0: uncompressed
         write_artifact(d, "states", arrays["states"], "probes", vk_format="R8_UINT", volume=True),
         write_artifact(d, "depth.atlas", arrays["depth.atlas"], "probes"),
         write_artifact(d, "positions", arrays["positions"], "probes", format="npy"),
@@ -81,6 +82,10 @@ def test_write_artifact_infos_exact(bundle, arrays):
     assert by["states"].shape == [3, 5, 7] and by["states"].dtype == "uint8"
     assert by["states"].meta["ktx2"]["format"] == "R8_UINT" and by["states"].meta["ktx2"]["size"] == [7, 5, 3]
     assert by["depth.atlas"].meta["ktx2"]["size"] == [11, 9, 0]  # 2D: depth 0
+    # Zstandard by default, at DEFAULT_ZSTD_LEVEL
+    assert by["depth.atlas"].meta["ktx2"]["supercompression"] == "zstd"
+    assert decode_ktx2((d / "depth.atlas.ktx2").read_bytes())[1]["kv"]["KTXwriterScParams"] == \
+        f"--zstd {DEFAULT_ZSTD_LEVEL}"
     assert by["positions"].shape == [105, 3] and by["positions"].dtype == "float64"
     assert by["metrics"].shape == [] and by["metrics"].dtype == "dict" and by["metrics"].format == "json"
     assert json.loads((d / "metrics.json").read_text()) == {"n": 3, "rmse": {"leaking": 0.5, "mask": 0.0125}}
@@ -226,6 +231,38 @@ def test_artifact_value_errors(tmp_path):
         write_artifact(tmp_path, "o", np.array([{}, 1], dtype=object), "x", format="npy")
     with pytest.raises(ValueError, match="ktx2 artifacts only"):
         write_artifact(tmp_path, "o", np.zeros(3), "x", format="npy", zstd_level=3)
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("array, fmt", [
+    (np.arange(7 * 3 * 2, dtype=np.float32).reshape(7, 3, 2) / 7, "R32_SFLOAT"),  # prt_lm_uv-like (T, 3, 2)
+    (np.arange(-3, 9, dtype=np.int32), "R32_SINT"),                                # prt_point_offsets-like (M+1,)
+    (np.arange(2 * 2 * 2 * 9 * 3, dtype=np.float32).reshape(2, 2, 2, 9, 3), "R32_SFLOAT"),  # probe_sh-like
+    (np.array([[1, 2], [3, 4]], np.uint32), "R32_UINT"),
+], ids=["rows-of-pairs", "int-1d", "probe-sh-5d", "uint"])
+def test_tables_round_trip_as_one_channel_2d_ktx2(tmp_path, array, fmt):
+    info = write_artifact(tmp_path, "t", array, "x", table=True)
+    assert info.format == "ktx2" and info.shape == list(array.shape) and info.meta["ktx2"]["table"] is True
+    assert info.meta["ktx2"]["format"] == fmt and info.meta["ktx2"]["supercompression"] == "zstd"
+    tex, k = decode_ktx2((tmp_path / "t.ktx2").read_bytes())   # (rows, values per row, 1), 2D, level order = C order
+    assert k["pixel_depth"] == 0 and tex.shape == (array.shape[0], int(np.prod(array.shape[1:])), 1)
+    assert np.array_equal(tex.reshape(-1), array.reshape(-1))
+    back = load_artifact(tmp_path / "t.ktx2", info)
+    assert back.shape == array.shape and back.dtype == array.dtype and np.array_equal(back, array)
+    # a manifest shape with another number of values is refused; without `table` a reshape is refused
+    with pytest.raises(BundleError, match="does not fit manifest shape"):
+        load_artifact(tmp_path / "t.ktx2", info.model_copy(update={"shape": [array.size + 1]}))
+    plain = info.model_copy(update={"meta": {"ktx2": {k: v for k, v in info.meta["ktx2"].items() if k != "table"}}})
+    if array.ndim != 2:
+        with pytest.raises(BundleError, match="does not fit manifest shape"):
+            load_artifact(tmp_path / "t.ktx2", plain)
+
+
+def test_table_refuses_float64_and_npy_options(tmp_path):
+    with pytest.raises(ValueError, match="no table format"):
+        write_artifact(tmp_path, "t", np.zeros(3), "x", table=True)
+    with pytest.raises(ValueError, match="ktx2 artifacts only"):
+        write_artifact(tmp_path, "t", np.zeros(3, np.float32), "x", format="npy", table=True)
     assert list(tmp_path.iterdir()) == []
 
 

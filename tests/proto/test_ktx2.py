@@ -21,7 +21,9 @@ from proto.ktx2 import (
     decode_ktx2,
     encode_ktx2,
     format_for,
+    pack_b10g11r11,
     read_ktx2,
+    unpack_b10g11r11,
     write_ktx2,
 )
 
@@ -29,7 +31,11 @@ RNG_SEED = 1234
 
 
 def _random(fmt, shape, rng):
-    """Random data covering the format's bit patterns (finite floats only)."""
+    """Random data covering the format's bit patterns (finite floats only; the packed format's representable)."""
+    if fmt.packed_bits:
+        words = rng.integers(0, 1 << 32, size=shape[:-1], dtype=np.uint32)
+        ok = ((words & 0x7C0) != 0x7C0) & ((words & 0x3E0000) != 0x3E0000) & ((words >> 27) != 31)  # exponent 31
+        return unpack_b10g11r11(np.where(ok, words, 0).astype(np.uint32))
     if fmt.dtype.kind == "f":
         a = (rng.standard_normal(shape) * 100).astype(fmt.dtype)
         assert np.isfinite(a).all()
@@ -69,14 +75,14 @@ def test_round_trip_every_format(vk, dims, zstd):
     assert b.flags.writeable and b.dtype.byteorder in ("=", "|")
     h = _header(data)
     assert h["vkFormat"] == vk and info["vk_format"] == vk and info["format_name"] == fmt.name
-    assert h["typeSize"] == fmt.dtype.itemsize == info["type_size"]
+    assert h["typeSize"] == fmt.dtype.itemsize == info["type_size"]   # 4 for the packed format's word
     assert (h["pixelWidth"], h["pixelHeight"], h["pixelDepth"]) == (7, 5, 3 if len(dims) == 3 else 0)
     assert (h["layerCount"], h["faceCount"], h["levelCount"]) == (0, 1, 1)
     assert h["supercompressionScheme"] == (2 if zstd else 0) == info["supercompression"]
     assert info["supercompression_name"] == ("zstd" if zstd else "none")
-    n = a.size * fmt.dtype.itemsize
+    n = a.size // fmt.channels * fmt.texel_size
     assert h["uncompressedByteLength"] == n == info["uncompressed_byte_length"]
-    assert info["pixel_size"] == fmt.channels * fmt.dtype.itemsize
+    assert info["pixel_size"] == fmt.texel_size == (4 if fmt.packed_bits else fmt.channels * fmt.dtype.itemsize)
     assert h["byteOffset"] + h["byteLength"] == len(data)
     if zstd:
         assert info["kv"]["KTXwriterScParams"] == "--zstd 5"
@@ -84,7 +90,8 @@ def test_round_trip_every_format(vk, dims, zstd):
         assert h["byteLength"] == n
         # uncompressed levels start on lcm(texel size, 4)
         assert h["byteOffset"] % np.lcm(info["pixel_size"], 4) == 0
-        assert data[h["byteOffset"]:] == a.astype(fmt.dtype).tobytes()
+        stored = pack_b10g11r11(a) if fmt.packed_bits else a.astype(fmt.dtype)
+        assert data[h["byteOffset"]:] == stored.astype(fmt.dtype).tobytes()
 
 
 def test_float16_and_uint8_exact_values():
@@ -98,6 +105,38 @@ def test_float16_and_uint8_exact_values():
     u = rng.integers(0, 256, size=(3, 5, 7, 4), dtype=np.uint8)
     back, info = decode_ktx2(encode_ktx2(u))
     assert info["vk_format"] == 37 and np.array_equal(back, u)
+
+
+@pytest.mark.parametrize("channel, mantissa", [(0, 6), (1, 6), (2, 5)], ids=["r11", "g11", "b10"])
+def test_b10g11r11_rounds_to_nearest_even_and_clamps(channel, mantissa):
+    """Every float goes to the nearest of the 11/10-bit values (ties to the even code), as a brute-force search
+    over all finite codes finds; negatives and NaN give 0, values past the largest the largest."""
+    shift = (0, 11, 22)[channel]
+    codes = np.arange(31 << mantissa, dtype=np.uint32)                   # every finite code, increasing
+    values = unpack_b10g11r11(codes << np.uint32(shift))[:, channel].astype(np.float64)
+    assert np.all(np.diff(values) > 0) and values[-1] == (2 - 2.0 ** -mantissa) * 2 ** 15
+    rng = np.random.default_rng(RNG_SEED)
+    x = np.concatenate([np.exp(rng.uniform(np.log(1e-9), np.log(7e4), 50000)), values,
+                        (values[:-1] + values[1:]) / 2, [0.0, -1.0, np.nan, 1e9]]).astype(np.float32)
+    rgb = np.zeros((len(x), 3), np.float32)
+    rgb[:, channel] = x
+    got = (pack_b10g11r11(rgb) >> np.uint32(shift)) & np.uint32((1 << (mantissa + 5)) - 1)
+    v = np.clip(np.nan_to_num(x.astype(np.float64), nan=0.0), 0.0, values[-1])
+    i = np.clip(np.searchsorted(values, v), 1, len(values) - 1)
+    below, above = v - values[i - 1], values[i] - v
+    want = np.where(below < above, i - 1, np.where(below > above, i, np.where((i - 1) % 2 == 0, i - 1, i)))
+    assert np.array_equal(got, want)
+    assert np.all((pack_b10g11r11(rgb) & ~np.uint32(((1 << (mantissa + 5)) - 1) << shift)) == 0)  # others 0
+
+
+def test_b10g11r11_dfd_as_libktx():
+    """createDFDPacked(0, 3, {11, 11, 10}, {R, G, B}, s_UFLOAT): one 4-byte plane, samples R at bit 0, G at 11,
+    B at 22, FLOAT qualifier without SIGNED, lower 0.0f, upper 1.0f."""
+    w = _dfd_words(122)
+    assert w[:7] == (4 + 24 + 48, 0, 2 | (72 << 16), 1 | (1 << 8) | (1 << 16), 0, 4, 0)
+    assert [w[7 + 4 * s] for s in range(3)] == [0 | (10 << 16) | (0x80 << 24), 11 | (10 << 16) | (0x81 << 24),
+                                                22 | (9 << 16) | (0x82 << 24)]
+    assert all(w[8 + 4 * s] == 0 and w[9 + 4 * s] == 0 and w[10 + 4 * s] == 0x3F800000 for s in range(3))
 
 
 def test_axis_order_x_fastest():

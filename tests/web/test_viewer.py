@@ -355,12 +355,17 @@ def _prt_expected(kiln_server, bake_id, light) -> np.ndarray:
     from workers.kernels import prt as kprt
     from workers.kernels.shading import direct_irradiance
 
-    def npy(name):
+    from proto.bundle import load_artifact
+    from proto.models import ArtifactInfo
+
+    infos = {a["name"]: a for a in httpx.get(f"{kiln_server.url}/v1/bakes/{bake_id}", timeout=30).json()["artifacts"]}
+
+    def array(name):      # KTX2 tables (npy in older bakes), in the manifest's shape
         r = httpx.get(f"{kiln_server.url}/v1/bakes/{bake_id}/artifacts/{name}", timeout=30)
         r.raise_for_status()
-        return np.load(io.BytesIO(r.content))
+        return load_artifact(r.content, ArtifactInfo(**infos[name]))
 
-    table, offsets, T = npy("prt_points").astype(np.float64), npy("prt_point_offsets"), npy("prt_sh_transfer")
+    table, offsets, T = array("prt_points").astype(np.float64), array("prt_point_offsets"), array("prt_sh_transfer")
     e = direct_irradiance(table[:, :3], table[:, 3:6], [light], None, 1e-3)  # caster None: unshadowed
     x = kprt.group_mean(table[:, 6:9] / np.pi * e, offsets.astype(np.int64))
     xa = np.concatenate([x, np.linalg.norm(x, axis=0)[None]], axis=0)

@@ -4,6 +4,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pytest
 
 from workers.kernels.grid import OFF, base_positions, unpack_atlas
 from workers.kernels.sh import sh_irradiance
@@ -123,3 +124,47 @@ def test_buried_probes_are_dilated_in_the_runtime_volumes(tmp_path, scene_files)
     e = SM.irradiance("leaking", {"sh_l2": s["light"]["sh_l2"]}, grid, p, n)
     np.testing.assert_allclose(e, SM.leaking_l2(np.array([[1.6, 0.05, 1.6]]), n, s["light"]["sh_l2"], grid),
                                rtol=1e-5)
+
+
+@pytest.mark.parametrize("scene_name", ["two-rooms", "furnace"])
+def test_stored_formats_of_trace_and_light(tmp_path, scene_files, scene_name):
+    """Issue 17: what the runtime reads is stored at the precision it needs (workers/kernels/precision.py), every
+    KTX2 Zstandard-supercompressed, no npy but internal artifacts; the float32 copies the light, PRT and masks
+    stages integrate with are internal and round to exactly the stored values. The furnace's rays run 1 km to its
+    far triangle: the squared distances overflow half floats, so its depth moments stay RG32F, saying why."""
+    from persist.store import Store
+    from proto.models import BakeConfig
+    from proto.stages import plan
+    from workers import pipeline
+    from workers.gltf import ingest_file
+
+    lo, hi = BAKE_BOXES[scene_name]
+    cfg = BakeConfig.model_validate({"place": {"counts": [3, 4, 3], "box": {"min": lo, "max": hi}},
+                                     "scene": {"sky": [0.7, 1.3, 2.0]}, "trace": {"rays_per_probe": 64}})
+    store = Store(tmp_path / "store")
+    sid = store.put_bytes(ingest_file(scene_files[scene_name]).to_bytes())
+    recs = {}
+    for st, _ in plan(sid, cfg):
+        recs[st.name], _ = pipeline.execute_stage(store, sid, cfg, st.name)
+        if st.name == "light":
+            break
+    infos = {a["name"]: a for r in recs.values() for a in r["artifacts"]}
+    for a in infos.values():
+        assert a["format"] != "npy" or a["meta"].get("internal"), a["name"]
+        if a["format"] == "ktx2":
+            assert a["meta"]["ktx2"]["supercompression"] == "zstd", a["name"]
+    fmt = {n: infos[n]["meta"]["ktx2"]["format"] for n in ("depth_moments", "irradiance", "sh_l1_r", "sh_l2",
+                                                          "probe_sh")}
+    far = scene_name == "furnace"
+    assert fmt == {"depth_moments": "R32G32_SFLOAT" if far else "R16G16_SFLOAT",
+                   "irradiance": "R16G16B16A16_SFLOAT", "sh_l1_r": "R16G16B16A16_SFLOAT", "sh_l2": "R16G16B16A16_SFLOAT", "probe_sh": "R32_SFLOAT"}
+    assert infos["probe_sh"]["meta"]["ktx2"]["table"] and infos["probe_sh"]["shape"] == [3, 4, 3, 9, 3]
+    assert infos["irradiance"]["meta"]["precision"]["format"] == "R16G16B16A16_SFLOAT"
+    assert infos["depth_moments_full"]["meta"]["internal"] and infos["sh_l1_full"]["meta"]["internal"]
+    tr, li = (pipeline._lazy(store, recs[n]) for n in ("trace", "light"))
+    assert tr["depth_moments_full"].dtype == np.float32
+    depth = tr["depth_moments_full"] if far else tr["depth_moments_full"].astype(np.float16)
+    assert np.array_equal(tr["depth_moments"], depth)
+    assert ("> 65504" in infos["depth_moments"]["meta"]["precision"].get("fallback", "")) == far
+    assert np.array_equal(li["sh_l1_r"], li["sh_l1_full"][..., 0].astype(np.float16))
+    assert li["irradiance"].dtype == np.float16 and li["irradiance"].shape[-1] == 4

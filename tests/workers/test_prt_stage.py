@@ -142,7 +142,7 @@ def test_artifacts_and_section(cornell):
     for k, names in enumerate(sec["sh"]["basis"]):
         for g, name in enumerate(names):
             assert name == f"prt_sh_basis_c{k}_g{g}"
-            assert arts[name].data.shape == (4, 4, 4, 4) and arts[name].data.dtype == np.float32
+            assert arts[name].data.shape == (4, 4, 4, 4) and arts[name].data.dtype == np.float16  # RGBA16F
     assert arts["prt_sh_transfer"].data.shape == (3, 16, 257)
     assert arts["prt_points"].data.shape == (256, 9) and arts["prt_point_offsets"].data.shape == (257,)
     lm = sec["lightmap"]
@@ -220,7 +220,7 @@ def test_variants_round_trip_through_the_bundle_format(tmp_path, scene_files, pr
     ds = sprt.prt_dataset(ctx)
     out = sprt.prt_output(ctx, ds)
     arts = {a.name: a.data for a in out.artifacts}
-    infos = [bundle.write_artifact(tmp_path / "b", a.name, a.data, "prt", format=a.format) for a in out.artifacts]
+    infos = [a.write(tmp_path / "b", "prt") for a in out.artifacts]
     loaded = {i.name: bundle.load_artifact(tmp_path / "b" / i.file, i) for i in infos}
     from workers.raycast import RayCaster
 

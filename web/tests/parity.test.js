@@ -3,7 +3,7 @@
 import { describe, expect, it } from 'vitest';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
-import { parseKTX2, texelsAsNumbers } from '../src/loader/ktx2.js';
+import { parseKTX2, tableFromKTX2, texelsAsNumbers } from '../src/loader/ktx2.js';
 import {
   probeGridUVW, sampleShL2, sampleVolumeTrilinear, shIrradianceL1, shIrradianceL1Nonlinear, shIrradianceL2, shL2Unpack,
 } from '../src/math/sh.js';
@@ -20,13 +20,25 @@ describe('KTX2 loader on the Python-written fixtures', () => {
       const tex = load(v.file);
       expect(tex.format).toBe(v.format);
       expect([tex.width, tex.height, tex.depth, tex.components]).toEqual([v.width, v.height, v.depth, v.components]);
-      expect(tex.is3D).toBe(true);
+      expect(tex.is3D).toBe(v.depth > 0);
+      expect(tex.data.length).toBe(v.width * v.height * Math.max(v.depth, 1) * tex.valuesPerTexel);
       const got = Array.from(texelsAsNumbers(tex));
       expect(got.length).toBe(v.values.length);
       // float32 values are exact; halves decode exactly to the float64 of numpy's float16
       got.forEach((x, i) => expect(x).toBe(tex.kind === 'float' ? f32(v.values[i]) : v.values[i]));
     });
   }
+
+  it('keeps the packed irradiance as one word per texel and reads a table in its manifest shape', () => {
+    const irr = load('irr_b10g11r11_zstd.ktx2');
+    expect([irr.kind, irr.valuesPerTexel, irr.data.constructor.name]).toEqual(['ufloat-packed', 1, 'Uint32Array']);
+    const v = expected.volumes.find((x) => x.file === 'table_r32i_zstd.ktx2');
+    const t = tableFromKTX2(load(v.file), [2, 2, 3]);        // any shape with the level's 12 values
+    expect(t.shape).toEqual([2, 2, 3]);
+    expect(t.dtype).toBe('int32');
+    expect(Array.from(t.data)).toEqual(v.values);
+    expect(() => tableFromKTX2(load(v.file), [5, 3])).toThrow(/does not fit/);
+  });
 
   it('reads key/value data and the Zstandard flag', () => {
     const tex = load('volume_r8_zstd.ktx2');

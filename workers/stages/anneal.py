@@ -18,8 +18,8 @@ Outputs
 -------
 ``clusters`` : (nz, ny, nx, 1) uint8, KTX2 R8 — g, the cluster of each probe (0 … K−1; OFF probes keep
     their initial colour and are ignored downstream).
-``anneal_loss`` : (sweeps + 1,) float64 npy — eq 7 + eq 8 of the initial colouring, then after each
-    sweep (the current state; the kept colouring is the minimum). Parity: (1,).
+``anneal_loss`` : (sweeps + 1,) float32, a KTX2 table (R32_SFLOAT) — eq 7 + eq 8 of the initial colouring,
+    then after each sweep (the current state; the kept colouring is the minimum). Parity: (1,).
 stats : ``coloring``, ``clusters``, ``sweeps``, ``edges`` (pairs sharing a cell, OFF excluded),
     ``edge_loss_total`` (Σ E), ``initial_loss``, ``final_loss`` (eq 7 + eq 8 of g),
     ``final_edge_loss`` (eq 7 of g), ``random_loss`` (mean eq 7 of 8 random colourings seeded by the
@@ -88,7 +88,7 @@ def run_anneal(ctx: StageContext) -> StageOutput:
             Artifact("clusters", g.astype(np.uint8).reshape(nz, ny, nx, 1),
                      description="probe cluster g (MD §3.3), 0..K-1 per probe",
                      meta={"clusters": K, "coloring": sec.coloring}),
-            Artifact("anneal_loss", loss.astype(np.float64), format="npy",
+            Artifact("anneal_loss", loss.astype(np.float32), table=True,
                      description="eq 7 + eq 8 of the initial colouring and after each annealing sweep"),
         ],
         stats=stats,

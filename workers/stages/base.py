@@ -38,10 +38,20 @@ class Artifact:
     name: str
     data: np.ndarray | dict | bytes
     format: str = "ktx2"           # "ktx2" | "npy" | "json" | "png" (PNG-encoded bytes) | "glb" (glTF binary bytes)
-    vk_format: int | None = None   # KTX2 only; inferred from dtype/channels when None
-    zstd_level: int | None = None  # KTX2 only: Zstandard supercompression level
+    vk_format: int | str | None = None  # KTX2 only; inferred from dtype/channels when None
+    zstd_level: int | None = None  # KTX2 only: Zstandard level, None = proto.bundle.DEFAULT_ZSTD_LEVEL, 0 = none
+    table: bool = False            # KTX2 only: any-shape array as a one-channel 2D table (proto/bundle.md 3)
     description: str = ""
     meta: dict[str, Any] = field(default_factory=dict)
+
+    def write(self, folder, stage: str):
+        """Write it into bundle folder ``folder`` (:func:`proto.bundle.write_artifact`); returns its ``ArtifactInfo``."""
+        from proto.bundle import write_artifact
+
+        ktx2 = self.format == "ktx2"
+        return write_artifact(folder, self.name, self.data, stage, format=self.format, description=self.description,
+                              meta=self.meta, vk_format=self.vk_format, zstd_level=self.zstd_level,
+                              table=self.table if ktx2 else False)
 
 
 @dataclass

@@ -19,13 +19,12 @@ Bounces: a fixed count (``light.bounces``) or until the estimated light still to
 they take their live neighbours' values (:func:`workers.kernels.grid.dilate_off`), so a solid's surfaces are not
 darkened by the 0 of the probes buried in it (stats ``off_dilated``).
 
-Outputs: ``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) float32 RGBA (rgb irradiance, a = 1),
-octahedral n×n per probe with its border (grid.pack_atlas); ``probe_sh`` (nz, ny, nx, 9|4, 3) float32
-radiance SH per probe (three.js order, :mod:`workers.kernels.sh`); ``sh_l1_r``, ``sh_l1_g``,
-``sh_l1_b`` (nz, ny, nx, 4) float32 volumes holding each channel's L0 and L1 coefficients, the
-form leaking probe GI samples with hardware trilinear filtering; with ``light.sh_order`` 2 (the default) also
-``sh_l2`` (7·(nz+2), ny, nx, 4) float32, all 9 coefficients in the three.js LightProbeGrid layout
-(:func:`workers.kernels.sh.sh_l2_atlas`, proto/bundle.md 5.1), what leaking probe GI samples by default.
+Outputs (formats: :mod:`workers.kernels.precision`, GI error: tests/bench/bench_formats.py; proto/bundle.md 5.1):
+``irradiance`` 2D atlas (ny·(n+2), nz·nx·(n+2), 4) RGBA16F (else RGBA32F; a = 1), octahedral n×n per probe
+with border; ``probe_sh`` (nz, ny, nx, 9|4, 3) float32 table, radiance SH (three.js order, :mod:`workers.kernels.sh`);
+``sh_l1_{r,g,b}`` (nz, ny, nx, 4) RGBA16F, each channel's L0 and L1 (leaking L1); with ``light.sh_order`` 2 (default)
+``sh_l2`` (7·(nz+2), ny, nx, 4) RGBA16F, three.js LightProbeGrid layout (:func:`workers.kernels.sh.sh_l2_atlas`);
+internal ``sh_l1_full``, the float32 L1 volumes (nz, ny, nx, 4, 3) the masks stage reads.
 """
 from __future__ import annotations
 
@@ -34,6 +33,7 @@ import time
 
 import numpy as np
 
+from workers.kernels import precision
 from workers.kernels.bounce import integrate_one
 from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
@@ -59,7 +59,8 @@ def run_light(ctx: StageContext) -> StageOutput:
     hits, tri = tr["ray_hits"], tr["ray_tri"]
     states = tr["probe_states"].reshape(-1)
     m = ctx.config.trace.depth_texels + 2
-    depth = unpack_atlas(tr["depth_moments"], counts, m)
+    full = "depth_moments_full" if "depth_moments_full" in tr else "depth_moments"   # float32 (trace stage 2)
+    depth = unpack_atlas(np.asarray(tr[full], np.float32), counts, m)
     positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float32)
     lit = ctx.inputs["ingest"]["lights"]
 
@@ -131,20 +132,19 @@ def run_light(ctx: StageContext) -> StageOutput:
             "scene.max_albedo")})
     if warnings:
         stats["warnings"] = warnings
-    n2 = sec.irradiance_texels + 2
-    return StageOutput(
-        artifacts=[
-            Artifact("irradiance", pack_atlas(rgba, counts), description="octahedral probe irradiance with border",
-                     meta={"tile": n2, "texels": sec.irradiance_texels}),
-            Artifact("probe_sh", shv, format="npy", description="radiance SH per probe (three.js order), linear RGB"),
-            *[Artifact(f"sh_l1_{c}", np.ascontiguousarray(shv_rt[..., :4, i]),
-                       description=f"L0 + L1 radiance SH of the {c} channel per probe (OFF probes dilated)")
-              for i, c in enumerate("rgb")],
-            *([Artifact("sh_l2", sh_l2_atlas(shv_rt), meta={"layout": "three.js LightProbeGrid", "texels": 7,
-                                                          "padding": 1},
-                        description="L2 radiance SH per probe: 9 coefficients x rgb in 7 padded RGBA sub-volumes "
-                                    "stacked along z (three.js LightProbeGrid layout)")]
-              if shv.shape[3] == 9 else []),
-        ],
-        stats=stats,
-    )
+    irr, irr_vk, irr_meta = precision.half(pack_atlas(rgba, counts))     # not R11G11B10F: up to 0.9% on flat light
+    arts = [Artifact("irradiance", irr, vk_format=irr_vk, description="octahedral probe irradiance with border",
+                     meta={"tile": sec.irradiance_texels + 2, "texels": sec.irradiance_texels, **irr_meta}),
+            Artifact("probe_sh", shv, table=True, description="radiance SH per probe (three.js order), linear RGB"),
+            Artifact("sh_l1_full", np.ascontiguousarray(shv_rt[..., :4, :]), table=True, meta={"internal": True})]
+    for i, c in enumerate("rgb"):
+        data, vk, meta = precision.half(np.ascontiguousarray(shv_rt[..., :4, i]))
+        arts.append(Artifact(f"sh_l1_{c}", data, vk_format=vk, meta=meta,
+                             description=f"L0 + L1 radiance SH of the {c} channel per probe (OFF probes dilated)"))
+    if shv.shape[3] == 9:
+        data, vk, meta = precision.half(sh_l2_atlas(shv_rt))
+        arts.append(Artifact("sh_l2", data, vk_format=vk, meta={"layout": "three.js LightProbeGrid", "texels": 7,
+                                                               "padding": 1, **meta},
+                             description="L2 radiance SH per probe: 9 coefficients x rgb in 7 padded RGBA "
+                                         "sub-volumes stacked along z (three.js LightProbeGrid layout)"))
+    return StageOutput(artifacts=arts, stats=stats)

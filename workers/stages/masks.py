@@ -82,7 +82,8 @@ def run_masks(ctx: StageContext) -> StageOutput:
     states = ctx.inputs["trace"]["probe_states"].reshape(-1)
     g = ctx.inputs["anneal"]["clusters"].reshape(-1).astype(np.int64)
     light = ctx.inputs["light"]
-    sh_l1 = np.stack([light[f"sh_l1_{c}"] for c in "rgb"], axis=-1).astype(np.float32)   # (nz, ny, nx, 4, 3)
+    sh_l1 = np.asarray(light["sh_l1_full"], np.float32) if "sh_l1_full" in light else \
+        np.stack([light[f"sh_l1_{c}"] for c in "rgb"], axis=-1).astype(np.float32)       # (nz, ny, nx, 4, 3)
 
     t0 = time.perf_counter()
     m = fit_masks(theta, dont_care, counts, S, g, K, states)                               # eq 5

@@ -1,37 +1,29 @@
 """Stage ``prt``: a relightable, data-driven transfer (PRT §3-5; DESIGN stage 6).
 
-Reads ingest (bounds), place (grid), relocate (probe positions), trace (cached probe-ray hits, depth
-moments, states) and light (only for ordering and cache keys; its settings come from ``config.light``).
-Off unless ``config.prt.enabled``: then it returns no artifacts and stats ``{"enabled": false}``.
+Reads ingest (bounds), place (grid), relocate (probe positions), trace (cached probe-ray hits, float32 depth moments,
+states), light (for ordering and cache keys; settings from ``config.light``). Off unless ``config.prt.enabled``.
 
-An adapter: scenario, measurement points, dataset (the light stage's bounce integrator with ``config.light``'s
-settings, per configuration alone: emission excluded, sky 0) and fit are :mod:`workers.kernels.prt_dataset`,
-seeded by the bake seed; this module reads the inputs and packs the artifacts.
-
+An adapter: scenario, measurement points, dataset (the light stage's bounce integrator, per configuration alone:
+emission excluded, sky 0) and fit are :mod:`workers.kernels.prt_dataset`, seeded by the bake seed.
 Artifacts (stage ``prt``; the layout is documented in ``proto/bundle.md`` by the lead):
 
 ========================= ================================ ===========================================
 name                      shape, format                    content
 ========================= ================================ ===========================================
-``prt``                   json                             the PRT section: settings, sizes, artifact
-                                                           names, per-target fit statistics
+``prt``                   json                             the PRT section: settings, sizes, names, fits
 ``prt_lights``            json                             ``{"configurations": [[light, ...], ...]}``
-``prt_points``            npy (M·S, 9) float32             position xyz (m), normal xyz, albedo rgb of
-                                                           each measurement sample, grouped by point
-``prt_point_offsets``     npy (M + 1,) int32               point m averages rows offsets[m]:offsets[m+1]
-``prt_sh_transfer``       npy (C, n, D + 1) float32        mono: C = 3 (R, G, B), D = M; multi: C = 1,
+``prt_points``            table (M·S, 9) float32           position (m), normal, albedo per sample, by point
+``prt_point_offsets``     table (M + 1,) int32             point m averages rows offsets[m]:offsets[m+1]
+``prt_sh_transfer``       table (C, n, D + 1) float32      mono: C = 3 (R, G, B), D = M; multi: C = 1,
                                                            D = 3M (x interleaved rgb); acts on [x, ‖x‖]
-``prt_sh_basis_c{k}_g{g}`` ktx2 (nz, ny, nx, 4) float32   SH coefficient k of slots 4g..4g+3 (mono;
-                                                           slot 0 = mean); multi: slot g's rgb, a = 0
-``prt_lm_transfer``       npy (C, n, D + 1) float32        as prt_sh_transfer, for the lightmap
-``prt_lm_basis_g{g}``     ktx2 (R, R, 4) float32           lightmap slots 4g..4g+3 (multi: slot g rgb),
-                                                           dilated 2 texels
+``prt_sh_basis_c{k}_g{g}`` ktx2 (nz, ny, nx, 4) RGBA16F   SH coefficient k of slots 4g..4g+3 (0: mean; multi: g)
+``prt_lm_transfer``       table (C, n, D + 1) float32      as prt_sh_transfer, for the lightmap
+``prt_lm_basis_g{g}``     ktx2 (R, R, 4) float32           lightmap slots 4g..4g+3 (multi: g rgb), dilated
 ``prt_lm_mask``           ktx2 (R, R) uint8 (R8)           0 empty, 1 sampled texel, 2 dilated
-``prt_lm_uv``             npy (T, 3, 2) float32            the lightmap UV of every triangle corner
+``prt_lm_uv``             table (T, 3, 2) float32          the lightmap UV of every triangle corner
 ========================= ================================ ===========================================
-
-Relighting (:mod:`workers.prt_relight`): x from the new lights at the measurement points, then per channel
-``u = T_c [x_c, ‖x_c‖]`` (row 0 gives u_0 = ‖x_c‖), ``y_c = Σ_j u_j · slot_j`` (g⁻¹ with gamma; PRT eq 14).
+(table: a KTX2 one-channel 2D texture, R32_SFLOAT / R32_SINT, of the array's rows; proto/bundle.md 3)
+Relighting (:mod:`workers.prt_relight`): ``u = T_c [x_c, ‖x_c‖]``, ``y_c = Σ_j u_j · slot_j`` (PRT eq 14).
 """
 from __future__ import annotations
 
@@ -39,6 +31,7 @@ import time
 
 import numpy as np
 
+from workers.kernels import precision
 from workers.kernels.grid import unpack_atlas
 from workers.kernels.prt_dataset import PrtDataset, PrtTooLarge, build_dataset, fit_targets
 from workers.kernels.prt_scenario import triangle_areas
@@ -47,6 +40,17 @@ from workers.stages.base import Artifact, StageContext, StageError, StageOutput
 
 PRT_SEED_SALT = 0x505254
 """Mixed with the bake seed for the stage's random stream ("PRT")."""
+
+
+def _full_depth(tr) -> str:
+    return "depth_moments_full" if "depth_moments_full" in tr else "depth_moments"   # float32 (trace stage 2)
+
+
+def _basis(name: str, vol, k: int, g: int, channels: str) -> Artifact:
+    """A probe-SH basis volume, in half floats where they hold it (its PRT error: tests/bench/bench_formats.py)."""
+    data, vk, prec = precision.half(vol)
+    return Artifact(name, data, vk_format=vk, description=f"PRT probe basis: SH coefficient {k}, slot group {g}",
+                    meta={"coefficient": k, "group": g, "channels": channels, **prec})
 
 
 def prt_dataset(ctx: StageContext) -> PrtDataset:
@@ -62,7 +66,8 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
         return build_dataset(
             scene, caster_for_scene(scene), np.random.default_rng([ctx.config.seed, PRT_SEED_SALT]), grid=grid,
             dirs=tr["ray_directions"], hits=tr["ray_hits"], tri=tr["ray_tri"], states=tr["probe_states"].reshape(-1),
-            depth=unpack_atlas(tr["depth_moments"], grid["counts"], ctx.config.trace.depth_texels + 2),
+            depth=unpack_atlas(np.asarray(tr[_full_depth(tr)], np.float32), grid["counts"],
+                               ctx.config.trace.depth_texels + 2),
             positions=ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float32),
             bounds=bounds, scenario=scen.model_dump(), box=box, configurations=sec.configurations,
             n_points=sec.measurement_points, supersampling=sec.supersampling, lightmap=sec.lightmap,
@@ -82,15 +87,12 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
     """Step 4 (:func:`workers.kernels.prt_dataset.fit_targets`) and the artifacts."""
     sec, lsec, timings = ctx.config.prt, ctx.config.light, dict(ds.timings)
     t0 = time.perf_counter() if t0 is None else t0
-    points, lm, (N, P, K) = ds.points, ds.lightmap, ds.sh.shape[:3]
-    t3 = time.perf_counter()
+    points, lm, (N, P, K), t3 = ds.points, ds.lightmap, ds.sh.shape[:3], time.perf_counter()
     fitted = fit_targets(ds, basis=sec.basis, ridge=sec.ridge, gamma=sec.gamma, channels=sec.channels,
                          lightmap=sec.lightmap)
-    artifacts = [Artifact(name, np.ascontiguousarray(vol, np.float32),
-                          description=f"PRT probe basis: SH coefficient {k}, slot group {g}",
-                          meta={"coefficient": k, "group": g, "channels": sec.channels})
-                 for k, group in enumerate(fitted.sh_volumes) for g, (name, vol) in enumerate(group)]
-    artifacts.append(Artifact("prt_sh_transfer", fitted.sh.transfer, format="npy",
+    artifacts = [_basis(name, vol, k, g, sec.channels) for k, group in enumerate(fitted.sh_volumes)
+                 for g, (name, vol) in enumerate(group)]
+    artifacts.append(Artifact("prt_sh_transfer", np.asarray(fitted.sh.transfer, np.float32), table=True,
                               description="PRT transfer to the probe SH basis coefficients (PRT eq 14)"))
     lm_info = None
     if fitted.lm is not None:
@@ -98,10 +100,10 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
                                description="PRT lightmap basis (mono: four slots per texel, slot 0 = mean)")
                       for name, tex in fitted.lm.textures]
         artifacts += [
-            Artifact("prt_lm_transfer", fitted.lm.fit.transfer, format="npy",
+            Artifact("prt_lm_transfer", np.asarray(fitted.lm.fit.transfer, np.float32), table=True,
                      description="PRT transfer to the lightmap basis coefficients (PRT eq 14)"),
             Artifact("prt_lm_mask", fitted.lm.mask, description="lightmap texels: 0 empty, 1 sampled, 2 dilated"),
-            Artifact("prt_lm_uv", lm["uv"], format="npy", description="lightmap UV per triangle corner"),
+            Artifact("prt_lm_uv", np.asarray(lm["uv"], np.float32), table=True, description="lightmap UV per corner"),
         ]
         lm_info = {"resolution": sec.lightmap, "texels": int(lm["covered"].sum()),
                    "dilated": int((fitted.lm.mask == 2).sum()), "uv_source": lm["source"],
@@ -127,10 +129,9 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
         Artifact("prt", section, format="json", description="PRT section: settings, sizes, artifact names"),
         Artifact("prt_lights", {"configurations": ds.configs}, format="json",
                  description="the dataset's random lighting configurations"),
-        Artifact("prt_points", table, format="npy",
-                 description="measurement samples: position xyz, normal xyz, albedo rgb (grouped by point)"),
-        Artifact("prt_point_offsets", points["offsets"], format="npy",
-                 description="point m averages samples offsets[m]:offsets[m+1]"),
+        Artifact("prt_points", table, table=True, description="measurement samples: position, normal, albedo"),
+        Artifact("prt_point_offsets", np.asarray(points["offsets"], np.int32), table=True, description="samples of "
+                 "point m: offsets[m]:offsets[m+1]"),
     ]
     timings["total_seconds"] = time.perf_counter() - t0
     stats = {
@@ -139,8 +140,7 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
         "usable_surface_fraction": points["usable_fraction"], "front_hits": int(ds.probes["surf"].index.size),
         "bounces_mean": float(ds.bounces.mean()), "bounces_max": int(ds.bounces.max(initial=0)),
         "sh_energy_kept": fitted.sh_stats["energy_kept"], "sh_train_rmse": fitted.sh_stats["train_rmse"],
-        "lightmap_texels": lm_info["texels"] if lm_info else 0,
-        "warnings": (lm["warnings"] if lm else []) + (
+        "lightmap_texels": lm_info["texels"] if lm_info else 0, "warnings": (lm["warnings"] if lm else []) + (
             ["no configuration lit any measurement point: the transfer is zero"] if fitted.sh.columns == 0 else []),
         **timings,
     }

@@ -12,7 +12,9 @@ under a seeded random rotation (DDGI-I §3.2; one rotation for all probes, as DD
   and back-face flag, so later stages re-shade without re-tracing.
 
 Outputs: ``probe_states`` (nz, ny, nx, 1) uint8 volume (0 OFF, 1 ACTIVE, 2 SLEEPING);
-``depth_moments`` 2D atlas (ny·(n+2), nz·nx·(n+2), 2) float32 (grid.pack_atlas); internal
+``depth_moments`` 2D atlas (ny·(n+2), nz·nx·(n+2), 2) (grid.pack_atlas) RG16F where half floats hold it, else
+RG32F (:func:`workers.kernels.precision.half`; its GI error in tests/bench/bench_formats.py); internal
+``depth_moments_full``, the float32 atlas the light and PRT stages integrate with;
 ``ray_directions`` (R, 3) float32, ``ray_hits`` (P, R, 4) float32 (t (inf on miss), u, v, backface)
 and ``ray_tri`` (P, R) int32.
 """
@@ -23,6 +25,7 @@ import numpy as np
 from workers.kernels.classification import classify
 from workers.kernels.depth_moments import depth_moments, max_ray_distance
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
+from workers.kernels import precision
 from workers.kernels.materials import double_sided_triangles
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
 from workers.raycast import caster_for_scene
@@ -59,13 +62,17 @@ def run_trace(ctx: StageContext) -> StageOutput:
         "hit_fraction": float((tri >= 0).mean()) if tri.size else 0.0,
     }
     n2 = sec.depth_texels + 2
+    atlas = pack_atlas(depth, counts)
+    stored, vk, prec = precision.half(atlas)
     return StageOutput(
         artifacts=[
             Artifact("probe_states", states.reshape(nz, ny, nx, 1),
                      description="probe states: 0 off, 1 active, 2 sleeping", meta={"states": ["off", "active", "sleeping"]}),
-            Artifact("depth_moments", pack_atlas(depth, counts),
+            Artifact("depth_moments", stored, vk_format=vk,
                      description="octahedral mean distance and squared distance per probe, with border, metres",
-                     meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax}),
+                     meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax, **prec}),
+            Artifact("depth_moments_full", atlas, description="depth_moments in float32 (light and PRT stages)",
+                     meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax, **internal}),
             Artifact("ray_directions", dirs, format="npy", description="final probe ray directions", meta=internal),
             Artifact("ray_hits", hits, format="npy", description="per probe ray: t, u, v, backface", meta=internal),
             Artifact("ray_tri", tri.astype(np.int32), format="npy", description="per probe ray: triangle or -1",

@@ -29,6 +29,9 @@ export const VK_FORMATS = {
   103: { name: 'R32G32_SFLOAT', components: 2, typeSize: 4, kind: 'float' },
   106: { name: 'R32G32B32_SFLOAT', components: 3, typeSize: 4, kind: 'float' },
   109: { name: 'R32G32B32A32_SFLOAT', components: 4, typeSize: 4, kind: 'float' },
+  // one 32-bit word per texel: R bits 0-10, G 11-21 (5-bit exponent, 6-bit mantissa), B 22-31 (5 + 5); WebGL2's
+  // R11F_G11F_B10F (RGB + UNSIGNED_INT_10F_11F_11F_REV), filterable everywhere
+  122: { name: 'B10G11R11_UFLOAT_PACK32', components: 3, typeSize: 4, kind: 'ufloat-packed', texelBytes: 4 },
 };
 
 function typedView(kind, typeSize, bytes) {
@@ -41,6 +44,7 @@ function typedView(kind, typeSize, bytes) {
   if (kind === 'float') return new Float32Array(b, off, n);
   if (kind === 'half') return new Uint16Array(b, off, n);  // raw IEEE half bits: see halfToFloat
   if (kind === 'sint') return new Int32Array(b, off, n);
+  if (kind === 'ufloat-packed') return new Uint32Array(b, off, n);
   if (typeSize === 1) return new Uint8Array(b, off, n);
   if (typeSize === 2) return new Uint16Array(b, off, n);
   return new Uint32Array(b, off, n);
@@ -51,8 +55,10 @@ function typedView(kind, typeSize, bytes) {
  * @param {ArrayBuffer|Uint8Array} input
  * @returns {{vkFormat: number, format: string, components: number, typeSize: number, kind: string,
  *   width: number, height: number, depth: number, is3D: boolean, supercompression: number,
- *   kv: Record<string, string>, data: Float32Array|Uint16Array|Uint8Array|Uint32Array|Int32Array}}
- *   data holds width·height·max(depth,1)·components values, x fastest, then y, then z (bundle.md 4.6).
+ *   valuesPerTexel: number, kv: Record<string, string>,
+ *   data: Float32Array|Uint16Array|Uint8Array|Uint32Array|Int32Array}}
+ *   data holds width·height·max(depth,1)·valuesPerTexel values, x fastest, then y, then z (bundle.md 4.6):
+ *   valuesPerTexel = components, except 1 (a Uint32Array word) for the packed B10G11R11_UFLOAT_PACK32.
  *   Little-endian hosts only (every browser we target).
  */
 export function parseKTX2(input) {
@@ -83,7 +89,7 @@ export function parseKTX2(input) {
   const dfdOffset = u32(48), dfdLength = u32(52), kvdOffset = u32(56), kvdLength = u32(60);
   if (u64(64) !== 0 || u64(72) !== 0) throw new KTX2Error('supercompression global data is not in the subset');
   const levelOffset = u64(80), levelLength = u64(88), rawLength = u64(96);
-  const texelBytes = fmt.components * fmt.typeSize;
+  const texelBytes = fmt.texelBytes || fmt.components * fmt.typeSize;
   const expected = width * height * Math.max(depth, 1) * texelBytes;
   if (rawLength !== expected) {
     throw new KTX2Error(`uncompressedByteLength ${rawLength} != ${width}x${height}x${Math.max(depth, 1)} x ${texelBytes} bytes`);
@@ -127,6 +133,7 @@ export function parseKTX2(input) {
   }
   return {
     vkFormat, format: fmt.name, components: fmt.components, typeSize, kind: fmt.kind,
+    valuesPerTexel: fmt.texelBytes ? 1 : fmt.components,
     width, height, depth, is3D: depth > 0, supercompression: sc, kv,
     data: typedView(fmt.kind, typeSize, level),
   };
@@ -142,7 +149,45 @@ export function halfToFloat(h) {
   return s * (1 + f / 1024) * 2 ** (e - 15);
 }
 
-/** The texel values of a parsed KTX2 as plain numbers (halves decoded, UNORM as the stored integers). */
+/** An unsigned small float (5-bit exponent, bias 15, `m` mantissa bits) -> number (as proto/ktx2.py). */
+function ufloatToFloat(bits, m) {
+  const e = bits >>> m;
+  const f = bits & ((1 << m) - 1);
+  if (e === 0) return f * 2 ** (-14 - m);
+  if (e === 31) return f ? NaN : Infinity;
+  return (1 + f / (1 << m)) * 2 ** (e - 15);
+}
+
+/** B10G11R11_UFLOAT_PACK32 words -> Float32Array of r, g, b per texel. */
+export function unpackB10G11R11(words) {
+  const out = new Float32Array(words.length * 3);
+  for (let i = 0; i < words.length; i++) {
+    const w = words[i];
+    out[i * 3] = ufloatToFloat(w & 0x7ff, 6);
+    out[i * 3 + 1] = ufloatToFloat((w >>> 11) & 0x7ff, 6);
+    out[i * 3 + 2] = ufloatToFloat(w >>> 22, 5);
+  }
+  return out;
+}
+
+/**
+ * The texel values of a parsed KTX2 as plain numbers, `components` per texel (halves decoded, the packed
+ * format unpacked to r, g, b, UNORM as the stored integers).
+ */
 export function texelsAsNumbers(tex) {
+  if (tex.kind === 'ufloat-packed') return unpackB10G11R11(tex.data);
   return tex.kind === 'half' ? Float32Array.from(tex.data, halfToFloat) : tex.data;
+}
+
+/**
+ * A table artifact (proto/bundle.md 3: any array as a one-channel 2D KTX2 of its rows, `meta.ktx2.table`) in the
+ * form loader/npy.js gives: {dtype, shape, data}, data the level's typed array (Float32Array for R32_SFLOAT,
+ * Int32Array for R32_SINT, Uint32Array for R32_UINT, halves decoded), shape the manifest's.
+ */
+export function tableFromKTX2(tex, shape) {
+  const n = tex.width * tex.height * Math.max(tex.depth, 1) * tex.valuesPerTexel;
+  const count = (shape || []).reduce((a, b) => a * b, 1);
+  if (!shape || count !== n) throw new KTX2Error(`table of ${n} values does not fit shape [${shape}]`);
+  const dtype = { float: 'float32', half: 'float32', sint: 'int32', uint: `uint${8 * tex.typeSize}`, unorm: 'uint8' }[tex.kind];
+  return { dtype, shape: [...shape], data: tex.kind === 'half' ? texelsAsNumbers(tex) : tex.data };
 }

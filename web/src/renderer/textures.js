@@ -1,18 +1,21 @@
 /**
  * Parsed KTX2 artifacts (loader/ktx2.js) -> three.js textures. Float volumes sample with LINEAR filtering
  * where OES_texture_float_linear exists; elsewhere they are converted to half floats, which filter linearly
- * on every WebGL2 device (proto/bundle.md 4.3).
+ * on every WebGL2 device (proto/bundle.md 4.3), as do the half-float artifacts (RGBA16F, RG16F) and the packed
+ * B10G11R11_UFLOAT_PACK32 irradiance (uploaded as is: R11F_G11F_B10F, RGBFormat + UnsignedInt101111Type).
  */
 import {
   ClampToEdgeWrapping, Data3DTexture, DataTexture, DataUtils, FloatType, HalfFloatType, LinearFilter,
-  NearestFilter, RGBAFormat, RGFormat, RedFormat, UnsignedByteType,
+  NearestFilter, RGBAFormat, RGBFormat, RGFormat, RedFormat, UnsignedByteType, UnsignedInt101111Type,
 } from 'three';
+import { texelsAsNumbers } from '../loader/ktx2.js';
 
 const FORMATS = { 1: RedFormat, 2: RGFormat, 4: RGBAFormat };
 
 function widen(tex) {
-  // RGB (3 components) has no filterable float format in WebGL2 as a render-independent texture: pad to RGBA.
-  if (tex.components !== 3) return tex;
+  // RGB32F has no filterable format in WebGL2 as a render-independent texture: pad to RGBA (the packed
+  // B10G11R11 format is RGB and filterable as it is).
+  if (tex.components !== 3 || tex.kind === 'ufloat-packed') return tex;
   const n = tex.data.length / 3;
   const out = new tex.data.constructor(n * 4);
   for (let i = 0; i < n; i++) { out[i * 4] = tex.data[i * 3]; out[i * 4 + 1] = tex.data[i * 3 + 1]; out[i * 4 + 2] = tex.data[i * 3 + 2]; out[i * 4 + 3] = 1; }
@@ -26,10 +29,13 @@ function widen(tex) {
  */
 export function textureFromKTX2(ktx, { filter = 'linear', floatLinear = true } = {}) {
   const t = widen(ktx);
-  const format = FORMATS[t.components];
+  let format = FORMATS[t.components];
   let data = t.data;
   let type;
-  if (t.kind === 'float') {
+  if (t.kind === 'ufloat-packed') {
+    format = RGBFormat;
+    type = UnsignedInt101111Type;
+  } else if (t.kind === 'float') {
     type = FloatType;
     if (filter === 'linear' && !floatLinear) { data = Uint16Array.from(data, (x) => DataUtils.toHalfFloat(x)); type = HalfFloatType; }
   } else if (t.kind === 'half') {
@@ -66,7 +72,7 @@ export function wrapAtlas(ktx, counts, columns) {
   const t = ktx.height / ny;
   const C = nx * nz;
   const rows = Math.ceil(C / columns);
-  const comp = ktx.components;
+  const comp = ktx.valuesPerTexel ?? ktx.components;  // one packed word per texel for B10G11R11
   const width = columns * t;
   const height = rows * ny * t;
   const data = new ktx.data.constructor(width * height * comp);
@@ -87,21 +93,24 @@ export function wrapAtlas(ktx, counts, columns) {
 
 /**
  * Probe volumes (parsed KTX2, same size) stacked along z into one 3D texture: gi_grid.glsl giStackedUVW
- * (workers/render/shading.py stack_volumes: the bytes concatenated in slot order). RGBA32F, or RGBA16F when every
- * volume is half float (the mask stage's cluster volumes, proto/bundle.md 5.2); LINEAR.
+ * (workers/render/shading.py stack_volumes: the bytes concatenated in slot order). RGBA32F or RGBA16F (all of one
+ * kind), LINEAR.
  */
 export function stackedVolumeTexture(volumes, options = {}) {
   if (!volumes.length) throw new Error('no volumes to stack');
-  const vs = volumes.map(widen);
+  let vs = volumes.map(widen);
+  if (vs.some((v) => v.kind !== vs[0].kind)) {  // half and float volumes together (one fell back): all float
+    vs = vs.map((v) => (v.kind === 'half' ? { ...v, kind: 'float', data: texelsAsNumbers(v) } : v));
+  }
   const { width, height, depth, components, kind } = vs[0];
   for (const v of vs) {
-    if ((v.kind !== 'float' && v.kind !== 'half') || v.kind !== kind || v.width !== width || v.height !== height
+    if (!['float', 'half'].includes(v.kind) || v.kind !== kind || v.width !== width || v.height !== height
         || v.depth !== depth || v.components !== components) {
-      throw new Error(`stacked volumes must be float ${width}x${height}x${depth}x${components}, got ${v.format} ${v.width}x${v.height}x${v.depth}`);
+      throw new Error(`stacked volumes must be float or half, all ${kind} ${width}x${height}x${depth}x${components}, got ${v.format} ${v.width}x${v.height}x${v.depth}`);
     }
   }
   const per = vs[0].data.length;
-  const data = kind === 'half' ? new Uint16Array(per * vs.length) : new Float32Array(per * vs.length);
+  const data = new vs[0].data.constructor(per * vs.length);
   vs.forEach((v, s) => data.set(v.data, s * per));
   return textureFromKTX2({ ...vs[0], data, depth: Math.max(1, depth) * vs.length, is3D: true }, options);
 }

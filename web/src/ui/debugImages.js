@@ -4,6 +4,8 @@
  * "don't care" samples in red. Row 0 of an atlas is drawn at the top.
  */
 
+import { texelsAsNumbers } from '../loader/ktx2.js';
+
 function percentile(values, q) {
   const a = Float32Array.from(values).filter((x) => Number.isFinite(x)).sort();
   return a.length ? a[Math.min(a.length - 1, Math.floor(q * a.length))] : 1;
@@ -21,9 +23,10 @@ function toCanvas(canvas, width, height, fill) {
 
 const srgb8 = (c) => Math.round(255 * Math.min(1, Math.max(0, c <= 0.0031308 ? c * 12.92 : 1.055 * c ** (1 / 2.4) - 0.055)));
 
-/** Irradiance atlas (RGBA32F): linear RGB scaled so the 99th percentile is 1, then sRGB. */
+/** Irradiance atlas (RGBA16F, RGBA32F or the packed R11G11B10F): linear RGB scaled so the 99th percentile is 1, then sRGB. */
 export function drawIrradianceAtlas(canvas, atlas) {
-  const { width: W, height: H, components: C, data } = atlas;
+  const { width: W, height: H, components: C } = atlas;
+  const data = texelsAsNumbers(atlas);
   const lum = new Float32Array(W * H);
   for (let i = 0; i < W * H; i++) lum[i] = Math.max(data[i * C], data[i * C + 1], data[i * C + 2]);
   const scale = 1 / Math.max(1e-6, percentile(lum, 0.99));
@@ -35,9 +38,10 @@ export function drawIrradianceAtlas(canvas, atlas) {
   });
 }
 
-/** Depth-moment atlas (RG32F): mean distance, grey from 0 (black) to the 99th percentile (white). */
+/** Depth-moment atlas (RG16F or RG32F): mean distance, grey from 0 (black) to the 99th percentile (white). */
 export function drawDepthAtlas(canvas, atlas) {
-  const { width: W, height: H, components: C, data } = atlas;
+  const { width: W, height: H, components: C } = atlas;
+  const data = texelsAsNumbers(atlas);
   const d = new Float32Array(W * H);
   for (let i = 0; i < W * H; i++) d[i] = data[i * C];
   const scale = 1 / Math.max(1e-6, percentile(d, 0.99));

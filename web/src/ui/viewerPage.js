@@ -383,10 +383,10 @@ export function createViewerPage(app) {
     debugCanvas.style.aspectRatio = '';
     if (which === 'irradiance') {
       drawIrradianceAtlas(debugCanvas, got.irradiance);
-      debugNote.textContent = `${got.irradiance.width}×${got.irradiance.height} RGBA32F: one ${got.irradiance.height / viewer.bake.stages.find((s) => s.name === 'place').stats.counts[1]}-texel tile per probe (row j, column k·nx + i); scaled to the 99th percentile`;
+      debugNote.textContent = `${got.irradiance.width}×${got.irradiance.height} ${got.irradiance.format}: one ${got.irradiance.height / viewer.bake.stages.find((s) => s.name === 'place').stats.counts[1]}-texel tile per probe (row j, column k·nx + i); scaled to the 99th percentile`;
     } else if (which === 'depth') {
       drawDepthAtlas(debugCanvas, got.depth_moments);
-      debugNote.textContent = `${got.depth_moments.width}×${got.depth_moments.height} RG32F: mean ray distance per octahedral texel (black near, white far)`;
+      debugNote.textContent = `${got.depth_moments.width}×${got.depth_moments.height} ${got.depth_moments.format}: mean ray distance per octahedral texel (black near, white far)`;
     } else if (which === 'theta') {
       const vols = { theta0123: got.theta_0123, theta4567: got.theta_4567, dontCare: got.dont_care || null };
       sliceControls(vols.theta0123, {

@@ -12,6 +12,7 @@ import { hasShader } from '../renderer/shaders.js';
 import { probeDataTexture, stackedVolumeTexture, textureFromKTX2, wrapAtlas } from '../renderer/textures.js';
 import { atlasColumns } from '../math/atlas.js';
 import { parseNpy } from '../loader/npy.js';
+import { tableFromKTX2 } from '../loader/ktx2.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
 import { GI_MODES, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
 import { autoCamera } from './autocamera.js';
@@ -351,7 +352,8 @@ export class Viewer {
 
   // ------------------------------------------------------------------ PRT relighting
   /**
-   * Parse the PRT arrays once (npy: points, offsets, transfer) and place the relight light: the bake's
+   * Parse the PRT arrays once (KTX2 tables, or npy in older bakes: points, offsets, transfer) and place the
+   * relight light: the bake's
    * first point light, else the centre of the grid with the first scenario light's colour and intensity.
    */
   setupPrt() {
@@ -360,10 +362,14 @@ export class Viewer {
     if (sec.channels !== 'mono' || (sec.gamma !== null && sec.gamma !== undefined)) {
       throw new Error(`PRT relighting in the viewer needs a mono, linear basis (got channels ${sec.channels}, gamma ${sec.gamma})`);
     }
-    const npy = (n) => { const a = this.artifacts[n]; return a && a.shape ? a : parseNpy(a); };
-    const points = npy(sec.points || 'prt_points');
-    const offsets = npy(sec.point_offsets || 'prt_point_offsets');
-    const transfer = npy(sec.sh?.transfer || 'prt_sh_transfer');
+    const table = (n) => {
+      const a = this.artifacts[n];
+      if (a && a.shape) return a;
+      return a && a.vkFormat !== undefined ? tableFromKTX2(a, this.artifactInfo(n)?.shape) : parseNpy(a);
+    };
+    const points = table(sec.points || 'prt_points');
+    const offsets = table(sec.point_offsets || 'prt_point_offsets');
+    const transfer = table(sec.sh?.transfer || 'prt_sh_transfer');
     const n = Number(sec.basis);
     if (transfer.shape[0] !== 3 || transfer.shape[1] !== n) throw new Error(`prt_sh_transfer has shape ${transfer.shape}, want (3, ${n}, M + 1)`);
     const grid = bakeGrid(this.bake);
