@@ -161,17 +161,22 @@ def test_direct_norm_l1_and_l2():
 
 
 def test_cross_validated_ridge_follows_the_noise():
-    """ridge_cv: exactly linear data (60 configurations, 24 points: the transfer is determined) gets a tiny λ and is
-    reproduced; the same data with noise on the indirect gets a larger λ, which predicts held-out lights better
-    than the tiny one."""
+    """ridge_cv: exactly linear data (60 configurations, 24 points: the transfer is determined) gets the smallest λ
+    of the grid (with a grid from 0: λ = 0, and the data reproduced); the same data with noise on the indirect gets
+    a larger λ, which predicts held-out lights better than a tiny one."""
     x, y, A = _linear_dataset()
     exact = k.fit(x, y, 80, ridge_folds=4)
     scale = [float(np.sum((d - d.mean(0)) ** 2)) / len(d) for d in
              (x[..., c] / np.linalg.norm(x[..., c], axis=1, keepdims=True) for c in range(3))]
-    assert len(exact.ridges) == 3 and all(r <= 1e-3 * s for r, s in zip(exact.ridges, scale))
+    assert len(exact.ridges) == 3 and np.allclose(exact.ridges, k.RIDGE_GRID[0] * np.array(scale))
     xn = np.random.default_rng(9).random((24, 3)) * 5
     yn = np.einsum("clm,mc->lc", A, xn)
-    assert np.allclose(k.reconstruct(exact, xn), yn, rtol=1e-3, atol=1e-3 * np.abs(yn).max())
+    d = x[..., 0] / np.linalg.norm(x[..., 0], axis=1, keepdims=True)
+    f0 = k.fit(x, y, 80, ridge=0.0)
+    C = f0.slots[1:].astype(np.float64) @ (y[..., 0] / np.linalg.norm(x[..., 0], axis=1, keepdims=True)
+                                            - f0.slots[0]).T
+    assert k.ridge_cv(C, d, np.arange(60), 4, grid=(0.0, 1e-4, 1e-2, 1.0)) == 0.0
+    assert np.allclose(k.reconstruct(f0, xn), yn, rtol=1e-3, atol=1e-3 * np.abs(yn).max())
     rng = np.random.default_rng(1)
     x2, y2, _ = _linear_dataset(N=30)
     noisy = y2 + rng.normal(size=y2.shape) * 0.3 * np.abs(y2).mean()
@@ -179,5 +184,6 @@ def test_cross_validated_ridge_follows_the_noise():
     tiny = k.fit(x2, noisy, 16, ridge=1e-8)
     assert min(cv.ridges) > max(exact.ridges)
     held = [rng.random((24, 3)) * 5 for _ in range(8)]
-    err = lambda f: np.mean([np.mean((k.reconstruct(f, h) - np.einsum("clm,mc->lc", A, h)) ** 2) for h in held])  # noqa: E731
+    def err(f):
+        return np.mean([np.mean((k.reconstruct(f, h) - np.einsum("clm,mc->lc", A, h)) ** 2) for h in held])
     assert err(cv) < err(tiny)
