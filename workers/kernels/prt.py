@@ -9,8 +9,9 @@ coefficients, lightmap texels, :mod:`workers.kernels.lightmap`). From that datas
 - a basis (PRT §3.2 eq 7-8, §4.2): the mean of the normalized indirect vectors plus the first n - 1
   left singular vectors of the mean-subtracted ones, found from the N x N Gram matrix (Turk & Pentland,
   as PRT §4.2 does);
-- a transfer matrix per colour channel (PRT eq 14, ridge regression; eq 13's pseudo-inverse for λ = 0)
-  mapping a direct vector to the basis coefficients.
+- a transfer matrix per colour channel (PRT eq 14, ridge regression; eq 13's pseudo-inverse for λ = 0;
+  λ given, or chosen by cross-validation over the configurations, :func:`ridge_cv`) mapping a direct vector
+  to the basis coefficients.
 
 Conventions
 -----------
