@@ -284,6 +284,9 @@ class LightRange(_Strict):
     types: list[Literal["point", "spot", "directional"]] = Field(["point"], min_length=1)
     count: Int = Field(1, ge=1, le=8, description="lights per configuration")
     box: Box | None = Field(None, description="where point/spot lights are placed; default: the scene bounds")
+    near_surface: Float = Field(0.5, ge=0.0, le=1.0, description="share of point/spot lights placed close to a "
+                                "surface (near_distance along its normal) instead of uniformly in the box")
+    near_distance: tuple[Float, Float] = Field((0.02, 0.25), description="metres from the surface, min and max")
     color_min: Vec3 = Field((1.0, 1.0, 1.0), description="linear RGB, per channel lower bound")
     color_max: Vec3 = Field((1.0, 1.0, 1.0), description="linear RGB, per channel upper bound")
     intensity_min: Float = Field(1.0, ge=0.0, le=1e9)
@@ -296,6 +299,13 @@ class LightRange(_Strict):
             raise ValueError(f"color components must be in [0, {MAX_COLOR:g}]")
         return v
 
+    @field_validator("near_distance")
+    @classmethod
+    def _near_ok(cls, v: tuple[float, float]) -> tuple[float, float]:
+        if not 0 <= v[0] <= v[1]:
+            raise ValueError("near_distance must be (min, max) metres with 0 <= min <= max")
+        return v
+
 
 class PrtSection(_Strict):
     """Data-driven PRT (PRT §3-5; stage prt). Off unless enabled."""
@@ -306,7 +316,11 @@ class PrtSection(_Strict):
     measurement_points: Int = Field(256, ge=4, le=65536, description="M, blue-noise points on the surfaces")
     supersampling: Int = Field(1, ge=1, le=64, description="direct samples averaged per measurement point (§5.1)")
     basis: Int = Field(16, ge=1, le=512, description="n, basis vectors kept")
-    ridge: Float = Field(1e-3, ge=0.0, le=1e3, description="λ of eq 14 (0 = pseudo-inverse, eq 13)")
+    ridge: Float = Field(1e-2, ge=0.0, le=1e3, description="λ of eq 14 (0 = pseudo-inverse, eq 13) if ridge_folds = 0")
+    ridge_folds: Int = Field(4, ge=0, le=32, description="choose λ of eq 14 by this many-fold cross-validation over "
+                             "the configurations (0: use ridge)")
+    norm: Literal["l1", "l2"] = Field("l1", description="‖x‖ that normalizes the dataset (§4.2): l1 (sum, the "
+                                      "reflected power) or l2")
     gamma: Float | None = Field(None, gt=0.0, le=4.0, description="work in gamma space with this exponent (§5.3)")
     channels: Literal["mono", "multi"] = Field("mono", description="mono: one basis for each colour channel (§5.2)")
     lightmap: Int = Field(256, ge=0, le=4096, description="lightmap resolution (0 = no lightmap target)")

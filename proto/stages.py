@@ -57,8 +57,9 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("masks", 2, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
     StageDef("compress", 2, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
-    # prt 2: the npy tables as KTX2 tables, the SH basis volumes RGBA16F (proto/bundle.md 5.3)
-    StageDef("prt", 2, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
+    # prt 2: the npy tables as KTX2 tables, the SH basis volumes RGBA16F (proto/bundle.md 5.3); 3: lights near
+    # surfaces in the scenario, the L1 norm, cross-validated ridge (issue 14, artifact 5)
+    StageDef("prt", 3, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones
     StageDef("reference", 2, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),

@@ -67,6 +67,11 @@ class PrtModel:
     def gamma(self) -> float | None:
         return self.section["gamma"]
 
+    @property
+    def norm(self) -> str:
+        """‖x‖ of ``[x, ‖x‖]``: ``"l1"`` or ``"l2"`` (bundles before the field: l2)."""
+        return self.section.get("norm", "l2")
+
     @classmethod
     def from_arrays(cls, arrays) -> "PrtModel":
         """Unpack the ``prt`` stage's artifacts (``{name: array or dict}``; see workers/stages/prt.py)."""
@@ -114,12 +119,12 @@ def _apply(model: PrtModel, target: _Target, x: np.ndarray) -> np.ndarray:
     xg = kprt.gamma_encode(x, model.gamma)
     T = target.transfer
     if model.channels == "mono":
-        xa = np.concatenate([xg, np.linalg.norm(xg, axis=0)[None]], axis=0).astype(np.float32)  # [x_c, ‖x_c‖]
+        xa = np.concatenate([xg, kprt.direct_norm(xg, 0, model.norm)[None]], axis=0).astype(np.float32)  # [x_c, ‖x_c‖]
         u = np.einsum("cnm,mc->nc", T, xa)                        # (n, 3): one transfer per channel
         y = target.slots @ u                                      # (L, 3)
     else:
         flat = xg.reshape(-1)
-        u = T[0] @ np.append(flat, np.linalg.norm(flat)).astype(np.float32)
+        u = T[0] @ np.append(flat, kprt.direct_norm(flat, None, model.norm)).astype(np.float32)
         y = (target.slots @ u).reshape(-1, 3)
     return kprt.gamma_decode(y, model.gamma).astype(np.float32, copy=False)
 

@@ -13,7 +13,8 @@ logo piece; xatlas UVs for the rest) this
 2. times ``workers.prt_relight.relight`` (median and 95th percentile of 200 calls after a warm-up): on the
    bake itself, and on a model of a 16x32x16 SH volume (the bake's measurement points and transfer, random
    basis volumes of that size: latency does not depend on their values); target 5 ms;
-3. draws held-out lighting configurations from the same scenario (another seed), computes the light
+3. draws held-out lighting configurations from the same scenario (another seed; uniform in the box: the
+   dataset's ``near_surface`` share is not applied to them, they are the ordinary case), computes the light
    stage's result for each (``light.integrate`` on the cached hits, emission excluded, sky 0), and reports
    the RMSE of the relit probe SH and lightmap against it for n = 1 .. 64 basis, next to the RMSE of
    projecting the reference onto the same basis (PRT Fig 14), as a table, a PNG plot and JSON.
@@ -182,7 +183,11 @@ def main(argv=None) -> dict:
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--lightmap", type=int, default=256)
     ap.add_argument("--heldout", type=int, default=16)
-    ap.add_argument("--ridge", type=float, default=1e-3)
+    ap.add_argument("--ridge", type=float, default=None, help="λ of eq 14 (default: prt.ridge's)")
+    ap.add_argument("--norm", choices=("l1", "l2"), default=None, help="‖x‖ of §4.2 (default: prt.norm's)")
+    ap.add_argument("--ridge-folds", type=int, default=None, help="cross-validated λ (default: prt.ridge_folds's)")
+    ap.add_argument("--near", type=float, default=None,
+                    help="share of the dataset's lights near a surface (default: prt.scenario.near_surface's)")
     ap.add_argument("--supersampling", type=int, default=1)
     ap.add_argument("--png", default=str(Path(tempfile.gettempdir()) / "kiln_prt_rmse.png"))
     args = ap.parse_args(argv)
@@ -204,9 +209,12 @@ def main(argv=None) -> dict:
         cfg = BakeConfig.model_validate({
             "place": {"counts": counts}, "trace": {"rays_per_probe": args.rays},
             "prt": {"enabled": True, "configurations": args.configs, "measurement_points": args.points,
-                    "basis": args.basis, "lightmap": args.lightmap, "ridge": args.ridge,
-                    "supersampling": args.supersampling,
-                    "scenario": SCENARIOS[args.scenario]}})
+                    "basis": args.basis, "lightmap": args.lightmap, "supersampling": args.supersampling,
+                    **({"ridge": args.ridge} if args.ridge is not None else {}),
+                    **({"norm": args.norm} if args.norm else {}),
+                    **({"ridge_folds": args.ridge_folds} if args.ridge_folds is not None else {}),
+                    "scenario": {**SCENARIOS[args.scenario],
+                                 **({"near_surface": args.near} if args.near is not None else {})}}})
         t_ingest = time.perf_counter()
         scene = ingest_file(zip_scene(tmp / "cornell2.zip"))
         t_ingest = time.perf_counter() - t_ingest
@@ -255,8 +263,9 @@ def main(argv=None) -> dict:
         xs = [prt_relight.direct_vector(model, L, caster) for L in held]
         N, P, K = ds.sh.shape[:3]
         nmax = max(BASIS_COUNTS)
-        fit_sh = kprt.fit(ds.direct, ds.sh.reshape(N, P * K, 3), nmax, cfg.prt.ridge, cfg.prt.gamma, cfg.prt.channels)
-        fit_lm = (kprt.fit(ds.direct, ds.texels, nmax, cfg.prt.ridge, cfg.prt.gamma, cfg.prt.channels)
+        fa = (cfg.prt.ridge, cfg.prt.gamma, cfg.prt.channels, cfg.prt.norm, cfg.prt.ridge_folds)
+        fit_sh = kprt.fit(ds.direct, ds.sh.reshape(N, P * K, 3), nmax, *fa)
+        fit_lm = (kprt.fit(ds.direct, ds.texels, nmax, *fa)
                   if ds.texels is not None and ds.texels.shape[1] else None)
         sh_true = [r[0].reshape(-1, 3) for r in refs]
         sh_rms = float(np.sqrt(np.mean(np.square(sh_true))))
@@ -282,7 +291,9 @@ def main(argv=None) -> dict:
         shipped = rmse([prt_relight.relight(model, L, caster)["probe_sh"].reshape(-1, 3) for L in held], sh_true)
 
     print(f"\nPRT on cornell-box-vinc3r, scenario {args.scenario}: N = {args.configs}, M = {args.points}, "
-          f"n = {args.basis}, grid {args.grid} x {args.rays} rays, lightmap {args.lightmap}^2")
+          f"n = {args.basis}, grid {args.grid} x {args.rays} rays, lightmap {args.lightmap}^2, ridge {cfg.prt.ridge:g},"
+          f" norm {cfg.prt.norm}, ridge folds {cfg.prt.ridge_folds}, near share {cfg.prt.scenario.near_surface:g}"
+          f" (λ used {arrays['prt']['sh']['ridge_used']})")
     print("\nbake (seconds)")
     for k in ("ingest_upload_s", "place_s", "relocate_s", "trace_s", "light_s", "prt_stage_s", "prt_write_s",
               "prt_total_s", "chain_total_s"):

@@ -25,10 +25,11 @@ def _linear_dataset(N=60, M=24, L=150, seed=0):
     return x, y, A
 
 
+@pytest.mark.parametrize("norm", ["l2", "l1"])
 @pytest.mark.parametrize("ridge", [0.0, 1e-8])
-def test_mono_fit_reproduces_linear_transport_with_enough_basis(ridge):
+def test_mono_fit_reproduces_linear_transport_with_enough_basis(ridge, norm):
     x, y, A = _linear_dataset()
-    f = k.fit(x, y, 80, ridge=ridge)          # one basis for 3 channels: the data spans 3·24 (+ mean) dimensions
+    f = k.fit(x, y, 80, ridge=ridge, norm=norm)   # one basis for 3 channels: the data spans 3·24 (+ mean) dimensions
     assert f.slots.shape == (80, 150) and f.transfer.shape == (3, 80, 25)
     assert np.allclose(f.transfer[:, 0], np.r_[np.zeros(24), 1.0])   # u_0 = ‖x‖
     rng = np.random.default_rng(9)
@@ -36,8 +37,9 @@ def test_mono_fit_reproduces_linear_transport_with_enough_basis(ridge):
         xn = rng.random((24, 3)) * 5
         yn = np.einsum("clm,mc->lc", A, xn)
         assert np.allclose(k.reconstruct(f, xn), yn, rtol=1e-4, atol=1e-4 * np.abs(yn).max())
-    U = f.slots[1:73].astype(np.float64)
-    assert np.allclose(U @ U.T, np.eye(72), atol=1e-5)   # orthonormal basis vectors
+    r = 72 if norm == "l2" else 69            # l1: x/‖x‖₁ lies on the plane Σ = 1, centred rank 23 per channel
+    U = f.slots[1:1 + r].astype(np.float64)
+    assert np.allclose(U @ U.T, np.eye(r), atol=1e-5)    # orthonormal basis vectors
 
 
 def test_multi_channel_fit_and_projection():
@@ -59,11 +61,12 @@ def test_truncation_is_nested_and_projection_bounds_reconstruction():
     assert errs == sorted(errs, reverse=True)
 
 
+@pytest.mark.parametrize("norm", ["l2", "l1"])
 @pytest.mark.parametrize("gamma", [None, 2.2])
 @pytest.mark.parametrize("channels", ["mono", "multi"])
-def test_relighting_is_homogeneous(gamma, channels):
+def test_relighting_is_homogeneous(gamma, channels, norm):
     x, y, _ = _linear_dataset()
-    f = k.fit(x, y, 8, ridge=1e-3, gamma=gamma, channels=channels)
+    f = k.fit(x, y, 8, ridge=1e-3, gamma=gamma, channels=channels, norm=norm)
     xn = np.random.default_rng(4).random((24, 3))
     assert np.allclose(k.reconstruct(f, 2 * xn), 2 * k.reconstruct(f, xn), rtol=1e-9, atol=1e-12)
     assert np.allclose(k.reconstruct(f, np.zeros((24, 3))), 0)
@@ -144,3 +147,43 @@ def test_fit_stats_of_an_exact_fit():
     short = k.fit_stats(f.truncated(8), x, y)   # fewer slots: less energy, larger error
     assert short["energy_kept"] < st["energy_kept"] and short["train_rmse"] > 100 * st["train_rmse"]
     assert st["singular_values"] == f.singular[:min(64, f.singular.size)].tolist()
+
+
+def test_direct_norm_l1_and_l2():
+    x = np.array([[3.0, -1.0], [4.0, 2.0]])
+    assert np.allclose(k.direct_norm(x, 0, "l2"), [5.0, math.sqrt(5.0)])
+    assert np.allclose(k.direct_norm(x, 0, "l1"), [7.0, 3.0])
+    assert k.direct_norm(x, None, "l1") == pytest.approx(10.0)
+    with pytest.raises(ValueError):
+        k.direct_norm(x, 0, "max")
+    f = k.fit(*_linear_dataset()[:2], 4, norm="l1")
+    assert f.norm == "l1" and f.truncated(2).norm == "l1"
+
+
+def test_cross_validated_ridge_follows_the_noise():
+    """ridge_cv: exactly linear data (60 configurations, 24 points: the transfer is determined) gets the smallest λ
+    of the grid (with a grid from 0: λ = 0, and the data reproduced); the same data with noise on the indirect gets
+    a larger λ, which predicts held-out lights better than a tiny one."""
+    x, y, A = _linear_dataset()
+    exact = k.fit(x, y, 80, ridge_folds=4)
+    scale = [float(np.sum((d - d.mean(0)) ** 2)) / len(d) for d in
+             (x[..., c] / np.linalg.norm(x[..., c], axis=1, keepdims=True) for c in range(3))]
+    assert len(exact.ridges) == 3 and np.allclose(exact.ridges, k.RIDGE_GRID[0] * np.array(scale))
+    xn = np.random.default_rng(9).random((24, 3)) * 5
+    yn = np.einsum("clm,mc->lc", A, xn)
+    d = x[..., 0] / np.linalg.norm(x[..., 0], axis=1, keepdims=True)
+    f0 = k.fit(x, y, 80, ridge=0.0)
+    C = f0.slots[1:].astype(np.float64) @ (y[..., 0] / np.linalg.norm(x[..., 0], axis=1, keepdims=True)
+                                            - f0.slots[0]).T
+    assert k.ridge_cv(C, d, np.arange(60), 4, grid=(0.0, 1e-4, 1e-2, 1.0)) == 0.0
+    assert np.allclose(k.reconstruct(f0, xn), yn, rtol=1e-3, atol=1e-3 * np.abs(yn).max())
+    rng = np.random.default_rng(1)
+    x2, y2, _ = _linear_dataset(N=30)
+    noisy = y2 + rng.normal(size=y2.shape) * 0.3 * np.abs(y2).mean()
+    cv = k.fit(x2, noisy, 16, ridge_folds=5)
+    tiny = k.fit(x2, noisy, 16, ridge=1e-8)
+    assert min(cv.ridges) > max(exact.ridges)
+    held = [rng.random((24, 3)) * 5 for _ in range(8)]
+    def err(f):
+        return np.mean([np.mean((k.reconstruct(f, h) - np.einsum("clm,mc->lc", A, h)) ** 2) for h in held])
+    assert err(cv) < err(tiny)

@@ -78,6 +78,27 @@ def test_random_lights_are_redrawn_inside_geometry():
     assert all(c[0]["position"][0] >= 0.5 for c in cfgs)
 
 
+def test_a_share_of_the_lights_stands_near_a_surface():
+    """near_surface s: about s of the point/spot lights are near_distance off the floor (along its normal), the
+    rest uniform in the box; near points outside the box are drawn again; s = 0 draws as before."""
+    sc = {"types": ["point", "spot"], "count": 1, "color_min": (1, 1, 1), "color_max": (1, 1, 1),
+          "intensity_min": 1.0, "intensity_max": 1.0}
+    near = k.near_surface_sampler(_floor(), np.random.default_rng(2), (0.02, 0.1))
+    box = ((0, 0, 0), (2, 2, 2))                                             # the floor's 2 m², not the black patch
+    plain = k.random_light_configurations(np.random.default_rng(3), sc, 400, *box)
+    assert k.random_light_configurations(np.random.default_rng(3), {**sc, "near_surface": 0.0}, 400, *box,
+                                         near=near) == plain
+    cfgs = k.random_light_configurations(np.random.default_rng(3), {**sc, "near_surface": 0.5}, 400, *box, near=near)
+    p = np.array([c[0]["position"] for c in cfgs])
+    assert np.all(p >= 0) and np.all(p <= 2)
+    close = p[:, 1] <= 0.1
+    assert (p[:, 1] < 0.02).mean() < 0.03                                    # only uniform ones (1 % of them)
+    # near points above the black patch (x > 3, outside the box) are drawn again; uniform ones: 5 % below 10 cm
+    assert close.mean() == pytest.approx(0.5 + 0.5 * 0.05, abs=0.07)
+    plain_p = np.array([c[0]["position"] for c in plain])
+    assert (plain_p[:, 1] <= 0.1).mean() < 0.1                               # uniform: 5 % below 10 cm
+
+
 # -------------------------------------------------------------------------------- measurement points
 def _floor(size=2.0, albedo=(0.5, 0.25, 1.0)):
     """A size x size floor at y = 0 facing up, and a 1 m² patch of zero albedo beside it."""

@@ -16,7 +16,9 @@ Measured at HEAD 6a4925b (numbers in each test's docstring; llvmpipe, this 2-cor
    the panel); fixed (the spot sampled from the light, workers/kernels/light_spots.py), tested.
 4. plain mask GI halo around a doorway: reproduced at coarse grids; re-measured, the ring is right and the wall
    away from the door dark (eq 3 unnormalized, where the grid straddles the wall), xfail.
-5. PRT hotspot / near-black walls: reproduced, the linear transfer's generalization, xfail.
+5. PRT hotspot / near-black walls: reproduced, the linear transfer's generalization; improved (lights near
+   surfaces in the scenario, L1 direct norm, cross-validated ridge: near-black 0.050 -> 0.007, relative RMS
+   0.55 -> 0.37), still xfail on the RMS (0.3; the 16-slot basis's own projection is 0.33-0.36 there).
 6. found on the way: DDGI rendered 0 on grids whose atlas is wider than GL_MAX_TEXTURE_SIZE: fixed, tested.
 """
 from __future__ import annotations
@@ -245,7 +247,7 @@ PRT_CFG = {"place": {"counts": [8, 8, 8]}, "trace": {"rays_per_probe": 128}, "vi
            "prt": {"enabled": True, "lightmap": 0, "configurations": 64}}
 
 
-@pytest.mark.xfail(strict=True, reason="the PRT transfer's generalization to a light near a surface (docstring)")
+@pytest.mark.xfail(strict=True, reason="relative RMS 0.37 > 0.3: a 16-slot basis of 64 configurations (docstring)")
 def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     """Artifact 5: PRT's indirect-only view shows a saturated hotspot and near-black walls (Cornell).
 
@@ -253,11 +255,11 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     (prt_relight.relight) against the light stage's own bounce loop for that light on the same probe rays
     (prt_reference.light_stage_reference: what the transfer is fit to). Numbers at the probes, over the 6 axis normals
     (L2): the fraction of probe directions that the reference lights (> 0.2 x median) but PRT gives < 0.1 of it
-    (near-black), and PRT's relative RMS error. Measured (64 configurations, basis 16): near-black 0.050, relative RMS
-    0.55; at 128 configurations 0.16 and 1.4 (0.27-0.56 for lights 10-15 cm from a wall, 0.11 in the middle of the
-    box). More basis vectors do not help
-    (16 -> 128: 1.99 -> 1.98 at 128 configurations): the error is the transfer's (eq 14's ridge regression from the
-    256 measurement points' direct light), which generalizes poorly to a light close to a surface — a sharp,
+    (near-black), and PRT's relative RMS error. Measured before the fix below (64 configurations, basis 16):
+    near-black 0.050, relative RMS 0.55; at 128 configurations 0.16 and 1.4 (0.27-0.56 for lights 10-15 cm from
+    a wall, 0.11 in the middle of the box). More basis vectors do not help (16 -> 128: 1.99 -> 1.98 at 128
+    configurations): the error is the transfer's (eq 14's ridge regression from the 256 measurement points'
+    direct light), which generalizes poorly to a light close to a surface — a sharp,
     local response outside what a linear map fit to N random configurations spans — and the reconstruction then
     rings: an overshoot at the light and negative (clamped: black) SH elsewhere. Even on its training
     configurations the relative error is 0.12-0.7. Behaviour of data-driven PRT at this N and M (PRT §4); fixes
@@ -266,6 +268,31 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     For the scene's own light (1 cd, 1 cm under the emitter panel) part of the hotspot is real: the reference's
     brightest probe direction is 87x the median (the panel's underside lit to ~10⁴ lux, see artifact 3); PRT reads
     31x there, with relative RMS 0.84.
+
+    Fixed in the prt stage (PRT §4.1-4.3), defaults: (1) the scenario places half of its point/spot lights 2-25 cm
+    off a surface (``prt.scenario.near_surface`` 0.5, ``near_distance``; PRT §4.1 lets the scenario define the
+    distribution); (2) the dataset is normalized by the L1 norm of x (``prt.norm`` "l1"; §4.2 says only "the norm":
+    the L2 norm of a concentrated direct field, 0.26 of its L1 norm here against 0.16 for the median random light,
+    overshoots the mean's coefficient); (3) λ of eq 14 by 4-fold cross-validation over the configurations
+    (``prt.ridge_folds``, relative grid 0.1-1, kernels/prt.py RIDGE_GRID). Numbers (near-black, relative RMS):
+
+    ====================================================== ============ =============
+    before (uniform lights, L2 norm, λ = 1e-3)              0.050        0.55
+    + lights near surfaces                                  0.009        0.41
+    + L1 norm, λ = 0.01 fixed                               0.006        0.37
+    + L1 norm, cross-validated λ (grid from 0)              0.024        0.41
+    + L1 norm, cross-validated λ (grid from 0.1): shipped   0.007        0.37
+    L2 norm, cross-validated λ, lights near surfaces        0.000        0.39
+    ====================================================== ============ =============
+
+    The near-black fraction passes; the RMS does not, and cannot at this N and n: projecting the reference itself
+    onto the fitted 16-slot basis (kprt.project, the best any transfer can do) leaves 0.33 (L2) / 0.36 (L1); all
+    64 configurations as basis 0.24. A second seed (bake seed 2) scatters a lot at N = 64 (before: 0.175 and 1.28;
+    shipped: 0.003 and 0.41). Ordinary lights are not worse: 12 held-out uniform lights in this box, mean relative
+    RMS (same metric) 0.66 -> 0.485 (seed 2: 0.60 -> 0.47); tests/bench/bench_prt.py on cornell-box-vinc3r
+    (64 configurations, 6³ probes, 128 rays, lightmap 64², 8 held-out, SH / lightmap RMSE at n = 16): room
+    0.147 / 0.167 -> 0.138 / 0.170, front 0.017 / 0.017 -> 0.019 / 0.027 (front: the old fit, L2 and λ = 1e-3, on
+    the redrawn dataset gives 0.018 / 0.024: most of that is the dataset's random draw, not the fit).
     """
     from proto.models import BakeConfig
     from tests.workers.prt_reference import light_stage_reference

@@ -366,9 +366,10 @@ def _prt_expected(kiln_server, bake_id, light) -> np.ndarray:
         return load_artifact(r.content, ArtifactInfo(**infos[name]))
 
     table, offsets, T = array("prt_points").astype(np.float64), array("prt_point_offsets"), array("prt_sh_transfer")
+    sec = httpx.get(f"{kiln_server.url}/v1/bakes/{bake_id}/artifacts/prt", timeout=30).json()
     e = direct_irradiance(table[:, :3], table[:, 3:6], [light], None, 1e-3)  # caster None: unshadowed
     x = kprt.group_mean(table[:, 6:9] / np.pi * e, offsets.astype(np.int64))
-    xa = np.concatenate([x, np.linalg.norm(x, axis=0)[None]], axis=0)
+    xa = np.concatenate([x, kprt.direct_norm(x, 0, sec.get("norm", "l2"))[None]], axis=0)   # ‖x‖: the bake's norm
     return np.einsum("cnm,mc->nc", T.astype(np.float64), xa)
 
 

@@ -70,6 +70,11 @@ def heldout(cornell):
     return lights, xs, [r[0].reshape(-1, 3) for r in refs], [r[1] for r in refs]
 
 
+def _fit(ds, data, n, sec):
+    """The stage's fit (workers.kernels.prt_dataset.fit_targets) of ``data`` with n slots and ``sec``'s settings."""
+    return kprt.fit(ds.direct, data, n, sec.ridge, sec.gamma, sec.channels, sec.norm, sec.ridge_folds)
+
+
 def _rmse(a, b):
     return float(np.sqrt(np.mean((np.asarray(a, np.float64) - np.asarray(b, np.float64)) ** 2)))
 
@@ -169,7 +174,7 @@ def test_heldout_relight_close_to_projection_and_better_with_more_basis(cornell,
     N, P, K = ds.sh.shape[:3]
     sec = ctx.config.prt
     for data, truth, bound in ((ds.sh.reshape(N, P * K, 3), sh_true, 1.2), (ds.texels, tex_true, 2.0)):
-        f = kprt.fit(ds.direct, data, 64, sec.ridge, sec.gamma, sec.channels)
+        f = _fit(ds, data, 64, sec)
         relit = {n: _rmse([kprt.reconstruct(f.truncated(n), x) for x in xs], truth) for n in (4, 16, 64)}
         proj16 = _rmse([kprt.project(f.truncated(16), x, y) for x, y in zip(xs, truth)], truth)
         rms = float(np.sqrt(np.mean(np.square(truth))))
@@ -192,16 +197,17 @@ def test_relight_linear_and_reproduces_the_dataset(cornell):
         assert np.allclose(two[name][..., rgb], 2 * one[name][..., rgb], atol=1e-5 * scale)
     zero = prt_relight.relight(model, [], caster)                       # no lights, no light
     assert all(not np.any(v[..., :3]) for v in zero.values())
-    # the dataset's own configurations come back up to the truncation error of n = 16 slots
+    # the dataset's own configurations come back up to the truncation error of n = 16 slots (within 20 %: the
+    # cross-validated ridge, λ >= 0.1 of the data's scale, gives up some training fit for held-out lights; 1.10 here)
     N, P, K = ds.sh.shape[:3]
-    f = kprt.fit(ds.direct, ds.sh.reshape(N, P * K, 3), 16, ctx.config.prt.ridge)
+    f = _fit(ds, ds.sh.reshape(N, P * K, 3), 16, ctx.config.prt)
     rel, proj, truth = [], [], []
     for k in range(0, N, 8):
         y = ds.sh[k].reshape(-1, 3)
         rel.append(prt_relight.relight(model, ds.configs[k], caster, lightmap=False)["probe_sh"].reshape(-1, 3))
         proj.append(kprt.project(f, ds.direct[k], y))
         truth.append(y)
-    assert _rmse(rel, truth) <= 1.1 * _rmse(proj, truth)
+    assert _rmse(rel, truth) <= 1.2 * _rmse(proj, truth)
     # the float32 relight path equals the kernel's reconstruction
     assert np.allclose(rel[0], kprt.reconstruct(f, ds.direct[0]), rtol=1e-3, atol=1e-4 * np.abs(truth[0]).max())
     assert one["sh_l1_g"].shape == (4, 4, 4, 4) and np.array_equal(one["sh_l1_g"], one["probe_sh"][..., :4, 1])
@@ -233,11 +239,11 @@ def test_variants_round_trip_through_the_bundle_format(tmp_path, scene_files, pr
     # the unpacked textures give the kernel's reconstruction (float32 vs float64)
     sec = ctx.config.prt
     N, P, K = ds.sh.shape[:3]
-    f = kprt.fit(ds.direct, ds.sh.reshape(N, P * K, 3), 6, sec.ridge, sec.gamma, sec.channels)
+    f = _fit(ds, ds.sh.reshape(N, P * K, 3), 6, sec)
     want = kprt.reconstruct(f, scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
     assert np.allclose(a["probe_sh"].reshape(-1, 3), want, rtol=1e-3, atol=1e-4 * np.abs(want).max())
     if ds.texels is not None:
-        g = kprt.fit(ds.direct, ds.texels, 6, sec.ridge, sec.gamma, sec.channels)
+        g = _fit(ds, ds.texels, 6, sec)
         want = kprt.reconstruct(g, scenario.measurement_direct(ds.points, L, caster, ds.probes["eps"]))
         got = a["lightmap"].reshape(-1, 4)[ds.lightmap["covered"].ravel(), :3]
         assert np.allclose(got, want, rtol=1e-3, atol=1e-4 * np.abs(want).max())

@@ -51,6 +51,14 @@ describe('PRT relight math (workers/prt_relight.py, unshadowed)', () => {
     const u = relightCoefficients(transfer, FX.n, directVector(table, offsets, FX.lights));
     close(u, FX.u, 1e-5);
   });
+  it('coefficients with the L1 norm (prt.norm "l1": u_c = T_c [x_c, sum |x_c|]) = numpy', () => {
+    const uL1 = [-0.023428753477227948, 1.637803380372787, 5.443410795197694, 0.6069270866135194, -0.22194303405053817,
+      4.796876238194207, 0.8083515270405587, 0.02837077713271663, 2.672133101490915, 5.585696153887174,
+      -0.13922926217794074, 4.0901416286700405, 1.6114286769062427, -2.773744527880377, 6.084302840192413,
+      -0.3204936056520822, -1.0278973066279977, -3.3397706253402437];  // kprt.direct_norm(x, 0, "l1"), the einsum
+    close(relightCoefficients(transfer, FX.n, Float64Array.from(FX.x), 'l1'), uL1, 1e-5);
+    close(relightCoefficients(transfer, FX.n, Float64Array.from(FX.x), 'l2'), FX.u, 1e-5);
+  });
   it('packs uPrtCoef as mode_prt.glsl reads it', () => {
     const u = Float64Array.from(FX.u);
     const c = packPrtCoefficients(u, FX.n, 16);

@@ -9,8 +9,9 @@ coefficients, lightmap texels, :mod:`workers.kernels.lightmap`). From that datas
 - a basis (PRT §3.2 eq 7-8, §4.2): the mean of the normalized indirect vectors plus the first n - 1
   left singular vectors of the mean-subtracted ones, found from the N x N Gram matrix (Turk & Pentland,
   as PRT §4.2 does);
-- a transfer matrix per colour channel (PRT eq 14, ridge regression; eq 13's pseudo-inverse for λ = 0)
-  mapping a direct vector to the basis coefficients.
+- a transfer matrix per colour channel (PRT eq 14, ridge regression; eq 13's pseudo-inverse for λ = 0;
+  λ given, or chosen by cross-validation over the configurations, :func:`ridge_cv`) mapping a direct vector
+  to the basis coefficients.
 
 Conventions
 -----------
@@ -31,6 +32,13 @@ Conventions
   has no intercept, but its coefficients ``C = Uᵀ(y/‖x‖ - μ)`` are affine, not linear, in x/‖x‖
   (the constant -Uᵀμ), so without it even exactly linear data is not reproduced. This stays
   homogeneous: doubling the lights doubles y.
+  **Which norm** (``norm``; PRT §4.2 says only "the norm of the direct vector"): ``"l2"``, or ``"l1"``
+  (Σ_m |x_m|: with blue-noise points, proportional to the power the surfaces reflect, which is what the
+  indirect light scales with). A light close to a surface concentrates x on a few points: its L2 norm
+  grows against its L1 norm (‖x‖₂/‖x‖₁ 0.26 for a point 8 cm above the Cornell floor, 0.16 for the median
+  random light), so under L2 the mean's coefficient u_0 = ‖x‖ overshoots and the basis coefficients must
+  cancel it, which they do poorly (overshoot + negative SH: the hotspot and black walls of
+  tests/render/test_artifacts.py). The stage's default is l1 (``prt.norm``).
 - **Gamma** (§5.3): with γ set, x and y are mapped by ``g(v) = sign(v)·|v|^(1/γ)`` before everything
   (signed, because SH coefficients and basis vectors can be negative) and the result by ``g⁻¹``.
 
@@ -46,7 +54,7 @@ from dataclasses import dataclass
 import numpy as np
 
 __all__ = [
-    "group_mean", "gamma_encode", "gamma_decode", "PrtFit", "fit", "reconstruct", "project", "fit_stats",
+    "group_mean", "gamma_encode", "gamma_decode", "PrtFit", "direct_norm", "fit", "reconstruct", "project", "fit_stats",
     "pack_rgba", "unpack_rgba", "sh_volumes", "lm_textures",
 ]
 
@@ -96,7 +104,8 @@ class PrtFit:
         ``[x0r, x0g, x0b, x1r, ...]``.
     singular : (r,) float64 — all singular values of the mean-subtracted normalized dataset.
     gamma, channels : as fitted. columns : training columns used (zero direct norms and outliers, see
-    :data:`OUTLIER_RATIO`, are dropped); dropped : outlier columns left out.
+    :data:`OUTLIER_RATIO`, are dropped); dropped : outlier columns left out. norm : "l2" or "l1" (the ‖x‖).
+    ridges : the λ of eq 14 used per transfer (colour channel), chosen or given.
     """
 
     slots: np.ndarray
@@ -106,6 +115,8 @@ class PrtFit:
     channels: str
     columns: int
     dropped: int = 0
+    norm: str = "l2"
+    ridges: tuple = ()
 
     @property
     def n(self) -> int:
@@ -114,7 +125,7 @@ class PrtFit:
     def truncated(self, n: int) -> "PrtFit":
         """The same fit with only the first n slots (SVD truncation and ridge rows are nested)."""
         return PrtFit(self.slots[:n], self.transfer[:, :n], self.singular, self.gamma, self.channels, self.columns,
-                      self.dropped)
+                      self.dropped, self.norm, self.ridges)
 
 
 def _columns(direct, target, gamma, channels):
@@ -131,6 +142,46 @@ def _columns(direct, target, gamma, channels):
         y = Y.reshape(N, -1)
         ch = np.zeros(N, np.int64)
     return d, y, ch
+
+
+RIDGE_GRID = (0.1, 0.3, 1.0)
+"""Candidate λ of the cross-validated ridge (:func:`ridge_cv`), relative to the centred direct vectors' mean
+squared norm. From 0.1, not 0: cross-validation scores the squared error, not the ringing that eq 14's ridge is
+there to remove (PRT §4.3 "Deringing"); with 0.01 and below allowed, the Cornell test light 8 cm above the floor
+(tests/render/test_artifacts.py) came back 2.4 % near-black instead of 0.7 %."""
+
+
+def ridge_cv(C, Dt, groups, folds: int, grid=RIDGE_GRID) -> float:
+    """λ of eq 14 chosen by ``folds``-fold cross-validation over the lighting configurations.
+
+    C : (r, K) basis coefficients, Dt : (K, Mdim) normalized direct vectors (as :func:`_ridge_solve`), groups :
+    (K,) configuration of each column (a configuration's columns share a fold). Each λ = g·Σs²/K of ``grid``
+    (s the singular values of the centred Dt: the scale of the data, so the same grid serves ``norm`` l1 and l2)
+    is scored by the squared error of the held-out coefficients predicted from the other folds (folds: a fixed
+    permutation of the configurations); returns the absolute λ of the smallest total error (the grid's middle
+    one when there are fewer configurations than folds)
+    (PRT §4.3 leaves λ "a small scalar": too small and the transfer does not generalize to lights unlike the
+    dataset's, too large and it loses what it could)."""
+    scale = float(np.sum((Dt - Dt.mean(axis=0)) ** 2)) / max(Dt.shape[0], 1)
+    lam = np.asarray(grid, np.float64) * scale
+    ids = np.unique(groups)
+    if folds < 2 or ids.size < folds or scale <= 0:
+        return float(lam[len(lam) // 2])
+    fold_of = np.random.default_rng(0).permutation(ids.size) % folds
+    fold = fold_of[np.searchsorted(ids, groups)]
+    err = np.zeros(lam.size)
+    for f in range(folds):
+        tr, te = fold != f, fold == f
+        dm, cm = Dt[tr].mean(axis=0), C[:, tr].mean(axis=1)
+        Q, s, Pt = np.linalg.svd(Dt[tr] - dm, full_matrices=False)
+        W = (C[:, tr] - cm[:, None]) @ Q                                # (r, k)
+        Z = (Dt[te] - dm) @ Pt.T                                         # (t, k)
+        cut = max(Dt.shape) * np.finfo(np.float64).eps * (s[0] if s.size else 0.0)
+        for i, l in enumerate(lam):
+            g = s / (s * s + l) if l > 0 else np.where(s > cut, 1.0 / np.where(s > cut, s, 1.0), 0.0)
+            pred = (W * g) @ Z.T + cm[:, None]                           # (r, t)
+            err[i] += float(np.sum((pred - C[:, te]) ** 2))
+    return float(lam[int(np.argmin(err))])
 
 
 def _ridge_solve(C, Dt, ridge: float):
@@ -153,7 +204,18 @@ def _ridge_solve(C, Dt, ridge: float):
     return np.concatenate([M, (cm - M @ dm)[:, None]], axis=1)
 
 
-def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None, channels: str = "mono") -> PrtFit:
+def direct_norm(v, axis=None, norm: str = "l2") -> np.ndarray:
+    """The norm ‖x‖ of direct vectors along ``axis``: ``"l2"`` (Euclidean) or ``"l1"`` (sum of |x|)."""
+    v = np.asarray(v)
+    if norm == "l1":
+        return np.abs(v).sum(axis=axis)
+    if norm == "l2":
+        return np.linalg.norm(v, axis=axis)
+    raise ValueError(f"direct_norm: norm must be 'l1' or 'l2', got {norm!r}")
+
+
+def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None, channels: str = "mono",
+        norm: str = "l2", ridge_folds: int = 0) -> PrtFit:
     """Basis and transfer from a dataset (PRT §4.2, eq 7-10 and 14).
 
     Parameters
@@ -165,6 +227,9 @@ def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None,
     ridge : λ of eq 14, relative to unit-norm direct vectors (0: pseudo-inverse, eq 13).
     gamma : exponent of §5.3, or None for linear space.
     channels : "mono" (§5.2: shared basis, one transfer per channel) or "multi".
+    norm : ‖x‖ of the normalization and of ``[x, ‖x‖]``, :func:`direct_norm` ("l2" or "l1"; module doc).
+    ridge_folds : >= 2: λ chosen per colour channel by that many-fold cross-validation over the configurations
+        (:func:`ridge_cv`; ``ridge`` is then unused), recorded in ``PrtFit.ridges``; 0: ``ridge``.
     """
     if channels not in ("mono", "multi"):
         raise ValueError(f"fit: channels must be 'mono' or 'multi', got {channels!r}")
@@ -176,9 +241,11 @@ def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None,
     if n < 1:
         raise ValueError("fit: n must be >= 1")
     d, y, ch = _columns(direct, target, gamma, channels)
-    norm = np.linalg.norm(d, axis=1)
+    cfg = np.arange(d.shape[0]) % np.asarray(direct).shape[0]          # the configuration of each column
+    nrm_kind = norm
+    norm = direct_norm(d, 1, nrm_kind)
     keep = norm > 1e-12 * max(float(norm.max(initial=0.0)), 1e-300)
-    d, y, ch, norm = d[keep], y[keep], ch[keep], norm[keep]
+    d, y, ch, norm, cfg = d[keep], y[keep], ch[keep], norm[keep], cfg[keep]
     L = y.shape[1]
     n_ch = 3 if channels == "mono" else 1
     mdim = d.shape[1]
@@ -186,13 +253,14 @@ def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None,
     transfer = np.zeros((n_ch, n, mdim + 1), np.float64)
     transfer[:, 0, mdim] = 1.0                               # u_0 = ‖x‖: the mean's coefficient (§4.2)
     if d.shape[0] == 0:
-        return PrtFit(_shape_slots(slots, channels), transfer.astype(np.float32), np.zeros(0), gamma, channels, 0)
+        return PrtFit(_shape_slots(slots, channels), transfer.astype(np.float32), np.zeros(0), gamma, channels, 0,
+                      norm=nrm_kind)
     dn = d / norm[:, None]                                   # PRT §4.2: normalize by the direct norm
     yn = y / norm[:, None]
     ratio = np.linalg.norm(yn, axis=1)
     sane = ratio <= OUTLIER_RATIO * np.median(ratio)
     dropped = int((~sane).sum())
-    d, dn, yn, ch = d[sane], dn[sane], yn[sane], ch[sane]
+    d, dn, yn, ch, cfg = d[sane], dn[sane], yn[sane], ch[sane], cfg[sane]
     mean = yn.mean(axis=0)                                   # PRT §4.2: mean-subtracted
     Z = yn - mean
     # SVD of Zᵀ (L x K) through the K x K Gram matrix (Turk & Pentland 1991; PRT §4.2)
@@ -206,6 +274,7 @@ def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None,
     tol = max(G.shape) * np.finfo(np.float64).eps * (sing[0] ** 2 if sing.size else 0.0)
     r = int(min(n - 1, np.count_nonzero(ev > max(tol, 0.0))))
     slots[0] = mean
+    ridges = []
     if r:
         U = (Z.T @ V[:, :r]) / sing[:r]                      # eq 7: Zᵀ = U Σ Vᵀ
         U /= np.linalg.norm(U, axis=0)                      # re-orthonormalize against Gram round-off
@@ -216,9 +285,11 @@ def fit(direct, target, n: int, ridge: float = 1e-3, gamma: float | None = None,
         for c in range(n_ch):
             sel = ch == c
             if sel.any():
-                transfer[c, 1:1 + r] = _ridge_solve(C[:, sel], dn[sel], ridge)   # eq 14 per channel (§5.2)
+                lam = ridge_cv(C[:, sel], dn[sel], cfg[sel], ridge_folds) if ridge_folds >= 2 else ridge
+                ridges.append(lam)
+                transfer[c, 1:1 + r] = _ridge_solve(C[:, sel], dn[sel], lam)     # eq 14 per channel (§5.2)
     return PrtFit(_shape_slots(slots, channels), transfer.astype(np.float32), sing, gamma, channels,
-                  int(d.shape[0]), dropped)
+                  int(d.shape[0]), dropped, nrm_kind, tuple(ridges))
 
 
 def _shape_slots(slots, channels):
@@ -231,10 +302,10 @@ def _coefficients(fitted: PrtFit, x):
     xg = gamma_encode(np.asarray(x, np.float64), fitted.gamma)
     T = fitted.transfer.astype(np.float64)
     if fitted.channels == "mono":
-        xa = np.concatenate([xg, np.linalg.norm(xg, axis=0)[None]], axis=0)   # [x_c, ‖x_c‖]
+        xa = np.concatenate([xg, direct_norm(xg, 0, fitted.norm)[None]], axis=0)   # [x_c, ‖x_c‖]
         return np.einsum("cnm,mc->nc", T, xa)                # u_c = T_c x⁺_c (eq 10, one per channel)
     flat = xg.reshape(-1)
-    return (T[0] @ np.append(flat, np.linalg.norm(flat)))[:, None]
+    return (T[0] @ np.append(flat, direct_norm(flat, None, fitted.norm)))[:, None]
 
 
 def reconstruct(fitted: PrtFit, x) -> np.ndarray:
@@ -258,12 +329,12 @@ def project(fitted: PrtFit, x, y) -> np.ndarray:
     yg = gamma_encode(np.asarray(y, np.float64), fitted.gamma)
     S = fitted.slots.astype(np.float64)
     if fitted.channels == "mono":
-        nx = np.linalg.norm(xg, axis=0)                      # (3,)
+        nx = direct_norm(xg, 0, fitted.norm)                 # (3,)
         mu, U = S[0], S[1:]
         res = yg - nx * mu[:, None]
         out = nx * mu[:, None] + U.T @ (U @ res)
     else:
-        nx = np.linalg.norm(xg)
+        nx = direct_norm(xg, None, fitted.norm)
         mu, U = S[0].reshape(-1), S[1:].reshape(S.shape[0] - 1, -1)
         res = yg.reshape(-1) - nx * mu
         out = (nx * mu + U.T @ (U @ res)).reshape(yg.shape)
@@ -330,5 +401,6 @@ def fit_stats(fitted: PrtFit, direct, target) -> dict:
     rms = float(np.sqrt(np.mean(y ** 2)))
     energy = float(s2[:kept].sum() / s2.sum()) if s2.sum() > 0 else 1.0
     return {"columns": fitted.columns, "outliers_dropped": fitted.dropped, "energy_kept": energy,
+            "ridge_used": [float(v) for v in fitted.ridges],
             "singular_values": fitted.singular[:min(64, fitted.singular.size)].tolist(),
             "train_rmse": float(np.sqrt(np.mean(err ** 2))), "train_rms": rms}

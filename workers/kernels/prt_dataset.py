@@ -2,7 +2,10 @@
 
 1. **Scenario** (PRT §4.1): N random lighting configurations
    (:func:`workers.kernels.prt_scenario.random_light_configurations`); positions in the scenario's box,
-   redrawn when inside geometry; spots aim at a random point of the scene bounds.
+   redrawn when inside geometry; spots aim at a random point of the scene bounds. A share ``near_surface``
+   of the point/spot lights stands ``near_distance`` metres off a surface point (along its normal,
+   :func:`workers.kernels.prt_scenario.near_surface_sampler`): lights far from every surface never make the
+   concentrated direct field of a lamp next to a wall, and the transfer cannot extrapolate to it.
 2. **Measurement points** (§4.1, §5.1): M blue-noise points on the front faces
    (:func:`workers.kernels.prt_scenario.measurement_points`), keeping only candidates that one of the first
    USABLE_TEST_CONFIGS configurations lights (with non-zero albedo): points no light of the scenario reaches
@@ -43,7 +46,8 @@ from workers.kernels.gather import MatrixGather, ddgi_weights
 from workers.kernels.grid import OFF
 from workers.kernels.lightmap import DILATE_TEXELS, dilate, lightmap_texels
 from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, probe_visibility
-from workers.kernels.prt_scenario import measurement_direct, measurement_points, random_light_configurations
+from workers.kernels.prt_scenario import (measurement_direct, measurement_points, near_surface_sampler,
+                                         random_light_configurations)
 from workers.kernels.sh import sh_count, sh_project
 from workers.kernels.shading import direct_irradiance
 
@@ -142,8 +146,11 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
     n_irr = light.irradiance_texels
     bias = light.self_shadow_bias
     # 1. lighting scenario (PRT §4.1)
+    near = None
+    if scenario.get("near_surface", 0.0) > 0:
+        near = near_surface_sampler(scene, rng, scenario["near_distance"])
     configs = random_light_configurations(rng, scenario, configurations, box[0], box[1],
-                                          inside=caster.inside_parity, target_box=(bounds[0], bounds[1]))
+                                          inside=caster.inside_parity, target_box=(bounds[0], bounds[1]), near=near)
     # 2. measurement points (§4.1, §5.1), on surfaces some configuration lights
     probe_configs = configs[:USABLE_TEST_CONFIGS]
 
@@ -214,7 +221,8 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
                       probes=probes, bounces=n_bounces, timings=timings)
 
 
-def fit_targets(ds: PrtDataset, *, basis: int, ridge: float, gamma: float | None, channels: str, lightmap: int):
+def fit_targets(ds: PrtDataset, *, basis: int, ridge: float, gamma: float | None, channels: str, lightmap: int,
+                norm: str = "l2", ridge_folds: int = 0):
     """Step 4 (PRT §4.2): basis and transfer of each target, packed for the bundle.
 
     Returns a namespace: ``sh`` (the :class:`workers.kernels.prt.PrtFit` of the probe SH), ``sh_volumes``
@@ -224,12 +232,12 @@ def fit_targets(ds: PrtDataset, *, basis: int, ridge: float, gamma: float | None
     """
     N, P, K = ds.sh.shape[:3]
     sh_target = ds.sh.reshape(N, P * K, 3)
-    fit_sh = kprt.fit(ds.direct, sh_target, basis, ridge, gamma, channels)   # PRT eq 7-10 (basis), eq 14 (transfer)
+    fit_sh = kprt.fit(ds.direct, sh_target, basis, ridge, gamma, channels, norm, ridge_folds)   # PRT eq 7-10, eq 14
     out = SimpleNamespace(sh=fit_sh, sh_volumes=kprt.sh_volumes(fit_sh.slots, channels, ds.probes["grid"]["counts"], K),
                           sh_stats=kprt.fit_stats(fit_sh, ds.direct, sh_target), lm=None)
     lm, tex_all = ds.lightmap, ds.texels
     if lm is not None and tex_all is not None and tex_all.shape[1] > 0:
-        fit_lm = kprt.fit(ds.direct, tex_all, basis, ridge, gamma, channels)
+        fit_lm = kprt.fit(ds.direct, tex_all, basis, ridge, gamma, channels, norm, ridge_folds)
         cov = lm["covered"]
         c_ = 1 if channels == "mono" else 3
         imgs = np.zeros((fit_lm.n, c_, lightmap, lightmap), np.float32)

@@ -1,6 +1,7 @@
 """PRT's lighting scenario and measurement points (PRT §4.1 "Database Creation", §5.1 supersampling).
 
-- :func:`random_light_configurations`: N random lighting configurations drawn from a scenario;
+- :func:`random_light_configurations`: N random lighting configurations drawn from a scenario, a share of
+  the point/spot lights close to a surface (:func:`near_surface_sampler`);
 - :func:`measurement_points`: M blue-noise points on the front faces of the surfaces, by sample elimination
   [Yuksel15] (:func:`sample_elimination`) from uniform area-weighted candidates (:func:`area_samples`),
   grouped into supersamples (§5.1);
@@ -28,7 +29,8 @@ from workers.kernels.prt import group_mean
 from workers.kernels.shading import direct_irradiance, surface_at_hits
 
 __all__ = ["random_light_configurations", "triangle_areas", "area_samples", "sample_elimination", "min_spacing",
-           "measurement_points", "measurement_direct"]
+           "measurement_points", "measurement_direct",
+           "near_surface_sampler"]
 
 SPOT_OUTER_RANGE = (math.pi / 8, math.pi / 3)
 """radians: a random spot's outer cone angle is uniform in this range; the inner one is half of it."""
@@ -42,7 +44,7 @@ MAX_CANDIDATES = 2_000_000
 
 # --------------------------------------------------------------------------------------------- lights
 def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int, box_min, box_max,
-                                inside=None, target_box=None) -> list[list[dict]]:
+                                inside=None, target_box=None, near=None) -> list[list[dict]]:
     """N random lighting configurations from a scenario (PRT §4.1 "Database Creation").
 
     Parameters
@@ -51,7 +53,7 @@ def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int
     scenario : dict
         ``proto.models.LightRange`` as a dict: ``types``, ``count`` (lights per configuration),
         ``color_min``/``color_max`` (per channel, linear RGB), ``intensity_min``/``intensity_max``
-        (candela for point/spot, lux for directional).
+        (candela for point/spot, lux for directional), optionally ``near_surface`` (share, default 0).
     n : int
         Number of configurations.
     box_min, box_max : (3,) float
@@ -62,6 +64,10 @@ def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int
     target_box : ((3,), (3,)) or None
         Where spots aim (a uniform point of it); default: the placement box. Pass the scene bounds when
         the lights stand outside the scene.
+    near : callable or None
+        ``near(rng) -> (3,)`` a position close to a surface (:func:`near_surface_sampler`); with the scenario's
+        ``near_surface`` share s > 0, a point/spot light is placed by it with probability s (redrawn while
+        inside geometry or outside the placement box; uniform after PLACEMENT_TRIES), else uniformly in the box.
 
     Returns
     -------
@@ -77,6 +83,7 @@ def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int
     cmax = np.asarray(scenario["color_max"], np.float64)
     tlo, thi = (lo, hi) if target_box is None else (np.asarray(target_box[0], np.float64),
                                                     np.asarray(target_box[1], np.float64))
+    share = float(scenario.get("near_surface", 0.0))
     out = []
     for _ in range(n):
         lights = []
@@ -88,11 +95,19 @@ def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int
                      "position": None, "direction": None, "inner_cone_angle": 0.0,
                      "outer_cone_angle": math.pi / 4, "name": "prt"}
             if kind in ("point", "spot"):
-                p = rng.uniform(lo, hi)
-                for _ in range(PLACEMENT_TRIES):
-                    if inside is None or not bool(np.asarray(inside(p[None].astype(np.float32)))[0]):
-                        break
+                p = None
+                if near is not None and share > 0 and rng.random() < share:
+                    for _ in range(PLACEMENT_TRIES):
+                        q = near(rng)
+                        if np.all(q >= lo) and np.all(q <= hi) and not _inside(inside, q):
+                            p = q
+                            break
+                if p is None:                        # uniform (or no near-surface point in the box)
                     p = rng.uniform(lo, hi)
+                    for _ in range(PLACEMENT_TRIES):
+                        if not _inside(inside, p):
+                            break
+                        p = rng.uniform(lo, hi)
                 light["position"] = p.tolist()
             if kind == "directional":
                 d = rng.normal(size=3)
@@ -108,6 +123,27 @@ def random_light_configurations(rng: np.random.Generator, scenario: dict, n: int
             lights.append(light)
         out.append(lights)
     return out
+
+
+def _inside(inside, p) -> bool:
+    return inside is not None and bool(np.asarray(inside(np.asarray(p, np.float32)[None]))[0])
+
+
+def near_surface_sampler(scene, rng: np.random.Generator, distance, count: int = 4096):
+    """``near(rng) -> (3,)`` for :func:`random_light_configurations`: a uniform area-weighted point of the
+    scene's surfaces (``count`` candidates drawn once from ``rng``) moved along its front normal by a distance
+    uniform in ``distance = (lo, hi)`` metres: lights close to a wall, the floor or an object, whose direct
+    light is a bright local spot that lights far from every surface never make (PRT §4.1: the scenario
+    defines the distribution the transfer learns)."""
+    tri, u, v = area_samples(scene.triangles, count, rng)
+    surf = surface_at_hits(scene, tri, u, v)
+    pos, nrm = np.asarray(surf["position"], np.float64), np.asarray(surf["normal"], np.float64)
+    lo, hi = float(distance[0]), float(distance[1])
+
+    def near(r: np.random.Generator) -> np.ndarray:
+        i = int(r.integers(pos.shape[0]))
+        return pos[i] + nrm[i] * r.uniform(lo, hi)
+    return near
 
 
 # ---------------------------------------------------------------------------------- measurement points

@@ -111,7 +111,7 @@ def prt_resources(arrays, grid, lights, caster, sh_order=None):
     model = PrtModel.from_arrays(arrays)
     x = direct_vector(model, list(lights), caster)
     xg = kprt.gamma_encode(x, model.gamma)
-    xa = np.concatenate([xg, np.linalg.norm(xg, axis=0)[None]], axis=0).astype(np.float32)
+    xa = np.concatenate([xg, kprt.direct_norm(xg, 0, model.norm)[None]], axis=0).astype(np.float32)
     u = np.einsum("cnm,mc->nc", model.sh.transfer, xa)
     return prepare_mode("prt", arrays, grid, prt_model=model, prt_coefficients=u, sh_order=sh_order)
 

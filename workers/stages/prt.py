@@ -89,7 +89,7 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
     t0 = time.perf_counter() if t0 is None else t0
     points, lm, (N, P, K), t3 = ds.points, ds.lightmap, ds.sh.shape[:3], time.perf_counter()
     fitted = fit_targets(ds, basis=sec.basis, ridge=sec.ridge, gamma=sec.gamma, channels=sec.channels,
-                         lightmap=sec.lightmap)
+                         lightmap=sec.lightmap, norm=sec.norm, ridge_folds=sec.ridge_folds)
     artifacts = [_basis(name, vol, k, g, sec.channels) for k, group in enumerate(fitted.sh_volumes)
                  for g, (name, vol) in enumerate(group)]
     artifacts.append(Artifact("prt_sh_transfer", np.asarray(fitted.sh.transfer, np.float32), table=True,
@@ -114,11 +114,11 @@ def prt_output(ctx: StageContext, ds: PrtDataset, t0: float | None = None) -> St
     table = np.concatenate([points["position"], points["normal"], points["albedo"]], axis=1).astype(np.float32)
     section = {
         "version": 1, "channels": sec.channels, "gamma": sec.gamma, "ridge": sec.ridge, "basis": sec.basis,
-        "configurations": N, "measurement_points": sec.measurement_points, "supersampling": sec.supersampling,
-        "shadow_eps": ds.probes["eps"], "points": "prt_points", "point_offsets": "prt_point_offsets",
-        "lights": "prt_lights",
+        "norm": sec.norm, "ridge_folds": sec.ridge_folds, "configurations": N, "measurement_points": sec.measurement_points,
+        "supersampling": sec.supersampling, "shadow_eps": ds.probes["eps"], "points": "prt_points",
+        "point_offsets": "prt_point_offsets", "lights": "prt_lights",
         "direct": "outgoing radiance albedo/pi * E_direct at the measurement points, averaged per point",
-        "normalization": "u = T [x, |x|] per channel (row 0 gives u_0 = |x|); y = sum_j u_j * slot_j",
+        "normalization": f"u = T [x, |x|] per channel, |x| its {sec.norm} norm (row 0: u_0 = |x|); y = Σ_j u_j slot_j",
         "emission": "excluded (sky 0): the transfer covers the given lights only",
         "sh": {"order": lsec.sh_order, "coefficients": K, "counts": list(ds.probes["grid"]["counts"]),
                "basis": [[name for name, _ in group] for group in fitted.sh_volumes], "transfer": "prt_sh_transfer",

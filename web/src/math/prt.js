@@ -80,17 +80,21 @@ export function directVector(table, offsets, lights) {
  * @param {ArrayLike<number>} transfer  (3, n, M + 1), C order
  * @param {number} n  basis slots
  * @param {Float64Array} x  (M·3) from directVector
+ * @param {string} norm  ‖x‖: 'l1' (sum of |x|) or 'l2' (the bundle's prt.norm; absent: 'l2')
  */
-export function relightCoefficients(transfer, n, x) {
+export function relightCoefficients(transfer, n, x, norm = 'l2') {
   const M = x.length / 3;
   const u = new Float64Array(n * 3);
   for (let c = 0; c < 3; c++) {
-    let norm = 0;
-    for (let m = 0; m < M; m++) norm += x[m * 3 + c] ** 2;
-    norm = Math.sqrt(norm);
+    let len = 0;
+    if (norm === 'l1') for (let m = 0; m < M; m++) len += Math.abs(x[m * 3 + c]);
+    else {
+      for (let m = 0; m < M; m++) len += x[m * 3 + c] ** 2;
+      len = Math.sqrt(len);
+    }
     for (let j = 0; j < n; j++) {
       const row = (c * n + j) * (M + 1);
-      let s = transfer[row + M] * norm;
+      let s = transfer[row + M] * len;
       for (let m = 0; m < M; m++) s += transfer[row + m] * x[m * 3 + c];  // u = M_n x (PRT eq 10), + the ‖x‖ intercept
       u[j * 3 + c] = s;
     }

@@ -390,7 +390,7 @@ export class Viewer {
     if (!p) return null;
     const t0 = performance.now();
     p.x = directVector(p.points, p.offsets, [p.light]);
-    p.u = relightCoefficients(p.transfer, p.n, p.x);
+    p.u = relightCoefficients(p.transfer, p.n, p.x, p.section.norm || 'l2');
     this.renderer.setModeUniforms({ uPrtCoef: packPrtCoefficients(p.u, p.n, PRT_MAX_GROUPS) });
     if (this.mode === 'prt') this.renderer.setLights([p.light]);
     p.ms = performance.now() - t0;
