@@ -36,7 +36,11 @@ FRONT = {"types": ["point", "spot"], "box": {"min": [0.0, 0.1, 1.3], "max": [1.0
 
 
 def _config(**prt):
-    return {"place": {"counts": [4, 4, 4]}, "trace": {"rays_per_probe": 64},
+    # rescue_offset 0: the 4x4x4 grid's outer layer lies on the box's walls; rescued (the default since issue 12),
+    # those probes stand next to the walls, where near-wall lights give sharp responses: the held-out relit error at
+    # n = 16 reads 0.047 (12% of the rms) instead of 0.010 (6%). These tests are about the transfer's fit on a fixed
+    # set of probes, so they keep DDGI-P's relocation alone (walls' probes OFF).
+    return {"place": {"counts": [4, 4, 4]}, "trace": {"rays_per_probe": 64, "rescue_offset": 0.0},
             "prt": {"enabled": True, "scenario": FRONT, "lightmap": 64, **prt}}
 
 
