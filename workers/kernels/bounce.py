@@ -18,8 +18,8 @@ first b terms of the Neumann series ``E = Σ_k T^k E_0``. Each configuration sto
 below ``tolerance`` of its value at every probe that matters (capped at ``max_bounces``).
 
 Batches: configuration j owns columns 3j..3j+2 of every (…, 3·B) array; a converged configuration leaves the
-batch (its columns are handed to ``retire`` and dropped), so later bounces cost only the live ones. One
-configuration gives bit for bit the numbers the light stage had before the batch form.
+batch (its columns are handed to ``retire`` and dropped), so later bounces cost only the live ones. The loop holds
+the radiance ray-major (row r·P + p), which the octahedral sums read without a transposed copy.
 
 Consumers: stages/light, kernels/prt_dataset, tests' light-stage reference. Inverse: none.
 """
@@ -29,10 +29,11 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.convergence import relative_tail
 from workers.kernels.grid import OFF
-from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.octahedral import _cosine_power, accumulate_octahedral, add_border, oct_texel_directions
 
 __all__ = ["irradiance_maps", "integrate", "integrate_one", "BounceLog"]
 
@@ -57,6 +58,37 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
     maps = math.pi * accumulate_octahedral(dirs, radiance, oct_texel_directions(n), 1.0)   # DDGI-I eq 1, α = 0
     maps[states == OFF] = 0.0
     return add_border(maps).astype(np.float32)
+
+
+class _RayMajorMaps:
+    """:func:`irradiance_maps` of ray-major radiance (R, P, C): the same arithmetic (the cosine weights (T, R) and
+    their sums, then one product with the radiance as it lies, no transposed copy of it), float32 rounding apart
+    (the product's summation order)."""
+
+    def __init__(self, dirs: np.ndarray, n: int, states: np.ndarray):
+        self.n, self.off = n, states == OFF
+        self.w = _cosine_power(oct_texel_directions(n).reshape(-1, 3).astype(np.float32) @
+                               np.asarray(dirs, np.float32).T, 1.0)                     # (T, R) max(0, n·ω)
+        self.den = self.w.sum(axis=-1)
+        self.ok = self.den > 0
+
+    def __call__(self, radiance_rm: np.ndarray) -> np.ndarray:
+        R, P, C = radiance_rm.shape
+        num = (self.w @ radiance_rm.reshape(R, P * C)).reshape(-1, P, C)               # Σ_r w · L: (T, P, C)
+        mean = np.zeros((P, num.shape[0], C), np.float32)
+        np.divide(num.transpose(1, 0, 2), self.den[None, :, None], out=mean, where=self.ok[None, :, None])
+        maps = math.pi * mean.reshape(P, self.n, self.n, C)                             # DDGI-I eq 1, α = 0
+        maps[self.off] = 0.0
+        return add_border(maps).astype(np.float32)
+
+
+@njit(cache=True, nogil=True)
+def _shade_hits(radiance, index, base, rho, e_indirect):
+    """radiance[index[h]] = base[h] + rho[h]·e_indirect[h] (float32; rows of ray-major radiance)."""
+    for h in range(index.shape[0]):
+        r = index[h]
+        for c in range(base.shape[1]):
+            radiance[r, c] = base[h, c] + rho[h, c] * e_indirect[h, c]
 
 
 @dataclass
@@ -117,9 +149,12 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     if emission is not None:
         base = np.tile(emission, (1, B)) + base                               # + emission
     rho = np.tile(alb, (1, B))
-    radiance = np.zeros((P * R, 3 * B), np.float32)
+    # radiance ray-major, (R·P, 3B): row r·P + p is probe p's ray r (the octahedral sums read it without a copy)
+    radiance = np.zeros((R * P, 3 * B), np.float32)
+    rows = (index % R) * P + index // R
     if sky is not None:
-        radiance[miss.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+        radiance[miss.T.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+    accumulate = _RayMajorMaps(dirs, n, states)
     maps = np.zeros((P, t, t, 3 * B), np.float32)
     live = np.arange(B)
     log = BounceLog(bounces=np.zeros(B, np.int64), change=[[] for _ in range(B)], residual=[[] for _ in range(B)])
@@ -127,10 +162,10 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     cap = bounces if bounces is not None else max_bounces
     for b in range(1, cap + 1):
         if b == 1:
-            radiance[index] = base                                             # E_indirect = 0: the first bounce
+            radiance[rows] = base                                              # E_indirect = 0: the first bounce
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
-            radiance[index] = base + rho * gather(maps)
-        new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)    # DDGI-I eq 1, α = 0
+            _shade_hits(radiance, rows, base, rho, np.ascontiguousarray(gather(maps), np.float32))
+        new = accumulate(radiance.reshape(R, P, -1))                          # DDGI-I eq 1, α = 0
         if correction is not None:
             new += correction                                                  # the fixed term over more rays
         nb = live.size
@@ -157,7 +192,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             continue
         cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
         log.bounces[live[done]] = b
-        retire(live[done], radiance[:, cols].reshape(P, R, -1), new[..., cols], b)
+        retire(live[done], radiance[:, cols].reshape(R, P, -1).transpose(1, 0, 2), new[..., cols], b)
         keep = ~done
         if not keep.any():
             break

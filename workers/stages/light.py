@@ -83,17 +83,16 @@ def run_light(ctx: StageContext) -> StageOutput:
         scene, caster, positions, states != OFF, lit["lights"], c_spot, double_sided_triangles(scene),
         grid["spacing"], sec.irradiance_texels, eps, sec.sh_order)
     del per_light
-    t_spots = time.perf_counter() - t0
-
-    t1 = time.perf_counter()
+    t_spots, t1 = time.perf_counter() - t0, time.perf_counter()
     gather = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth,
-                           sec.self_shadow_bias, visible)
+                           sec.self_shadow_bias, visible, n=sec.irradiance_texels)   # the sampler's weights, once
+    surf.position = surf.normal = surf.view = visible = None                          # in the weights now
+    t_weights = time.perf_counter() - t1
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
         tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps)
     t_bounces = time.perf_counter() - t1
-
     sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
         n = sec.irradiance_texels
@@ -113,7 +112,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         "converged": bool(residuals) and residuals[-1] < sec.tolerance,
         "off_dilated": dilated,
         "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
-        "direct_seconds": t_direct, "bounce_seconds": t_bounces,
+        "direct_seconds": t_direct, "bounce_seconds": t_bounces, "weights_seconds": t_weights,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
         "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
