@@ -192,7 +192,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             continue
         cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
         log.bounces[live[done]] = b
-        retire(live[done], radiance[:, cols].reshape(R, P, -1).transpose(1, 0, 2), new[..., cols], b)
+        picked = radiance if done.all() else radiance[:, cols]               # no copy when all stop together
+        retire(live[done], picked.reshape(R, P, -1).transpose(1, 0, 2), new[..., cols], b)
         keep = ~done
         if not keep.any():
             break

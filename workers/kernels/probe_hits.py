@@ -69,7 +69,7 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     front = (tri >= 0) & ~back
     index = np.flatnonzero(front)
     s = surface_at_hits(scene, tri.ravel()[index], u.ravel()[index], v.ravel()[index])
-    d = np.tile(dirs, (P, 1))[index]
+    d = np.asarray(dirs)[index % R]                       # ray index·R + r: direction r (no (P·R, 3) tile)
     n = s["normal"].astype(np.float32)
     n = np.where((np.einsum("ij,ij->i", n, d) > 0)[:, None], -n, n)   # shade the side the ray arrived on
     pos = s["position"].astype(np.float32)
