@@ -26,6 +26,7 @@ Consumers: stages/light, kernels/prt_dataset, tests' light-stage reference. Inve
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -75,11 +76,42 @@ class _RayMajorMaps:
     def __call__(self, radiance_rm: np.ndarray) -> np.ndarray:
         R, P, C = radiance_rm.shape
         num = (self.w @ radiance_rm.reshape(R, P * C)).reshape(-1, P, C)               # Σ_r w · L: (T, P, C)
-        mean = np.zeros((P, num.shape[0], C), np.float32)
-        np.divide(num.transpose(1, 0, 2), self.den[None, :, None], out=mean, where=self.ok[None, :, None])
-        maps = math.pi * mean.reshape(P, self.n, self.n, C)                             # DDGI-I eq 1, α = 0
-        maps[self.off] = 0.0
-        return add_border(maps).astype(np.float32)
+        out = np.empty((P, self.n + 2, self.n + 2, C), np.float32)
+        bounds = np.linspace(0, P, _MAP_THREADS + 1).astype(np.int64)
+        with ThreadPoolExecutor(_MAP_THREADS) as pool:      # π · num / den, OFF = 0, the border: one pass
+            list(pool.map(lambda i: _finish_maps(num, self.den, self.ok, self.off, bounds[i], bounds[i + 1], out),
+                          range(_MAP_THREADS)))
+        return out
+
+
+_MAP_THREADS = 2
+
+
+@njit(cache=True, nogil=True)
+def _finish_maps(num, den, ok, off, p0, p1, out):
+    """Probes p0..p1 of :class:`_RayMajorMaps`: ``out[p]`` (n+2, n+2, C) = π·num[:, p]/den in the interior (0 where
+    den = 0 or the probe is OFF), float32 as numpy computes it, with :func:`workers.kernels.octahedral.add_border`'s
+    border."""
+    n = out.shape[1] - 2
+    C = out.shape[3]
+    pi = np.float32(math.pi)
+    for p in range(p0, p1):
+        for i in range(n):
+            for j in range(n):
+                t = i * n + j
+                for c in range(C):
+                    out[p, i + 1, j + 1, c] = pi * (num[t, p, c] / den[t]) if ok[t] and not off[p] else 0.0
+        for k in range(1, n + 1):
+            for c in range(C):
+                out[p, 0, k, c] = out[p, 1, n + 1 - k, c]              # top: first row, columns flipped
+                out[p, n + 1, k, c] = out[p, n, n + 1 - k, c]          # bottom: last row, columns flipped
+                out[p, k, 0, c] = out[p, n + 1 - k, 1, c]              # left: first column, rows flipped
+                out[p, k, n + 1, c] = out[p, n + 1 - k, n, c]          # right: last column, rows flipped
+        for c in range(C):                                             # corners from the opposite interior corner
+            out[p, 0, 0, c] = out[p, n, n, c]
+            out[p, 0, n + 1, c] = out[p, n, 1, c]
+            out[p, n + 1, 0, c] = out[p, 1, n, c]
+            out[p, n + 1, n + 1, c] = out[p, 1, 1, c]
 
 
 @njit(cache=True, nogil=True)

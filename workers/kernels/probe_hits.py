@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.ddgi import cage_probes, cage_rays
 from workers.kernels.shading import surface_at_hits
@@ -77,10 +78,27 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     # from cache (about 1.6x faster than ray order); the order does not change any result
     lo, hi = pos.min(axis=0) if len(pos) else 0, pos.max(axis=0) if len(pos) else 1
     cell = np.floor((pos - lo) / np.maximum(hi - lo, 1e-6) * 63.999).astype(np.int64)
-    order = np.argsort(cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2]), kind="stable")
+    key = cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2])
+    in_range = len(key) == 0 or (key.min() >= 0 and key.max() < 64 ** 3)        # (not for non-finite positions)
+    order = _counting_order(key, 64 ** 3) if in_range else np.argsort(key, kind="stable")
     return HitSurfaces(index=index[order], position=pos[order], normal=n[order], view=(-d[order]).astype(np.float32),
                        albedo=s["albedo"][order].astype(np.float32), emission=s["emission"][order].astype(np.float32),
                        miss=tri < 0, P=P, R=R)
+
+
+@njit(cache=True, nogil=True)
+def _counting_order(key, n_keys):
+    """``np.argsort(key, kind="stable")`` for keys in [0, n_keys), by counting (O(N); 12M keys: ~0.2 s, not ~10 s)."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for i in range(key.shape[0]):
+        start[key[i] + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
+    order = np.empty(key.shape[0], np.int64)
+    for i in range(key.shape[0]):
+        order[start[key[i]]] = i
+        start[key[i]] += 1
+    return order
 
 
 def probe_visibility(surf, grid: dict, positions: np.ndarray, states: np.ndarray, caster,
