@@ -56,6 +56,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     nx, ny, nz = counts
     tr = ctx.inputs["trace"]
     dirs = tr["ray_directions"]
+    hits, tri = tr["ray_hits"], tr["ray_tri"]
     states = tr["probe_states"].reshape(-1)
     m = ctx.config.trace.depth_texels + 2
     depth = unpack_atlas(tr["depth_moments"], counts, m)
@@ -63,8 +64,8 @@ def run_light(ctx: StageContext) -> StageOutput:
     lit = ctx.inputs["ingest"]["lights"]
 
     t0 = time.perf_counter()
-    surf = hit_surfaces(scene, dirs, tr["ray_hits"], tr["ray_tri"])
-    tr.release("ray_hits", "ray_tri")                       # the hits are in surf now (1.3 GB at 64x32x64)
+    surf = hit_surfaces(scene, dirs, hits, tri)
+    hits = tri = tr.release("ray_hits", "ray_tri")          # (None) the hits are in surf now: 1.3 GB at 64x32x64
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
     eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
     caster = caster_for_scene(scene)
@@ -75,7 +76,6 @@ def run_light(ctx: StageContext) -> StageOutput:
     visible, vis_rays = probe_visibility(surf, grid, positions, states, caster, sec.self_shadow_bias)
     t_vis = time.perf_counter() - t0
     ctx.report(0.1)
-
     t0 = time.perf_counter()        # point lights' hot spots sampled from the light (workers.kernels.light_spots)
     c_spot = spot_thresholds(per_light, lit["lights"])
     e_direct = split_direct(per_light, c_spot) if per_light else e_direct
@@ -87,7 +87,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     gather = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth,
                            sec.self_shadow_bias, visible, n=sec.irradiance_texels)   # the sampler's weights, once
     surf.position = surf.normal = surf.view = visible = depth = None                  # in the weights now
-    tr.release("depth_moments")
+    tr.release("depth_moments", "depth_moments_full")
     t_weights = time.perf_counter() - t1
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
