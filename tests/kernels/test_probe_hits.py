@@ -42,6 +42,14 @@ def test_hit_surfaces_keep_front_hits_with_normals_toward_the_probe():
     assert np.all(np.einsum("ij,ij->i", s.normal, s.view) > 0)          # the side the ray arrived on
     assert np.allclose(s.albedo, (0.2, 0.4, 0.6)) and np.allclose(s.emission, (0, 1, 0))
     assert all(a.dtype == np.float32 for a in (s.position, s.normal, s.view, s.albedo, s.emission))
+    import workers.kernels.probe_hits as ph                    # shaded HIT_CHUNK hits at a time: the same arrays
+    chunk, ph.HIT_CHUNK = ph.HIT_CHUNK, 1
+    try:
+        one = hit_surfaces(scene, dirs, hits, tri)
+    finally:
+        ph.HIT_CHUNK = chunk
+    for name in ("index", "position", "normal", "view", "albedo", "emission", "miss"):
+        assert np.array_equal(getattr(one, name), getattr(s, name))
 
 
 class _Caster:

@@ -122,15 +122,3 @@ def test_buried_probes_are_dilated_in_the_runtime_volumes(tmp_path, scene_files)
     e = SM.irradiance("leaking", {"sh_l2": s["light"]["sh_l2"]}, grid, p, n)
     np.testing.assert_allclose(e, SM.leaking_l2(np.array([[1.6, 0.05, 1.6]]), n, s["light"]["sh_l2"], grid),
                                rtol=1e-5)
-
-
-def test_lazy_artifacts_release_frees_the_loaded_copy_and_loads_again():
-    # the light stage releases the trace hits and depth moments once it is done with them (peak memory at scale)
-    from workers.stages.base import LazyArtifacts
-    loads = []
-    lazy = LazyArtifacts({}, {"a": lambda: loads.append("a") or np.arange(3)})
-    first = lazy["a"]
-    assert lazy["a"] is first and loads == ["a"]
-    lazy.release("a", "not-loaded")
-    again = lazy["a"]
-    assert again is not first and np.array_equal(again, first) and loads == ["a", "a"]

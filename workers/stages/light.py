@@ -64,6 +64,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     lit = ctx.inputs["ingest"]["lights"]
 
     t0 = time.perf_counter()
+    tr.release("depth_moments", "depth_moments_full")       # the atlas, unpacked into depth
     surf = hit_surfaces(scene, dirs, hits, tri)
     hits = tri = tr.release("ray_hits", "ray_tri")          # (None) the hits are in surf now: 1.3 GB at 64x32x64
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
@@ -87,7 +88,6 @@ def run_light(ctx: StageContext) -> StageOutput:
     gather = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth,
                            sec.self_shadow_bias, visible, n=sec.irradiance_texels)   # the sampler's weights, once
     surf.position = surf.normal = surf.view = visible = depth = None                  # in the weights now
-    tr.release("depth_moments", "depth_moments_full")
     t_weights = time.perf_counter() - t1
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
