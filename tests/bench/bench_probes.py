@@ -18,11 +18,25 @@ no validation, nothing but ``EmbreeScene.run``) on the same rays in the same run
 writing and hashing artifacts included); "in-caster" by the time spent inside the ray caster only.
 Prints a table and the same numbers as JSON on the last line. Numba kernels are compiled (or loaded
 from cache) by a small warm-up bake first, outside the timings.
+
+``--bundles 16x8x16,32x16x32,64x32x64`` (the default; ``--bundles ''`` skips it) also bakes each grid whole, the
+default config (automatic θ samples, masks, compress; evaluate off: its reference is per scene, not per grid) with
+the same sun and sky, each bake in a child process of its own after a warm-up bake there, and prints
+
+- the bundle: bytes per probe of each GI mode (the artifacts the mode's textures bind, ``proto/gi_modes.json``, at
+  the bake's SH order) and of the whole bundle (every artifact of the manifest, the scene GLB included, and
+  without it), and the whole bundle in MB (target at 64x32x64: <= 60 MB);
+- the bake: per stage its wall seconds and CPU seconds (user + sys of the process and its children, all
+  threads), the total, and the peak RSS (``ru_maxrss`` of the bake's process and of its children). On a
+  shared machine wall time depends on the load; CPU time much less.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import os
+import resource
+import subprocess
 import sys
 import tempfile
 import time
@@ -34,8 +48,9 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
+from proto.gi_modes import MODE_IDS, MODES, expand, cluster_count, texture_bindings  # noqa: E402
 from proto.models import BakeConfig  # noqa: E402
-from proto.stages import plan  # noqa: E402
+from proto.stages import build_manifest, plan  # noqa: E402
 from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
@@ -147,20 +162,120 @@ def run_grid(scene, counts, rays, S, raw: RawEmbree) -> dict:
         return out
 
 
+def _cpu_seconds() -> float:
+    """User + sys seconds of this process (all its threads) and of its waited-for children."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def mode_artifacts(mode: str, names, sh_order: int) -> list[str]:
+    """The bundle artifacts GI ``mode`` reads (its ``needs`` and the artifacts its textures bind at ``sh_order``)."""
+    K = cluster_count(names)
+    wanted = {n for p in MODES[mode]["needs"] if "*" not in p for n in expand(p, K)}
+    try:
+        for arts, _ in texture_bindings(mode, names, sh_order).values():
+            wanted.update(arts)
+    except ValueError:          # prt without its section: not baked
+        return []
+    return sorted(n for n in wanted if n in names)
+
+
+def bundle_sizes(manifest, probes: int) -> dict:
+    """Bytes per probe of each GI mode and of the whole bundle (module doc)."""
+    size = {a.name: a.bytes for a in manifest.artifacts}
+    order = int(manifest.config["light"]["sh_order"])
+    modes = {}
+    for m in MODE_IDS:
+        arts = mode_artifacts(m, size, order)
+        if arts or not MODES[m]["needs"]:
+            modes[m] = {"bytes": sum(size[a] for a in arts), "artifacts": arts}
+            modes[m]["bytes_per_probe"] = modes[m]["bytes"] / probes
+    whole = sum(size.values())
+    scene = sum(a.bytes for a in manifest.artifacts if a.format == "glb")
+    return {"probes": probes, "modes": modes, "bundle_bytes": whole, "bundle_bytes_per_probe": whole / probes,
+            "bundle_bytes_without_scene": whole - scene, "scene_bytes": scene}
+
+
+def bake_whole(scene, counts) -> dict:
+    """Every stage of a default bake at ``counts`` (evaluate off) in this process: per-stage wall and CPU seconds,
+    peak RSS, and the bundle sizes."""
+    cfg = BakeConfig.model_validate({"place": {"counts": counts}, "scene": {"lights": [SUN], "sky": [0.3, 0.35, 0.4]},
+                                     "evaluate": {"enabled": False}})
+    with tempfile.TemporaryDirectory() as tmp:
+        store = Store(tmp)
+        sid = store.put_bytes(scene.to_bytes())
+        stages = {}
+        for st, _ in plan(sid, cfg):
+            t0, c0 = time.perf_counter(), _cpu_seconds()
+            pipeline.execute_stage(store, sid, cfg, st.name)
+            stages[st.name] = {"wall_s": time.perf_counter() - t0, "cpu_s": _cpu_seconds() - c0}
+        manifest = build_manifest(store, scene.summary(sid), cfg)
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return {"stages": stages, "wall_s": sum(s["wall_s"] for s in stages.values()),
+            "cpu_s": sum(s["cpu_s"] for s in stages.values()),
+            "peak_rss_mb": own.ru_maxrss / 1024, "peak_rss_children_mb": kids.ru_maxrss / 1024,
+            "sizes": bundle_sizes(manifest, int(np.prod(counts)))}
+
+
+def bake_in_child(grid: str) -> dict:
+    """:func:`bake_whole` in a fresh process (its own peak RSS), after a warm-up bake there (numba caches)."""
+    with tempfile.NamedTemporaryFile(suffix=".json") as f:
+        subprocess.run([sys.executable, __file__, "--one-bake", grid, "--json-out", f.name], check=True)
+        return json.loads(Path(f.name).read_text())
+
+
+def print_bundles(results: dict) -> None:
+    modes = [m for m in MODE_IDS if any(m in r["sizes"]["modes"] for r in results.values())]
+    print("bundle on zdm2-sauerbraten, bytes per probe (a mode: the artifacts its textures bind)")
+    print(f"{'grid':>10s} {'probes':>8s} " + " ".join(f"{m:>15s}" for m in modes)
+          + f" {'bundle B/probe':>14s} {'bundle MB':>10s} {'w/o scene MB':>12s}")
+    for g, r in results.items():
+        z = r["sizes"]
+        cells = " ".join(f"{z['modes'][m]['bytes_per_probe']:15.1f}" if m in z["modes"] else f"{'-':>15s}"
+                         for m in modes)
+        flag = "" if g != "64x32x64" else ("  (target <= 60 MB: " + ("met" if z["bundle_bytes"] <= 60e6 else "MISSED")
+                                           + ")")
+        print(f"{g:>10s} {z['probes']:8d} {cells} {z['bundle_bytes_per_probe']:14.1f} {z['bundle_bytes'] / 1e6:10.1f}"
+              f" {z['bundle_bytes_without_scene'] / 1e6:12.1f}{flag}")
+    for g, r in results.items():
+        print(f"bake {g}: wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s (user+sys, threads and children), "
+              f"peak RSS {r['peak_rss_mb']:.0f} MB (children {r['peak_rss_children_mb']:.0f} MB)"
+              + ("  (target <= 300 s wall: " + ("met" if r["wall_s"] <= 300 else "MISSED") + ")"
+                 if g == "64x32x64" else ""))
+        print("   " + ", ".join(f"{k} {v['wall_s']:.1f}/{v['cpu_s']:.1f}" for k, v in r["stages"].items()
+                                if v["wall_s"] >= 0.05) + "  (stage wall/CPU s)")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser()
     ap.add_argument("--grids", default="16x8x16,32x16x32")
     ap.add_argument("--rays", type=int, default=256)
     ap.add_argument("--samples", type=int, default=8)
+    ap.add_argument("--bundles", default="16x8x16,32x16x32,64x32x64",
+                    help="grids baked whole for the bundle-size and bake-time tables ('' skips)")
+    ap.add_argument("--one-bake", help=argparse.SUPPRESS)
+    ap.add_argument("--json-out", help=argparse.SUPPRESS)
     args = ap.parse_args()
     if not SCENE.exists():
         print(f"skipped: {SCENE} is absent (the benchmark reads ../shared/scenes)")
         return 0
     scene = ingest_file(SCENE)
+    if args.one_bake:                   # the child of bake_in_child
+        bake_whole(scene, [3, 2, 3])    # warm-up: numba kernels compiled or loaded, outside the timings
+        out = bake_whole(scene, [int(x) for x in args.one_bake.split("x")])
+        Path(args.json_out).write_text(json.dumps(out))
+        return 0
+    results = {"scene": "zdm2-sauerbraten", "triangles": scene.n_triangles, "grids": {}, "bundles": {}}
+    for g in filter(None, args.bundles.split(",")):
+        results["bundles"][g] = bake_in_child(g)
+    if results["bundles"]:
+        print_bundles(results["bundles"])
+    if not args.grids:
+        print(json.dumps(results))
+        return 0
     raw = RawEmbree(scene.triangles)
     # warm-up: compile / load numba kernels outside the timings
     run_grid(scene, [3, 2, 3], 16, 2, raw)
-    results = {"scene": "zdm2-sauerbraten", "triangles": scene.n_triangles, "grids": {}}
     for g in args.grids.split(","):
         counts = [int(x) for x in g.split("x")]
         results["grids"][g] = run_grid(scene, counts, args.rays, args.samples, raw)

@@ -130,3 +130,19 @@ def test_fixed_bounces_stop_every_configuration_there_and_report_progress():
     log = integrate(index, miss, albedo, e, dirs, states, N, gather, retire,
                     bounces=4, max_bounces=64, tolerance=1.0, report=fractions.append)
     assert calls == [([0, 1], 4)] and list(log.bounces) == [4, 4] and fractions == [0.25, 0.5, 0.75, 1.0]
+
+
+def test_the_loops_ray_major_maps_equal_irradiance_maps():
+    # integrate holds radiance ray-major and finishes its maps in one compiled pass (π · mean, OFF = 0, border):
+    # irradiance_maps' numbers
+    from workers.kernels.bounce import _RayMajorMaps
+    rng = np.random.default_rng(6)
+    for n, R, P, C in ((8, 128, 40, 3), (3, 32, 9, 6), (1, 16, 5, 3)):
+        dirs = fibonacci_sphere(R).astype(np.float32)
+        rad = (rng.random((P, R, C)) * 3).astype(np.float32)
+        states = np.full(P, ACTIVE)
+        states[::4] = OFF
+        want = irradiance_maps(dirs, rad, n, states)
+        got = _RayMajorMaps(dirs, n, states)(np.ascontiguousarray(rad.transpose(1, 0, 2)))
+        assert got.shape == want.shape and got.dtype == np.float32
+        assert np.allclose(got, want, rtol=1e-6, atol=1e-7) and np.all(got[::4] == 0)

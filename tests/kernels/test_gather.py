@@ -59,3 +59,30 @@ def test_uniform_maps_gather_their_value_and_both_gathers_agree_for_a_batch():
     both = sampler(maps)
     assert both.shape == (200, 6) and np.allclose(matrix(maps), both, atol=1e-5)
     assert np.array_equal(both[:, 3:], sampler(np.ascontiguousarray(maps[..., 3:])))
+
+
+@pytest.mark.parametrize("counts", [(3, 2, 4), (1, 3, 2), (4, 1, 1)])
+def test_sampler_gather_weights_once_equal_the_sampler(counts):
+    # SamplerGather computes the sampler's weights once (sampler_weights) and blends each bounce's maps with
+    # them: the sampler's values to float32 rounding, with OFF probes, occluded corners, one-probe axes, points
+    # outside the grid and rows the sampler returns 0 for (non-finite point, zero normal)
+    rng = np.random.default_rng(2)
+    g, pos, states, depth = _probes(counts, off=(0, 2))
+    pos = pos + rng.normal(0, 0.1, pos.shape).astype(np.float32)
+    depth[..., 0] = rng.uniform(0.2, 2.0, depth.shape[:-1])                # Chebyshev active in places
+    depth[..., 1] = depth[..., 0] ** 2 + rng.uniform(0, 0.2, depth.shape[:-1])
+    pts, nrm, view = _points(rng, 400, counts)
+    pts = pts + rng.uniform(-0.5, 0.5, pts.shape).astype(np.float32)        # some outside the grid
+    view = np.roll(view, 1, axis=0)
+    pts[3], nrm[4] = np.nan, 0.0
+    vis = rng.integers(0, 2, (400, 8)).astype(np.uint8)
+    maps = rng.random((pos.shape[0], N + 2, N + 2, 6)).astype(np.float32)
+    for v in (None, vis):
+        got = SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3, v, n=N)(maps)
+        for j in range(2):
+            ref = sample_irradiance(pts, nrm, view, g["counts"], g["origin"], g["spacing"], pos, states,
+                                    np.ascontiguousarray(maps[..., 3 * j:3 * j + 3]), depth, 0.3, visible=v)
+            assert np.allclose(got[:, 3 * j:3 * j + 3], ref, rtol=2e-6, atol=1e-6)
+            assert np.all(got[3:5] == 0) and np.any(ref != 0)
+    with pytest.raises(ValueError):
+        SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3, n=N)(maps[:, 1:, 1:])   # built for n = 6

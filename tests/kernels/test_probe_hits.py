@@ -42,6 +42,14 @@ def test_hit_surfaces_keep_front_hits_with_normals_toward_the_probe():
     assert np.all(np.einsum("ij,ij->i", s.normal, s.view) > 0)          # the side the ray arrived on
     assert np.allclose(s.albedo, (0.2, 0.4, 0.6)) and np.allclose(s.emission, (0, 1, 0))
     assert all(a.dtype == np.float32 for a in (s.position, s.normal, s.view, s.albedo, s.emission))
+    import workers.kernels.probe_hits as ph                    # shaded HIT_CHUNK hits at a time: the same arrays
+    chunk, ph.HIT_CHUNK = ph.HIT_CHUNK, 1
+    try:
+        one = hit_surfaces(scene, dirs, hits, tri)
+    finally:
+        ph.HIT_CHUNK = chunk
+    for name in ("index", "position", "normal", "view", "albedo", "emission", "miss"):
+        assert np.array_equal(getattr(one, name), getattr(s, name))
 
 
 class _Caster:
@@ -67,3 +75,13 @@ def test_probe_visibility_traces_live_cage_probes_only():
     assert np.array_equal(open_, np.tile((states != OFF).astype(np.uint8), (2, 1)))
     shut, _ = probe_visibility(surf, g, pos, states, _Caster(True), 0.3)
     assert not shut.any()
+
+
+def test_counting_order_is_the_stable_argsort():
+    # hit_surfaces orders the hits by a coarse 3D cell with a counting sort: numpy's stable argsort, faster
+    from workers.kernels.probe_hits import _counting_order
+    rng = np.random.default_rng(5)
+    for n_keys, size in ((1, 10), (7, 1000), (64 ** 3, 50000)):
+        key = rng.integers(0, n_keys, size)
+        assert np.array_equal(_counting_order(key, n_keys), np.argsort(key, kind="stable"))
+    assert _counting_order(np.zeros(0, np.int64), 8).shape == (0,)

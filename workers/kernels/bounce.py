@@ -18,21 +18,23 @@ first b terms of the Neumann series ``E = Σ_k T^k E_0``. Each configuration sto
 below ``tolerance`` of its value at every probe that matters (capped at ``max_bounces``).
 
 Batches: configuration j owns columns 3j..3j+2 of every (…, 3·B) array; a converged configuration leaves the
-batch (its columns are handed to ``retire`` and dropped), so later bounces cost only the live ones. One
-configuration gives bit for bit the numbers the light stage had before the batch form.
+batch (its columns are handed to ``retire`` and dropped), so later bounces cost only the live ones. The loop holds
+the radiance ray-major (row r·P + p), which the octahedral sums read without a transposed copy.
 
 Consumers: stages/light, kernels/prt_dataset, tests' light-stage reference. Inverse: none.
 """
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.convergence import relative_tail
 from workers.kernels.grid import OFF
-from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.octahedral import _cosine_power, accumulate_octahedral, add_border, oct_texel_directions
 
 __all__ = ["irradiance_maps", "integrate", "integrate_one", "BounceLog"]
 
@@ -57,6 +59,68 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
     maps = math.pi * accumulate_octahedral(dirs, radiance, oct_texel_directions(n), 1.0)   # DDGI-I eq 1, α = 0
     maps[states == OFF] = 0.0
     return add_border(maps).astype(np.float32)
+
+
+class _RayMajorMaps:
+    """:func:`irradiance_maps` of ray-major radiance (R, P, C): the same arithmetic (the cosine weights (T, R) and
+    their sums, then one product with the radiance as it lies, no transposed copy of it), float32 rounding apart
+    (the product's summation order)."""
+
+    def __init__(self, dirs: np.ndarray, n: int, states: np.ndarray):
+        self.n, self.off = n, states == OFF
+        self.w = _cosine_power(oct_texel_directions(n).reshape(-1, 3).astype(np.float32) @
+                               np.asarray(dirs, np.float32).T, 1.0)                     # (T, R) max(0, n·ω)
+        self.den = self.w.sum(axis=-1)
+        self.ok = self.den > 0
+
+    def __call__(self, radiance_rm: np.ndarray) -> np.ndarray:
+        R, P, C = radiance_rm.shape
+        num = (self.w @ radiance_rm.reshape(R, P * C)).reshape(-1, P, C)               # Σ_r w · L: (T, P, C)
+        out = np.empty((P, self.n + 2, self.n + 2, C), np.float32)
+        bounds = np.linspace(0, P, _MAP_THREADS + 1).astype(np.int64)
+        with ThreadPoolExecutor(_MAP_THREADS) as pool:      # π · num / den, OFF = 0, the border: one pass
+            list(pool.map(lambda i: _finish_maps(num, self.den, self.ok, self.off, bounds[i], bounds[i + 1], out),
+                          range(_MAP_THREADS)))
+        return out
+
+
+_MAP_THREADS = 2
+
+
+@njit(cache=True, nogil=True)
+def _finish_maps(num, den, ok, off, p0, p1, out):
+    """Probes p0..p1 of :class:`_RayMajorMaps`: ``out[p]`` (n+2, n+2, C) = π·num[:, p]/den in the interior (0 where
+    den = 0 or the probe is OFF), float32 as numpy computes it, with :func:`workers.kernels.octahedral.add_border`'s
+    border."""
+    n = out.shape[1] - 2
+    C = out.shape[3]
+    pi = np.float32(math.pi)
+    for p in range(p0, p1):
+        for i in range(n):
+            for j in range(n):
+                t = i * n + j
+                for c in range(C):
+                    out[p, i + 1, j + 1, c] = pi * (num[t, p, c] / den[t]) if ok[t] and not off[p] else 0.0
+        for k in range(1, n + 1):
+            for c in range(C):
+                out[p, 0, k, c] = out[p, 1, n + 1 - k, c]              # top: first row, columns flipped
+                out[p, n + 1, k, c] = out[p, n, n + 1 - k, c]          # bottom: last row, columns flipped
+                out[p, k, 0, c] = out[p, n + 1 - k, 1, c]              # left: first column, rows flipped
+                out[p, k, n + 1, c] = out[p, n + 1 - k, n, c]          # right: last column, rows flipped
+        for c in range(C):                                             # corners from the opposite interior corner
+            out[p, 0, 0, c] = out[p, n, n, c]
+            out[p, 0, n + 1, c] = out[p, n, 1, c]
+            out[p, n + 1, 0, c] = out[p, 1, n, c]
+            out[p, n + 1, n + 1, c] = out[p, 1, 1, c]
+
+
+@njit(cache=True, nogil=True)
+def _shade_hits(radiance, index, base, rho, e_indirect):
+    """radiance[index[h]] = base[h] + rho[h]·e_indirect[h] (float32; rows of ray-major radiance)."""
+    for h in range(index.shape[0]):
+        r = index[h]
+        for c in range(base.shape[1]):
+            radiance[r, c] = base[h, c] + rho[h, c] * e_indirect[h, c]
 
 
 @dataclass
@@ -117,9 +181,12 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     if emission is not None:
         base = np.tile(emission, (1, B)) + base                               # + emission
     rho = np.tile(alb, (1, B))
-    radiance = np.zeros((P * R, 3 * B), np.float32)
+    # radiance ray-major, (R·P, 3B): row r·P + p is probe p's ray r (the octahedral sums read it without a copy)
+    radiance = np.zeros((R * P, 3 * B), np.float32)
+    rows = (index % R) * P + index // R
     if sky is not None:
-        radiance[miss.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+        radiance[miss.T.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+    accumulate = _RayMajorMaps(dirs, n, states)
     maps = np.zeros((P, t, t, 3 * B), np.float32)
     live = np.arange(B)
     log = BounceLog(bounces=np.zeros(B, np.int64), change=[[] for _ in range(B)], residual=[[] for _ in range(B)])
@@ -127,10 +194,10 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     cap = bounces if bounces is not None else max_bounces
     for b in range(1, cap + 1):
         if b == 1:
-            radiance[index] = base                                             # E_indirect = 0: the first bounce
+            radiance[rows] = base                                              # E_indirect = 0: the first bounce
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
-            radiance[index] = base + rho * gather(maps)
-        new = irradiance_maps(dirs, radiance.reshape(P, R, -1), n, states)    # DDGI-I eq 1, α = 0
+            _shade_hits(radiance, rows, base, rho, np.ascontiguousarray(gather(maps), np.float32))
+        new = accumulate(radiance.reshape(R, P, -1))                          # DDGI-I eq 1, α = 0
         if correction is not None:
             new += correction                                                  # the fixed term over more rays
         nb = live.size
@@ -157,7 +224,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             continue
         cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
         log.bounces[live[done]] = b
-        retire(live[done], radiance[:, cols].reshape(P, R, -1), new[..., cols], b)
+        picked = radiance if done.all() else radiance[:, cols]               # no copy when all stop together
+        retire(live[done], picked.reshape(R, P, -1).transpose(1, 0, 2), new[..., cols], b)
         keep = ~done
         if not keep.any():
             break

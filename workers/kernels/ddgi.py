@@ -159,104 +159,127 @@ def bias_scale(spacing, self_shadow_bias: float = SELF_SHADOW_BIAS) -> float:
 
 
 @njit(cache=True, nogil=True)
+def point_weights(i, points, normals, views, counts, origin, spacing, bias, probe_pos, states, depth, visible,
+                   n_irr, w8):
+    """The DDGI weights of point i's 8 cage corners (module doc steps 1-3), unnormalized, into ``w8`` (8,) float64:
+    0 for a skipped corner (OFF, or not ``visible``), > 0 otherwise. Returns ``(ok, q0, ir0, ic0, ifr, ifc)``:
+    ``ok`` False for a row with non-finite inputs or a zero normal; ``q0`` the cage's base probe (corner c is
+    ``min(base + offset(c), counts - 1)`` per axis); the irradiance footprint of the normal (:func:`_oct_texel`)."""
+    x0 = float(points[i, 0])
+    x1 = float(points[i, 1])
+    x2 = float(points[i, 2])
+    n0 = float(normals[i, 0])
+    n1 = float(normals[i, 1])
+    n2 = float(normals[i, 2])
+    v0 = float(views[i, 0])
+    v1 = float(views[i, 1])
+    v2 = float(views[i, 2])
+    nx = counts[0]
+    ny = counts[1]
+    n_dep = depth.shape[1] - 2
+    # self-shadow bias, DDGI-P eq 2: x_b = x + (n·0.2 + ω_o·0.8)·(0.75·D)·B
+    bp0 = x0 + (n0 * NORMAL_BIAS + v0 * VIEW_BIAS) * bias
+    bp1 = x1 + (n1 * NORMAL_BIAS + v1 * VIEW_BIAS) * bias
+    bp2 = x2 + (n2 * NORMAL_BIAS + v2 * VIEW_BIAS) * bias
+    nl1 = abs(n0) + abs(n1) + abs(n2)
+    if not (math.isfinite(bp0) and math.isfinite(bp1) and math.isfinite(bp2) and math.isfinite(nl1) and nl1 > 0.0):
+        return False, 0, 0, 0, 0.0, 0.0
+    # cage of the biased point on the un-relocated grid (grid.cell_coords)
+    base0 = base1 = base2 = 0
+    al0 = al1 = al2 = 0.0
+    for a in range(3):
+        bpa = bp0 if a == 0 else (bp1 if a == 1 else bp2)
+        g = (bpa - origin[a]) / spacing[a] if spacing[a] > 0.0 else 0.0
+        hi = max(counts[a] - 2, 0)
+        b = min(max(math.floor(g), 0.0), float(hi))
+        al = min(max(g - b, 0.0), 1.0)
+        al = al if counts[a] > 1 else 0.0
+        if a == 0:
+            base0, al0 = int(b), al
+        elif a == 1:
+            base1, al1 = int(b), al
+        else:
+            base2, al2 = int(b), al
+    # irradiance footprint in the direction of the normal (same for all 8 probes)
+    ir0, ic0, ifr, ifc = _oct_texel(n0, n1, n2, n_irr)
+    for c in range(8):
+        w8[c] = 0.0
+        o0 = c & 1
+        o1 = (c >> 1) & 1
+        o2 = (c >> 2) & 1
+        gi = min(base0 + o0, counts[0] - 1)
+        gj = min(base1 + o1, counts[1] - 1)
+        gk = min(base2 + o2, counts[2] - 1)
+        q = gi + nx * (gj + ny * gk)
+        if states[q] == OFF:  # never used (a numba compile-time constant)
+            continue
+        if visible.shape[0] and visible[i, c] == 0:  # ray-traced visibility: the probe is occluded
+            continue
+        p0 = probe_pos[q, 0]
+        p1 = probe_pos[q, 1]
+        p2 = probe_pos[q, 2]
+        # smooth backface weight, wrap shading (DDGI-I §3.4.1), from the unbiased point (RTXGI)
+        t0 = p0 - x0
+        t1 = p1 - x1
+        t2 = p2 - x2
+        dl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+        cosw = (t0 * n0 + t1 * n1 + t2 * n2) / dl if dl > 0.0 else 0.0
+        wrap = (cosw + 1.0) * 0.5
+        w = wrap * wrap + _WRAP_OFFSET
+        # Chebyshev moment visibility (DDGI-I §3.4.1; DDGI-P §2.2), probe -> biased point (DDGI-P §4.1)
+        b0 = bp0 - p0
+        b1 = bp1 - p1
+        b2 = bp2 - p2
+        r = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
+        cheb = 1.0
+        if r > 0.0:
+            dr0, dc0, dfr, dfc = _oct_texel(b0, b1, b2, n_dep)
+            top = float(depth[q, dr0, dc0, 0]) * (1.0 - dfc) + float(depth[q, dr0, dc0 + 1, 0]) * dfc
+            bot = float(depth[q, dr0 + 1, dc0, 0]) * (1.0 - dfc) + float(depth[q, dr0 + 1, dc0 + 1, 0]) * dfc
+            mean = top * (1.0 - dfr) + bot * dfr
+            top = float(depth[q, dr0, dc0, 1]) * (1.0 - dfc) + float(depth[q, dr0, dc0 + 1, 1]) * dfc
+            bot = float(depth[q, dr0 + 1, dc0, 1]) * (1.0 - dfc) + float(depth[q, dr0 + 1, dc0 + 1, 1]) * dfc
+            mean2 = top * (1.0 - dfr) + bot * dfr
+            if r > mean:  # occluded side of the mean: one-sided Chebyshev bound, cubed
+                variance = abs(mean * mean - mean2)
+                dv = r - mean
+                cheb = variance / (variance + dv * dv)
+                cheb = cheb * cheb * cheb
+        w *= max(_CHEBYSHEV_FLOOR, cheb)
+        w = max(_MIN_WEIGHT, w)
+        if w < _CRUSH_THRESHOLD:  # log perception weight (DDGI-I §3.4.1): crush, continuous at the threshold
+            w *= w * w * (1.0 / (_CRUSH_THRESHOLD * _CRUSH_THRESHOLD))
+        # trilinear weight last (DDGI-I §3.4.1; RTXGI's order)
+        tw = max(_TRILINEAR_FLOOR, al0 if o0 == 1 else 1.0 - al0)
+        tw *= max(_TRILINEAR_FLOOR, al1 if o1 == 1 else 1.0 - al1)
+        tw *= max(_TRILINEAR_FLOOR, al2 if o2 == 1 else 1.0 - al2)
+        w8[c] = w * tw                      # > 0: at least 1e-6 crushed (2.5e-17) times 1e-9
+    return True, base0 + nx * (base1 + ny * base2), ir0, ic0, ifr, ifc
+
+
+@njit(cache=True, nogil=True)
 def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, irr, depth,
                               visible, out):
     n_irr = irr.shape[1] - 2
-    n_dep = depth.shape[1] - 2
     nx = counts[0]
     ny = counts[1]
-    base = np.empty(3, np.int64)
-    alpha = np.empty(3, np.float64)
-    bp = np.empty(3, np.float64)
+    w8 = np.empty(8, np.float64)
     acc = np.empty(3, np.float64)
     for i in range(points.shape[0]):
-        x0 = float(points[i, 0])
-        x1 = float(points[i, 1])
-        x2 = float(points[i, 2])
-        n0 = float(normals[i, 0])
-        n1 = float(normals[i, 1])
-        n2 = float(normals[i, 2])
-        v0 = float(views[i, 0])
-        v1 = float(views[i, 1])
-        v2 = float(views[i, 2])
-        # self-shadow bias, DDGI-P eq 2: x_b = x + (n·0.2 + ω_o·0.8)·(0.75·D)·B
-        bp[0] = x0 + (n0 * NORMAL_BIAS + v0 * VIEW_BIAS) * bias
-        bp[1] = x1 + (n1 * NORMAL_BIAS + v1 * VIEW_BIAS) * bias
-        bp[2] = x2 + (n2 * NORMAL_BIAS + v2 * VIEW_BIAS) * bias
-        nl1 = abs(n0) + abs(n1) + abs(n2)
-        if not (math.isfinite(bp[0]) and math.isfinite(bp[1]) and math.isfinite(bp[2])
-                and math.isfinite(nl1) and nl1 > 0.0):
-            out[i, 0] = 0.0
-            out[i, 1] = 0.0
-            out[i, 2] = 0.0
-            continue
-        # cage of the biased point on the un-relocated grid (grid.cell_coords)
-        for a in range(3):
-            g = (bp[a] - origin[a]) / spacing[a] if spacing[a] > 0.0 else 0.0
-            hi = max(counts[a] - 2, 0)
-            b = min(max(math.floor(g), 0.0), float(hi))
-            base[a] = int(b)
-            al = min(max(g - b, 0.0), 1.0)
-            alpha[a] = al if counts[a] > 1 else 0.0
-        # irradiance footprint in the direction of the normal (same for all 8 probes)
-        ir0, ic0, ifr, ifc = _oct_texel(n0, n1, n2, n_irr)
+        ok, q0, ir0, ic0, ifr, ifc = point_weights(i, points, normals, views, counts, origin, spacing, bias,
+                                                     probe_pos, states, depth, visible, n_irr, w8)
         acc[0] = 0.0
         acc[1] = 0.0
         acc[2] = 0.0
         wsum = 0.0
-        for c in range(8):
-            o0 = c & 1
-            o1 = (c >> 1) & 1
-            o2 = (c >> 2) & 1
-            gi = min(base[0] + o0, counts[0] - 1)
-            gj = min(base[1] + o1, counts[1] - 1)
-            gk = min(base[2] + o2, counts[2] - 1)
+        for c in range(8 if ok else 0):
+            w = w8[c]
+            if w == 0.0:  # OFF or occluded
+                continue
+            gi = min(q0 % nx + (c & 1), counts[0] - 1)
+            gj = min((q0 // nx) % ny + ((c >> 1) & 1), counts[1] - 1)
+            gk = min(q0 // (nx * ny) + ((c >> 2) & 1), counts[2] - 1)
             q = gi + nx * (gj + ny * gk)
-            if states[q] == OFF:  # never used (a numba compile-time constant)
-                continue
-            if visible.shape[0] and visible[i, c] == 0:  # ray-traced visibility: the probe is occluded
-                continue
-            p0 = probe_pos[q, 0]
-            p1 = probe_pos[q, 1]
-            p2 = probe_pos[q, 2]
-            # smooth backface weight, wrap shading (DDGI-I §3.4.1), from the unbiased point (RTXGI)
-            t0 = p0 - x0
-            t1 = p1 - x1
-            t2 = p2 - x2
-            dl = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
-            cosw = (t0 * n0 + t1 * n1 + t2 * n2) / dl if dl > 0.0 else 0.0
-            wrap = (cosw + 1.0) * 0.5
-            w = wrap * wrap + _WRAP_OFFSET
-            # Chebyshev moment visibility (DDGI-I §3.4.1; DDGI-P §2.2), probe -> biased point (DDGI-P §4.1)
-            b0 = bp[0] - p0
-            b1 = bp[1] - p1
-            b2 = bp[2] - p2
-            r = math.sqrt(b0 * b0 + b1 * b1 + b2 * b2)
-            cheb = 1.0
-            if r > 0.0:
-                dr0, dc0, dfr, dfc = _oct_texel(b0, b1, b2, n_dep)
-                top = float(depth[q, dr0, dc0, 0]) * (1.0 - dfc) + float(depth[q, dr0, dc0 + 1, 0]) * dfc
-                bot = float(depth[q, dr0 + 1, dc0, 0]) * (1.0 - dfc) + float(depth[q, dr0 + 1, dc0 + 1, 0]) * dfc
-                mean = top * (1.0 - dfr) + bot * dfr
-                top = float(depth[q, dr0, dc0, 1]) * (1.0 - dfc) + float(depth[q, dr0, dc0 + 1, 1]) * dfc
-                bot = float(depth[q, dr0 + 1, dc0, 1]) * (1.0 - dfc) + float(depth[q, dr0 + 1, dc0 + 1, 1]) * dfc
-                mean2 = top * (1.0 - dfr) + bot * dfr
-                if r > mean:  # occluded side of the mean: one-sided Chebyshev bound, cubed
-                    variance = abs(mean * mean - mean2)
-                    dv = r - mean
-                    cheb = variance / (variance + dv * dv)
-                    cheb = cheb * cheb * cheb
-            w *= max(_CHEBYSHEV_FLOOR, cheb)
-            w = max(_MIN_WEIGHT, w)
-            if w < _CRUSH_THRESHOLD:  # log perception weight (DDGI-I §3.4.1): crush, continuous at the threshold
-                w *= w * w * (1.0 / (_CRUSH_THRESHOLD * _CRUSH_THRESHOLD))
-            # trilinear weight last (DDGI-I §3.4.1; RTXGI's order)
-            tw = 1.0
-            for a in range(3):
-                off = o0 if a == 0 else (o1 if a == 1 else o2)
-                lerp = alpha[a] if off == 1 else 1.0 - alpha[a]
-                tw *= max(_TRILINEAR_FLOOR, lerp)
-            w *= tw
             for ch in range(3):
                 top = float(irr[q, ir0, ic0, ch]) * (1.0 - ifc) + float(irr[q, ir0, ic0 + 1, ch]) * ifc
                 bot = float(irr[q, ir0 + 1, ic0, ch]) * (1.0 - ifc) + float(irr[q, ir0 + 1, ic0 + 1, ch]) * ifc
@@ -266,7 +289,7 @@ def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, b
             out[i, 0] = acc[0] / wsum
             out[i, 1] = acc[1] / wsum
             out[i, 2] = acc[2] / wsum
-        else:  # every cage probe is OFF
+        else:  # every cage probe is OFF, or the row's inputs are not finite
             out[i, 0] = 0.0
             out[i, 1] = 0.0
             out[i, 2] = 0.0
@@ -326,6 +349,27 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     float64 arithmetic. Specialized for float32 or float64 inputs (points/normals/views share one
     dtype, the two map arrays another); the compiled code is cached on disk.
     """
+    pts, nrm, view, cnt, org, spc, bias, pos, st, dep, vis = sampler_inputs(
+        points, normals, view_dirs, counts, origin, spacing, probe_positions, states, depth, self_shadow_bias, visible)
+    P, n = pos.shape[0], pts.shape[0]
+    irr = np.asarray(irradiance)
+    if irr.ndim != 4 or irr.shape[0] != P or irr.shape[1] != irr.shape[2] or irr.shape[1] < 3 or irr.shape[3] != 3:
+        raise ValueError(f"sample_irradiance: irradiance must be ({P}, n + 2, n + 2, 3), got {irr.shape}")
+    mdt = np.float32 if irr.dtype == np.float32 and dep.dtype == np.float32 else np.float64
+    irr = np.ascontiguousarray(irr, dtype=mdt)
+    dep = np.ascontiguousarray(dep, dtype=mdt)
+    out = np.empty((n, 3), np.float32)
+    if n:
+        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias, pos, st, irr, dep, vis, out)
+    return out
+
+
+def sampler_inputs(points, normals, view_dirs, counts, origin, spacing, probe_positions, states, depth,
+                   self_shadow_bias, visible):
+    """:func:`sample_irradiance`'s inputs checked and laid out for its kernels (also
+    :func:`workers.kernels.gather.sampler_weights`'): ``(points, normals, views, counts, origin, spacing, bias
+    (0.75·D·B, DDGI-P eq 2), positions (P, 3) float64, states (P,) uint8, depth (checked, not cast), visible
+    ((N, 8) uint8, or (0, 8) for None))``. Raises ValueError naming the bad argument."""
     pts = _float_rows(points, "points")
     n = pts.shape[0]
     nrm = _float_rows(normals, "normals", n)
@@ -347,26 +391,16 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     if pos.shape != (P, 3) or st.shape != (P,):
         raise ValueError(f"sample_irradiance: probe_positions must be ({P}, 3) and states ({P},), "
                          f"got {pos.shape}, {st.shape}")
-    irr = np.asarray(irradiance)
     dep = np.asarray(depth)
-    if irr.ndim != 4 or irr.shape[0] != P or irr.shape[1] != irr.shape[2] or irr.shape[1] < 3 or irr.shape[3] != 3:
-        raise ValueError(f"sample_irradiance: irradiance must be ({P}, n + 2, n + 2, 3), got {irr.shape}")
     if dep.ndim != 4 or dep.shape[0] != P or dep.shape[1] != dep.shape[2] or dep.shape[1] < 3 or dep.shape[3] != 2:
         raise ValueError(f"sample_irradiance: depth must be ({P}, m + 2, m + 2, 2), got {dep.shape}")
-    mdt = np.float32 if irr.dtype == np.float32 and dep.dtype == np.float32 else np.float64
-    irr = np.ascontiguousarray(irr, dtype=mdt)
-    dep = np.ascontiguousarray(dep, dtype=mdt)
     if visible is None:
         vis = np.zeros((0, 8), np.uint8)
     else:
         vis = np.ascontiguousarray(visible, np.uint8)
         if vis.shape != (n, 8):
             raise ValueError(f"sample_irradiance: visible must be ({n}, 8), got {vis.shape}")
-    out = np.empty((n, 3), np.float32)
-    if n:
-        bias = bias_scale(spc, self_shadow_bias)  # 0.75·D·B (DDGI-P eq 2)
-        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias, pos, st, irr, dep, vis, out)
-    return out
+    return pts, nrm, view, cnt, org, spc, bias_scale(spc, self_shadow_bias), pos, st, dep, vis
 
 
 def cage_rays(biased: np.ndarray, cage: np.ndarray, probe_positions: np.ndarray, states: np.ndarray):

@@ -5,8 +5,11 @@ Two ways to evaluate the same sampler, both callables ``gather(maps) -> (H, C)``
 (:func:`workers.kernels.bounce.integrate`), ``maps`` (P, n+2, n+2, C) float32 bordered octahedral irradiance
 with C = 3·k (k configurations, RGB interleaved):
 
-- :class:`SamplerGather`: :func:`~workers.kernels.ddgi.sample_irradiance` itself, on SAMPLE_THREADS threads
-  (one configuration at a time; the light stage);
+- :class:`SamplerGather`: :func:`~workers.kernels.ddgi.sample_irradiance`'s weights computed once
+  (:func:`sampler_weights`: they depend on geometry, probes, depth and visibility, not on the maps), then each
+  bounce only blends the maps with them (:func:`apply_sampler_weights`), on SAMPLE_THREADS threads, every
+  configuration of a batch in one pass (the light stage). It equals the sampler to float32 rounding of the
+  normalized weights (about 1e-7 relative), at about 48 bytes a point;
 - :class:`MatrixGather`: the sampler as a sparse matrix (:func:`ddgi_weights`, built once), one sparse product
   for every configuration of a batch (PRT's dataset). It equals the sampler to float32 rounding.
 
@@ -15,55 +18,166 @@ Consumers: stages/light, kernels/prt_dataset. Inverse: none.
 from __future__ import annotations
 
 from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numpy as np
 import scipy.sparse as sp
+from numba import njit
 
-from workers.kernels.ddgi import cage_probes, sample_irradiance
+from workers.kernels.ddgi import point_weights, cage_probes, sample_irradiance, sampler_inputs
 
-__all__ = ["SamplerGather", "MatrixGather", "ddgi_weights", "SAMPLE_THREADS"]
+__all__ = ["SamplerGather", "MatrixGather", "ddgi_weights", "SamplerWeights", "sampler_weights",
+           "apply_sampler_weights", "SAMPLE_THREADS"]
 
 SAMPLE_THREADS = 2
 """Threads for the probe sampler (its numba kernel releases the GIL)."""
 
 
+class SamplerWeights(NamedTuple):
+    """The DDGI sampler's weights at N points (:func:`sampler_weights`), for any maps of the grid.
+
+    ``base`` (N,) int32: the cage's base probe (corner c at ``base + (c & 1)·steps[0] + (c >> 1 & 1)·steps[1] +
+    (c >> 2 & 1)·steps[2]``); ``weight`` (N, 8) float32: corner c's weight over the weights' sum (0: OFF, occluded,
+    or a row the sampler returns 0 for); ``texel`` (N,) int32: the bilinear tap's top-left texel ``row·(n+2) + col``
+    of the normal's direction in a bordered map; ``frac`` (N, 2) float32: its (row, col) fractions; ``steps`` (3,)
+    int64: the flat-index step per axis (0 on a one-probe axis, where the sampler clamps)."""
+
+    base: np.ndarray
+    weight: np.ndarray
+    texel: np.ndarray
+    frac: np.ndarray
+    steps: np.ndarray
+
+
+@njit(cache=True, nogil=True)
+def _weights_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, depth, visible, t,
+                    base, weight, texel, frac):
+    w8 = np.empty(8, np.float64)
+    for i in range(points.shape[0]):
+        ok, q0, ir0, ic0, ifr, ifc = point_weights(i, points, normals, views, counts, origin, spacing, bias,
+                                                     probe_pos, states, depth, visible, t - 2, w8)
+        wsum = 0.0
+        for c in range(8):
+            wsum += w8[c]
+        for c in range(8):
+            weight[i, c] = w8[c] / wsum if ok and wsum > 0.0 else 0.0
+        base[i] = q0
+        texel[i] = ir0 * t + ic0
+        frac[i, 0] = ifr
+        frac[i, 1] = ifc
+
+
+@njit(cache=True, nogil=True)
+def _apply_kernel(base, weight, texel, frac, steps, maps, out):
+    t = maps.shape[1]
+    C = maps.shape[3]
+    acc = np.empty(C, np.float64)
+    for i in range(base.shape[0]):
+        r0 = texel[i] // t
+        c0 = texel[i] - r0 * t
+        fr = float(frac[i, 0])
+        fc = float(frac[i, 1])
+        for ch in range(C):
+            acc[ch] = 0.0
+        for c in range(8):
+            w = float(weight[i, c])
+            if w == 0.0:
+                continue
+            q = base[i] + (c & 1) * steps[0] + ((c >> 1) & 1) * steps[1] + ((c >> 2) & 1) * steps[2]
+            for ch in range(C):
+                top = float(maps[q, r0, c0, ch]) * (1.0 - fc) + float(maps[q, r0, c0 + 1, ch]) * fc
+                bot = float(maps[q, r0 + 1, c0, ch]) * (1.0 - fc) + float(maps[q, r0 + 1, c0 + 1, ch]) * fc
+                acc[ch] += w * (top * (1.0 - fr) + bot * fr)
+        for ch in range(C):
+            out[i, ch] = acc[ch]
+
+
+def _chunks(n: int):
+    bounds = np.linspace(0, n, SAMPLE_THREADS + 1).astype(int)
+    return [(int(bounds[i]), int(bounds[i + 1])) for i in range(SAMPLE_THREADS)]
+
+
+def sampler_weights(points, normals, views, grid: dict, positions, states, depth, n: int, bias: float,
+                    visible=None) -> SamplerWeights:
+    """What :func:`workers.kernels.ddgi.sample_irradiance` weighs at each point, computed once (DDGI-P §2.2:
+    ``E = Σ_i w_i E_i(n) / Σ_i w_i``, the weights independent of E), on SAMPLE_THREADS threads.
+
+    points, normals, views : (N, 3) (world space, metres; unit normal; unit direction toward the viewer); grid :
+    ``counts``, ``origin``, ``spacing``; positions : (P, 3) relocated probes; states : (P,); depth : (P, m+2, m+2, 2)
+    depth moments with border; n : interior texels of the irradiance maps; bias : DDGI-P eq 2's B; visible :
+    (N, 8) ray-traced cage visibility or None. The same arithmetic as the sampler (the shared
+    :func:`workers.kernels.ddgi.point_weights`), the normalized weights rounded to float32.
+    """
+    pts, nrm, view, cnt, org, spc, b, pos, st, dep, vis = sampler_inputs(
+        points, normals, views, grid["counts"], grid["origin"], grid["spacing"], positions, states, depth, bias,
+        visible)
+    dep = np.ascontiguousarray(dep, np.float32 if dep.dtype == np.float32 else np.float64)
+    N = pts.shape[0]
+    if cnt.prod() >= 2 ** 31:
+        raise ValueError(f"sampler_weights: {int(cnt.prod())} probes do not fit int32 indices")
+    out = SamplerWeights(np.empty(N, np.int32), np.empty((N, 8), np.float32), np.empty(N, np.int32),
+                         np.empty((N, 2), np.float32),
+                         np.array([1 if cnt[0] > 1 else 0, cnt[0] if cnt[1] > 1 else 0,
+                                   cnt[0] * cnt[1] if cnt[2] > 1 else 0], np.int64))
+
+    def work(ab):
+        a, e = ab
+        if e > a:
+            _weights_kernel(pts[a:e], nrm[a:e], view[a:e], cnt, org, spc, b, pos, st, dep,
+                            vis[a:e] if vis.shape[0] else vis, n + 2, out.base[a:e], out.weight[a:e],
+                            out.texel[a:e], out.frac[a:e])
+
+    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
+        list(pool.map(work, _chunks(N)))
+    return out
+
+
+def apply_sampler_weights(weights: SamplerWeights, maps: np.ndarray) -> np.ndarray:
+    """(N, C) float32: ``Σ_c weight_c · bilinear(maps[probe_c], normal)`` with maps (P, n+2, n+2, C) float32 (any C:
+    every configuration of a batch at once), on SAMPLE_THREADS threads; float64 sums, as the sampler."""
+    maps = np.ascontiguousarray(maps, np.float32)
+    N = weights.base.shape[0]
+    out = np.empty((N, maps.shape[3]), np.float32)
+
+    def work(ab):
+        a, e = ab
+        if e > a:
+            _apply_kernel(weights.base[a:e], weights.weight[a:e], weights.texel[a:e], weights.frac[a:e],
+                          weights.steps, maps, out[a:e])
+
+    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
+        list(pool.map(work, _chunks(N)))
+    return out
+
+
 class SamplerGather:
-    """``gather(maps) -> (H, C) float32``: DDGI irradiance (:func:`sample_irradiance`) at the points.
+    """``gather(maps) -> (H, C) float32``: DDGI irradiance (:func:`sample_irradiance`) at the points, from
+    weights computed once (:func:`sampler_weights`; the points, normals and views are not kept).
 
     points, normals, views : (H, 3) float32 (world space, metres; unit normal; unit direction toward the
     viewer); grid : ``counts``, ``origin``, ``spacing``; positions : (P, 3) relocated probes; states : (P,);
     depth : (P, m+2, m+2, 2) depth moments with border; bias : DDGI-P eq 2's B; visible : (H, 8) uint8
-    ray-traced cage visibility (:func:`workers.kernels.probe_hits.probe_visibility`) or None.
-    The points are cut into SAMPLE_THREADS contiguous chunks (the same result as one call).
+    ray-traced cage visibility (:func:`workers.kernels.probe_hits.probe_visibility`) or None; n : interior texels
+    of the maps to come (None: the first call's; the inputs are kept until then, and dropped after).
     """
 
-    def __init__(self, points, normals, views, grid: dict, positions, states, depth, bias: float, visible=None):
-        self.points, self.normals, self.views = points, normals, views
-        self.grid, self.positions, self.states, self.depth = grid, positions, states, depth
-        self.bias, self.visible = bias, visible
+    def __init__(self, points, normals, views, grid: dict, positions, states, depth, bias: float, visible=None,
+                 n: int | None = None):
+        self._inputs = (points, normals, views, grid, positions, states, depth)
+        self.bias, self.visible, self.n, self.weights = bias, visible, None, None
+        if n is not None:
+            self._build(int(n))
 
-    def _sample(self, maps: np.ndarray) -> np.ndarray:
-        g = self.grid
-        n = self.points.shape[0]
-        out = np.empty((n, 3), np.float32)
-        bounds = np.linspace(0, n, SAMPLE_THREADS + 1).astype(int)
-
-        def work(i):
-            a, b = bounds[i], bounds[i + 1]
-            out[a:b] = sample_irradiance(self.points[a:b], self.normals[a:b], self.views[a:b], g["counts"],
-                                         g["origin"], g["spacing"], self.positions, self.states, maps, self.depth,
-                                         self.bias, visible=None if self.visible is None else self.visible[a:b])
-
-        with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
-            list(pool.map(work, range(SAMPLE_THREADS)))
-        return out
+    def _build(self, n: int) -> None:
+        self.weights = sampler_weights(*self._inputs, n, self.bias, self.visible)
+        self.n, self._inputs, self.visible = n, None, None
 
     def __call__(self, maps: np.ndarray) -> np.ndarray:
-        k = maps.shape[-1] // 3
-        if k == 1:
-            return self._sample(maps)
-        return np.concatenate([self._sample(np.ascontiguousarray(maps[..., 3 * j:3 * j + 3])) for j in range(k)],
-                              axis=1)
+        if self.weights is None:
+            self._build(maps.shape[1] - 2)
+        elif maps.shape[1] != self.n + 2:
+            raise ValueError(f"SamplerGather: built for ({self.n}+2)² maps, got {maps.shape}")
+        return apply_sampler_weights(self.weights, maps)
 
 
 class MatrixGather:

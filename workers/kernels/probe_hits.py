@@ -17,11 +17,15 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.ddgi import cage_probes, cage_rays
 from workers.kernels.shading import surface_at_hits
 
-__all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "VISIBILITY_CHUNK"]
+__all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "VISIBILITY_CHUNK", "HIT_CHUNK"]
+
+HIT_CHUNK = 1 << 21
+"""Hits shaded per :func:`workers.kernels.shading.surface_at_hits` call in :func:`hit_surfaces` (memory bound)."""
 
 VISIBILITY_CHUNK = 1 << 20
 """Hits per batch of visibility rays (8 rays each), bounding memory."""
@@ -65,22 +69,50 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     in ``index``. The hits are returned in spatial order (a coarse 3D grid), which changes no result.
     """
     P, R = tri.shape
-    u, v, back = hits[..., 1], hits[..., 2], hits[..., 3] > 0.5
-    front = (tri >= 0) & ~back
-    index = np.flatnonzero(front)
-    s = surface_at_hits(scene, tri.ravel()[index], u.ravel()[index], v.ravel()[index])
-    d = np.tile(dirs, (P, 1))[index]
-    n = s["normal"].astype(np.float32)
-    n = np.where((np.einsum("ij,ij->i", n, d) > 0)[:, None], -n, n)   # shade the side the ray arrived on
-    pos = s["position"].astype(np.float32)
+    flat = hits.reshape(-1, hits.shape[-1])               # (P·R, 4): t, u, v, backface
+    index = np.flatnonzero((tri >= 0) & ~(hits[..., 3] > 0.5))
+    d = np.asarray(dirs)[index % R]                       # ray index·R + r: direction r (no (P·R, 3) tile)
+    H = index.size
+    pos, n, alb, emi = (np.empty((H, 3), np.float32) for _ in range(4))
+    for a in range(0, H, HIT_CHUNK):                      # bounded float64 temporaries (12M hits: ~2 GB at once)
+        b = min(H, a + HIT_CHUNK)
+        uv = flat[index[a:b], 1:3]
+        s = surface_at_hits(scene, tri.ravel()[index[a:b]], uv[:, 0], uv[:, 1])
+        nn = s["normal"].astype(np.float32)
+        n[a:b] = np.where((np.einsum("ij,ij->i", nn, d[a:b]) > 0)[:, None], -nn, nn)   # the side the ray arrived on
+        pos[a:b], alb[a:b], emi[a:b] = s["position"], s["albedo"], s["emission"]
     # visit hits in spatial order (a coarse 3D grid): the probe sampler then reads neighbouring probes
     # from cache (about 1.6x faster than ray order); the order does not change any result
     lo, hi = pos.min(axis=0) if len(pos) else 0, pos.max(axis=0) if len(pos) else 1
     cell = np.floor((pos - lo) / np.maximum(hi - lo, 1e-6) * 63.999).astype(np.int64)
-    order = np.argsort(cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2]), kind="stable")
-    return HitSurfaces(index=index[order], position=pos[order], normal=n[order], view=(-d[order]).astype(np.float32),
-                       albedo=s["albedo"][order].astype(np.float32), emission=s["emission"][order].astype(np.float32),
-                       miss=tri < 0, P=P, R=R)
+    key = cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2])
+    in_range = len(key) == 0 or (key.min() >= 0 and key.max() < 64 ** 3)        # (not for non-finite positions)
+    order = _counting_order(key, 64 ** 3) if in_range else np.argsort(key, kind="stable")
+    del cell, key
+    view = (-d[order]).astype(np.float32)
+    d = None
+    index = index[order]                                  # one reordered copy at a time
+    pos = pos[order]
+    n = n[order]
+    alb = alb[order]
+    emi = emi[order]
+    return HitSurfaces(index=index, position=pos, normal=n, view=view, albedo=alb, emission=emi, miss=tri < 0, P=P,
+                       R=R)
+
+
+@njit(cache=True, nogil=True)
+def _counting_order(key, n_keys):
+    """``np.argsort(key, kind="stable")`` for keys in [0, n_keys), by counting (O(N); 12M keys: ~0.2 s, not ~10 s)."""
+    start = np.zeros(n_keys + 1, np.int64)
+    for i in range(key.shape[0]):
+        start[key[i] + 1] += 1
+    for k in range(n_keys):
+        start[k + 1] += start[k]
+    order = np.empty(key.shape[0], np.int64)
+    for i in range(key.shape[0]):
+        order[start[key[i]]] = i
+        start[key[i]] += 1
+    return order
 
 
 def probe_visibility(surf, grid: dict, positions: np.ndarray, states: np.ndarray, caster,

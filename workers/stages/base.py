@@ -99,6 +99,11 @@ class LazyArtifacts:
     def __contains__(self, name: str) -> bool:
         return name in self._loaders
 
+    def release(self, *names: str) -> None:
+        """Drop the loaded copies of ``names`` (loaded again on a later access): a stage frees what it is done with."""
+        for name in names:
+            self._cache.pop(name, None)
+
     def names(self) -> list[str]:
         return sorted(self._loaders)
 

@@ -65,7 +65,9 @@ def run_light(ctx: StageContext) -> StageOutput:
     lit = ctx.inputs["ingest"]["lights"]
 
     t0 = time.perf_counter()
+    tr.release("depth_moments", "depth_moments_full")       # the atlas, unpacked into depth
     surf = hit_surfaces(scene, dirs, hits, tri)
+    hits = tri = tr.release("ray_hits", "ray_tri")          # (None) the hits are in surf now: 1.3 GB at 64x32x64
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
     eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
     caster = caster_for_scene(scene)
@@ -76,7 +78,6 @@ def run_light(ctx: StageContext) -> StageOutput:
     visible, vis_rays = probe_visibility(surf, grid, positions, states, caster, sec.self_shadow_bias)
     t_vis = time.perf_counter() - t0
     ctx.report(0.1)
-
     t0 = time.perf_counter()        # point lights' hot spots sampled from the light (workers.kernels.light_spots)
     c_spot = spot_thresholds(per_light, lit["lights"])
     e_direct = split_direct(per_light, c_spot) if per_light else e_direct
@@ -84,17 +85,16 @@ def run_light(ctx: StageContext) -> StageOutput:
         scene, caster, positions, states != OFF, lit["lights"], c_spot, double_sided_triangles(scene),
         grid["spacing"], sec.irradiance_texels, eps, sec.sh_order)
     del per_light
-    t_spots = time.perf_counter() - t0
-
-    t1 = time.perf_counter()
+    t_spots, t1 = time.perf_counter() - t0, time.perf_counter()
     gather = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth,
-                           sec.self_shadow_bias, visible)
+                           sec.self_shadow_bias, visible, n=sec.irradiance_texels)   # the sampler's weights, once
+    surf.position = surf.normal = surf.view = visible = depth = None                  # in the weights now
+    t_weights = time.perf_counter() - t1
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
         tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps)
     t_bounces = time.perf_counter() - t1
-
     sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
         n = sec.irradiance_texels
@@ -114,7 +114,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         "converged": bool(residuals) and residuals[-1] < sec.tolerance,
         "off_dilated": dilated,
         "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
-        "direct_seconds": t_direct, "bounce_seconds": t_bounces,
+        "direct_seconds": t_direct, "bounce_seconds": t_bounces, "weights_seconds": t_weights,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
         "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],

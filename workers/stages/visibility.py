@@ -75,7 +75,8 @@ def run_visibility(ctx: StageContext) -> StageOutput:
     stats = {
         "shape": [Z, Y, X], "samples_per_cell": S, "slabs": len(shards), "rays": rays,
         "ray_seconds": ray_seconds, "dont_care_fraction": float(dont_care.mean()) if dont_care.size else 0.0,
-        "visible_fraction": float((theta[~dont_care] > 127).mean()) if (~dont_care).any() else 0.0,
+        "visible_fraction": (np.count_nonzero((theta > 127) & ~dont_care[..., None]) / (8 * int((~dont_care).sum()))
+                             if (~dont_care).any() else 0.0),   # the mean over care samples, without their copy
     }
     meta = {"samples_per_cell": S, "corners": "c -> offset (c&1, c>>1&1, c>>2&1)"}
     return StageOutput(

@@ -31,3 +31,21 @@ def test_double_sided_back_faces_count_as_front():
     *_, back, _ = trace_probes(caster, pos, DIRS, np.array([True, False]))  # only the triangle that is hit counts
     hit_tri = trace_probes(caster, pos, DIRS, np.zeros(2, bool))[1][0, 1]
     assert back[0, 1] == (hit_tri == 1)
+
+
+def test_probes_traced_in_chunks_give_the_same_arrays(monkeypatch):
+    # trace_probes casts whole probes PROBE_CHUNK_RAYS rays at a time (bounded memory): any chunking, same results
+    import workers.raycast.probes as probes
+    caster = RayCaster(PLANE)
+    rng = np.random.default_rng(0)
+    pos = rng.uniform(-3, 3, (7, 3))
+    dirs = rng.normal(size=(5, 3))
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    ds = np.array([True, False])
+    whole = trace_probes(caster, pos, dirs, ds)
+    for chunk in (1, 5, 12):                    # under one probe, one probe, two probes and a bit
+        monkeypatch.setattr(probes, "PROBE_CHUNK_RAYS", chunk)
+        parts = trace_probes(caster, pos, dirs, ds)
+        for a, b in zip(whole[:5], parts[:5]):
+            np.testing.assert_array_equal(a, b)
+    assert (whole[1] >= 0).any() and (whole[1] < 0).any() and whole[4].any()
