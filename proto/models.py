@@ -389,7 +389,8 @@ class EvaluateSection(_Strict):
     width: Int = Field(160, ge=16, le=4096, description="reference: preview width, pixels")
     height: Int = Field(120, ge=16, le=4096, description="reference: preview height, pixels")
     fov_y: Float = Field(60.0, gt=1.0, lt=179.0, description="reference: degrees, for auto-placed cameras")
-    spp: Int = Field(128, ge=1, le=65536, description="reference: paths per surface point")
+    spp: Int = Field(192, ge=1, le=65536, description=(
+        "reference: paths per surface point (192: the metrics' noise, workers/kernels/point_metrics.py)"))
     check_spp: Int | None = Field(None, ge=1, le=262144, description=(
         "reference: paths per check-point normal; default max(spp, 8192): check points are few and a level "
         "designer reads each one, so each gets a low-noise value (measured on two rooms: a region of a room lit "

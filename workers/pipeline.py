@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import tempfile
 import time
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -59,6 +60,10 @@ def load_scene(store: Store, scene_id: str) -> NormalizedScene:
     return NormalizedScene.from_bytes(store.read_bytes(scene_id))
 
 
+WRITE_THREADS = 4
+"""Threads that write one stage's artifacts (each one's encoding, hashing and fsync overlap the others')."""
+
+
 def _lazy(store: Store, record: dict) -> LazyArtifacts:
     loaders = {}
     for a in record["artifacts"]:
@@ -100,12 +105,18 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
     t0 = time.perf_counter()
     out = (SHARD_RUNNERS[st.parent] if st.shard is not None else RUNNERS[st.name])(ctx)
     seconds = time.perf_counter() - t0
-    infos = []
     with tempfile.TemporaryDirectory(dir=store.root / "tmp") as tmp:
-        for art in out.artifacts:
+        def put(art) -> dict:
             info = art.write(tmp, stage)
             store.put_file(Path(tmp) / info.file, move=True, sha256=info.sha256)
-            infos.append(info.model_dump())
+            return info.model_dump()
+
+        # encoding (zstd, PNG) and fsync release the GIL: a stage's artifacts are written side by side, in order
+        if len(out.artifacts) > 1:
+            with ThreadPoolExecutor(min(WRITE_THREADS, len(out.artifacts))) as pool:
+                infos = list(pool.map(put, out.artifacts))
+        else:
+            infos = [put(a) for a in out.artifacts]
     rec = {"stage": stage, "cache_key": key, "seconds": seconds, "stats": out.stats, "artifacts": infos}
     store.put_stage(key, rec)
     return rec, False

@@ -138,7 +138,7 @@ def test_settings_of_records_the_evaluate_section():
 
     d = settings_of(BakeConfig())
     assert list(d) == list(SETTINGS)
-    assert d == {"cameras": 3, "width": 160, "height": 120, "fov_y": 60.0, "spp": 128, "preview_spp": 4,
+    assert d == {"cameras": 3, "width": 160, "height": 120, "fov_y": 60.0, "spp": 192, "preview_spp": 4,
                  "bounces": None, "surface_points": 2048, "sampling": "cameras", "previews": 1, "modes": None,
                  "repeats": 0, "flip": False}
     cam = settings_of(BakeConfig.model_validate({"evaluate": {"cameras": [{"position": [0, 1, 2],
