@@ -64,8 +64,9 @@ STAGES: tuple[StageDef, ...] = (
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones
     StageDef("reference", 2, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
-    # 2: metrics at the reference's points (with standard errors), previews on its G-buffers
-    StageDef("evaluate", 2, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+    # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
+    # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py)
+    StageDef("evaluate", 3, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
              ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
               "reference"), timeout=7200),
 )
