@@ -335,6 +335,7 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     gamma 2, n = 64                                         0.013 / 0.48  -     0.82
     gamma 2, N = 128, n = 16                                0.015 / 0.46  -     0.71
     gamma 2, N = 128, n = 64                                0.31          -     0.65
+    scenario near_surface 0.9 (0.5 shipped)                0.58          0.50  0.84
     basis from unit-norm columns (weighted PCA), n = 16     0.014 / 0.49  0.49  0.94
     coefficients u clamped to their training range         0.53          0.52  0.91
     bake seed 2 (and its own held-out draw)                 0.0 / 0.50    0.46  0.56
