@@ -15,7 +15,8 @@ Measured at HEAD 6a4925b (numbers in each test's docstring; llvmpipe, this 2-cor
 3. DDGI blotches at 8³ / 256 rays: reproduced, Monte Carlo noise of the probe rays (the point light's spot on
    the panel); fixed (the spot sampled from the light, workers/kernels/light_spots.py), tested.
 4. plain mask GI halo around a doorway: reproduced at coarse grids; re-measured, the ring is right and the wall
-   away from the door dark (eq 3 unnormalized, where the grid straddles the wall), xfail.
+   away from the door dark (eq 3 unnormalized, where the grid straddles the wall), xfail at 11 x 6 x 7; at the
+   default automatic grid 1.05 (tested): the report's case is fixed by the defaults.
 5. PRT hotspot / near-black walls: reproduced, the linear transfer's generalization; improved (lights near
    surfaces in the scenario, L1 direct norm, cross-validated ridge: near-black 0.050 -> 0.007, relative RMS
    0.55 -> 0.37), still xfail on the RMS (0.3; the 16-slot basis's own projection is 0.33-0.36 there).
@@ -221,10 +222,26 @@ def test_plain_mask_no_halo_around_the_doorway(tmp_path, scene_files):
     mask_normalized is its fix (ring 1.64, away 1.24 there: 1.32). Offsets 0 / 0.5 / 2 samples: 0.80 (but 2.7x the
     reference away: the read inside the wall sees both rooms) / 1.45 / 2.07. Not fixed.
     """
+    halo = _doorway_halo(tmp_path, scene_files, HALO_CFG)
+    assert halo <= 1.25, halo
+
+
+def test_plain_mask_no_halo_around_the_doorway_at_the_default_grid(tmp_path, scene_files):
+    """Artifact 4 as it was reported: the default config. The report was made on the old fixed 8x8x8 grid; the
+    automatic grid (issue 12; two-rooms: 28 x 12 x 15, 0.31 m, layers fitted to the walls) is what a user gets now,
+    and there the ring/away ratio of the test above is 1.05 (measured at HEAD ed748e1): fixed by the defaults. The coarse grid above stays
+    xfail (the method's own limit, eq 3 unnormalized)."""
+    halo = _doorway_halo(tmp_path, scene_files, {"visibility": {"slabs": 1}})
+    assert halo <= 1.25, halo
+
+
+def _doorway_halo(tmp_path, scene_files, cfg) -> float:
+    """(plain mask GI / path-traced reference in the 0.2 m ring around room B's door frame) / (the same 0.4-1.0 m
+    from it), on the wall x = 4.05 viewed from (7.5, 1.4, 2.0); 1 = no halo."""
     from workers.kernels import samplers as SM
     from workers.kernels.pathtrace import indirect_irradiance
 
-    scene, s = bake_until(tmp_path, scene_files["two-rooms"], HALO_CFG, "compress")
+    scene, s = bake_until(tmp_path, scene_files["two-rooms"], cfg, "compress")
     arrays, grid = bake_arrays(s), bake_grid(s)
     rng = np.random.default_rng(0)
     zz, yy = rng.uniform(0.8, 3.2, 1200), rng.uniform(0.05, 2.9, 1200)
@@ -241,8 +258,7 @@ def test_plain_mask_no_halo_around_the_doorway(tmp_path, scene_files):
     eye = np.array([7.5, 1.4, 2.0])
     view = (eye - p) / np.linalg.norm(eye - p, axis=1, keepdims=True)
     e = np.maximum(SM.irradiance("mask", arrays, grid, p, n, views=view), 0).mean(1)
-    halo = float((e[ring].mean() / ref[ring].mean()) / (e[away].mean() / ref[away].mean()))
-    assert halo <= 1.25, halo
+    return float((e[ring].mean() / ref[ring].mean()) / (e[away].mean() / ref[away].mean()))
 
 
 # --------------------------------------------------------------------------------------------- 5. PRT hotspot
