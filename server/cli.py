@@ -19,9 +19,11 @@ Exit codes (stable, for build tools):
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -128,6 +130,23 @@ def _default_cache() -> Path:
     return Path(base)
 
 
+@contextlib.contextmanager
+def _with_files(scene: Path):
+    """The file to ingest or upload for ``scene``: the model itself, or (when it references buffers or images on
+    disk) a temporary zip of it and those files (:mod:`workers.gltf.pack`), removed afterwards."""
+    from workers.gltf.pack import MissingFile, pack_model
+
+    with tempfile.TemporaryDirectory(prefix="kiln-pack-") as tmp:
+        out = Path(tmp) / f"{scene.stem}.zip"
+        try:
+            packed = pack_model(scene, out)
+        except MissingFile as e:
+            raise CliError(EXIT_INPUT, f"{scene}: missing_resource: {e}")
+        except OSError as e:
+            raise CliError(EXIT_INPUT, f"{scene}: cannot pack the files it references: {e.strerror or e}")
+        yield out if packed else scene
+
+
 def bake_local(args) -> int:
     from persist.export import export_bundle
     from persist.store import Store
@@ -141,7 +160,8 @@ def bake_local(args) -> int:
     if not Path(args.scene).is_file():
         raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
     try:
-        scene = ingest_file(args.scene, filename=Path(args.scene).name)
+        with _with_files(Path(args.scene)) as path:
+            scene = ingest_file(path, filename=Path(args.scene).name)
     except IngestError as e:
         raise CliError(EXIT_INPUT, f"{args.scene}: {e.code}: {e.message}")
     store = Store(Path(args.cache) / "store")
@@ -190,8 +210,8 @@ def bake_remote(args) -> int:
     base = args.server.rstrip("/")
     try:
         with httpx.Client(base_url=base, headers=headers, timeout=httpx.Timeout(60.0, connect=10.0)) as c:
-            with open(scene, "rb") as f:
-                r = c.post("/v1/scenes", content=f, headers={"X-Filename": scene.name,
+            with _with_files(scene) as path, open(path, "rb") as f:
+                r = c.post("/v1/scenes", content=f, headers={"X-Filename": path.name,
                                                              "Content-Type": "application/octet-stream"})
             scene_body = _check(r, EXIT_INPUT)
             r = c.post("/v1/bakes", json={"scene_id": scene_body["id"], "config": config.model_dump(mode="json")})

@@ -63,17 +63,13 @@ def test_bake_local_json_and_cache(tmp_path, scene_files):
 
 def test_bake_local_real_scene(tmp_path):
     scene = shared_path("scenes", "cornell-box-mcguire-khr-lights", "CornellBox-Original.gltf")
-    # a .gltf with an external .bin is uploaded as a zip; locally the CLI reads the folder's zip too
-    import zipfile
-    z = tmp_path / "cornell.zip"
-    with zipfile.ZipFile(z, "w") as f:
-        for p in scene.parent.iterdir():
-            if p.suffix in (".gltf", ".bin"):
-                f.write(p, p.name)
+    # a .gltf with its .bin beside it, as it lies on disk: the CLI packs the files it references
+    # (workers/gltf/pack.py) and reads them through the zip path
     # the default grid (the default budget: the spacing the rooms ask for); the other sections cheap
     cfg = tmp_path / "small.json"
     cfg.write_text(json.dumps(small_bake(place={"budget": PlaceSection().budget})))
-    r = kiln("bake", z, "--config", cfg, "--out", tmp_path / "out", "--json", "--cache", tmp_path / "c", "--quiet")
+    r = kiln("bake", scene, "--config", cfg, "--out", tmp_path / "out", "--json", "--cache", tmp_path / "c",
+             "--quiet")
     assert r.returncode == 0, r.stderr
     m = json.loads(r.stdout)
     assert m["scene"]["lights"] == 1 and m["scene"]["triangles"] >= 30
@@ -83,8 +79,15 @@ def test_bake_local_real_scene(tmp_path):
     assert 4 <= auto["samples_per_cell"] <= 16
 
 
+def _gltf_missing_bin(d):
+    (d / "m.gltf").write_text(json.dumps({"asset": {"version": "2.0"}, "buffers": [{"uri": "gone%20away.bin",
+                                                                                      "byteLength": 4}]}))
+    return d / "m.gltf"
+
+
 @pytest.mark.parametrize("make_input, code, words", [
     (lambda d: d / "missing.glb", 3, "no such file"),
+    (_gltf_missing_bin, 3, "missing_resource: buffer 0 'gone away.bin' does not exist beside the model"),
     (lambda d: (d / "bad.glb").write_bytes(b"not a model at all") and d / "bad.glb", 3, "not_gltf"),
 ])
 def test_bake_bad_scene_exit_codes(tmp_path, make_input, code, words):

@@ -129,3 +129,21 @@ def test_the_budget_counts_the_whole_box_and_the_record_says_what_free_space_wou
     fs = analyze_free_space(caster_for_scene(r), r.bounds, double_sided_triangles(r))
     _, _, _, a_room = choose_grid(r.bounds, fs, budget=500)
     assert a_room["budget_bound"] and a_room["free_fraction"] > 0.99 and "solid" not in a_room["reason"]
+
+
+def test_the_default_budget_binding_far_above_the_rooms_is_a_warning(tmp_path):
+    """Right by default: a hall 300 m wide and 3 m high asks for probes about a metre apart; the default budget
+    (24,000) cannot hold that, and the bake says so (``grid_coarse``, workers/stages/place.py) with what to do.
+    A room the budget covers, or a budget the user chose, gets no warning (the choice is in grid.auto.reason)."""
+    from workers.stages.place import COARSE_FACTOR
+
+    hall = _room(tmp_path / "hall", [300, 3, 300], "hall")
+    _, s = bake_until(tmp_path / "a", hall, {}, "place")
+    auto, warnings = s["place"].stats["auto"], s["place"].stats.get("warnings") or []
+    assert auto["budget_bound"] and auto["spacing"] > COARSE_FACTOR * auto["spacing_wanted"]
+    assert [w["code"] for w in warnings] == ["grid_coarse"]
+    assert "place.box" in warnings[0]["message"] and "place.budget" in warnings[0]["message"]
+    _, s = bake_until(tmp_path / "b", hall, {"place": {"budget": 5000}}, "place")
+    assert s["place"].stats["auto"]["budget_bound"] and "warnings" not in s["place"].stats
+    _, s = bake_until(tmp_path / "c", _room(tmp_path / "room", [4, 3, 4], "room"), {}, "place")
+    assert not s["place"].stats["auto"]["budget_bound"] and "warnings" not in s["place"].stats

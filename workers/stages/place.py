@@ -34,6 +34,32 @@ def auto_layout(ctx: StageContext, bounds: np.ndarray) -> tuple[np.ndarray, np.n
     return choose_grid(box, fs, budget=section.budget)
 
 
+COARSE_FACTOR = 1.5
+"""The automatic grid warns (``grid_coarse``) when the default budget holds its spacing above this many times what
+the scene's free space asks for."""
+
+
+def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
+    """``{"code": "grid_coarse", "message"}`` when the automatic grid at the DEFAULT ``place.budget`` is budget-bound
+    with a spacing over :data:`COARSE_FACTOR` x the wanted one (``auto``: :func:`choose_grid`'s record), else None.
+
+    Right by default: a user who set nothing gets told that the defaults cannot deliver the spacing this scene
+    needs (light blurs and can cross walls thinner than a cell), and what to do. A budget the user chose (a preset,
+    a smaller preview) is a choice, recorded in ``grid.auto.reason``, not a warning."""
+    from proto.models import PlaceSection
+
+    wanted, spacing = float(auto.get("spacing_wanted") or 0.0), float(auto.get("spacing") or 0.0)
+    if not auto.get("budget_bound") or int(budget) != PlaceSection().budget or wanted <= 0 \
+            or spacing <= COARSE_FACTOR * wanted:
+        return None
+    need = int(budget * (spacing / wanted) ** 3)
+    return {"code": "grid_coarse", "message": (
+        f"the automatic probe grid is {spacing:.2f} m apart where this scene's rooms ask for {wanted:.2f} m: the "
+        f"default budget of {budget} probes binds (that spacing needs about {need} probes). Light can blur and cross "
+        "walls thinner than a cell; set place.box to the part of the scene that matters, or raise place.budget "
+        f"(at most {MAX_PROBES})")}
+
+
 def run_place(ctx: StageContext) -> StageOutput:
     section = ctx.config.place
     bounds = ctx.inputs["ingest"].stats["bounds"]
@@ -50,6 +76,9 @@ def run_place(ctx: StageContext) -> StageOutput:
     stats = {"counts": counts.tolist(), "origin": origin.tolist(), "spacing": spacing.tolist(), "probes": n}
     if auto is not None:
         stats["auto"] = auto
+        warning = coarse_grid_warning(auto, section.budget)
+        if warning:
+            stats["warnings"] = [warning]
     return StageOutput(
         artifacts=[Artifact("probe_positions", positions, description="probe grid positions, world space, metres",
                             meta={"counts": counts.tolist()})],
