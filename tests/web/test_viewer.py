@@ -105,6 +105,24 @@ def _upload_and_bake(page, glb, config: dict, checks=()) -> str:
     return card.get_attribute("data-bake")
 
 
+def test_a_gltf_dropped_with_its_files_uploads_as_one_zip(page, kiln_server):
+    """A .gltf with its .bin beside it, picked together (loader/pack.js zips them in the browser): the server reads
+    the whole model; picked alone, the page says which file is missing."""
+    from tests.conftest import shared_path
+
+    model = shared_path("scenes", "cornell-box-mcguire-khr-lights", "CornellBox-Original.gltf")
+    page.goto("/")
+    page.wait_for_selector("#config-form .config-form")
+    page.set_input_files("#scene-file", [str(model), str(model.with_suffix(".bin"))])
+    page.wait_for_selector("#upload-status.ok, #upload-status.error", timeout=30000)
+    text = page.inner_text("#upload-status")
+    assert "CornellBox-Original.zip ready: 36 triangles, 1 light" in text, text
+    page.set_input_files("#scene-file", [str(model), str(model.parent / "LICENSE.txt")])
+    page.wait_for_selector("#upload-status.error", timeout=30000)
+    text = page.inner_text("#upload-status")
+    assert "buffer 0 'CornellBox-Original.bin' is not among the dropped files" in text, text
+
+
 def test_bad_upload_and_bad_config_are_shown_in_words(page, tmp_path, kiln_server):
     bad = tmp_path / "bad.glb"
     bad.write_bytes(b"glTF" + (2).to_bytes(4, "little") + (10**9).to_bytes(4, "little") + b"\x00" * 40)

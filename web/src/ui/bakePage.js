@@ -1,11 +1,13 @@
 /**
- * "Upload and bake": drop or pick a .glb/.gltf/.zip (the API's refusal shown in words), pick a scene,
+ * "Upload and bake": drop or pick a .glb/.gltf/.zip, or a .gltf with its .bin and textures (packed into one zip
+ * here: loader/pack.js) (the API's refusal shown in words), pick a scene,
  * fill the config form generated from the JSON Schema, start a bake, follow it stage by stage over SSE,
  * cancel it, open it in the viewer. Before the bake starts the page warns about what would make it wrong
  * (a light outside the scene, nothing lighting the scene: state/lighting.js) and asks to confirm. A preset
  * (Preview / Medium / Production, in the form: ui/configForm.js) fills the form; the estimate follows every change.
  */
 import { createConfigForm } from './configForm.js';
+import { packUpload } from '../loader/pack.js';
 import { clear, h, shortId } from './dom.js';
 import { preBakeWarnings } from '../state/lighting.js';
 import { bakeWarnings, formatBytes, formatSeconds, sceneLabel } from '../state/stats.js';
@@ -15,9 +17,9 @@ const ACTIVE = new Set(['queued', 'running']);
 
 export function createBakePage(app) {
   const { api, store } = app;
-  const fileInput = h('input#scene-file', { type: 'file', accept: '.glb,.gltf,.zip' });
+  const fileInput = h('input#scene-file', { type: 'file', accept: '.glb,.gltf,.zip,.bin,.png,.jpg,.jpeg,.webp,.ktx2', multiple: true });
   const uploadStatus = h('p#upload-status.status', { role: 'status' });
-  const drop = h('div#drop.drop', h('p', 'Drop a ', h('code', '.glb'), ', ', h('code', '.gltf'), ' (embedded data) or ', h('code', '.zip'), ' here, or ', h('label.button', fileInput, 'choose a file')));
+  const drop = h('div#drop.drop', h('p', 'Drop a ', h('code', '.glb'), ', a ', h('code', '.gltf'), ' with its ', h('code', '.bin'), ' and textures, or a ', h('code', '.zip'), ' here, or ', h('label.button', fileInput, 'choose files')));
   const sceneSelect = h('select#scene-select');
   const sceneInfo = h('p#scene-info.muted');
   const formHolder = h('div#config-form', h('p.muted', 'Loading the config schema…'));
@@ -40,8 +42,17 @@ export function createBakePage(app) {
     h('h2', 'Bakes in progress and recent'),
     progressList);
 
-  async function upload(file) {
+  async function upload(files) {
     uploadStatus.className = 'status';
+    let file;
+    try {
+      file = await packUpload(files);          // a .gltf with its files: one zip (loader/pack.js)
+    } catch (e) {
+      uploadStatus.className = 'status error';
+      uploadStatus.textContent = `Upload refused: ${e.message}`;
+      return;
+    }
+    if (!file) return;
     uploadStatus.textContent = `Uploading ${file.name} (${(file.size / 1024).toFixed(0)} KiB)…`;
     try {
       const s = await api.uploadScene(file);
@@ -56,14 +67,14 @@ export function createBakePage(app) {
       uploadStatus.textContent = `Upload refused: ${e.message}${e.code ? ` (${e.code})` : ''}`;
     }
   }
-  fileInput.addEventListener('change', () => { if (fileInput.files[0]) upload(fileInput.files[0]); fileInput.value = ''; });
+  fileInput.addEventListener('change', () => { const fs = Array.from(fileInput.files); if (fs.length) upload(fs); fileInput.value = ''; });
   drop.addEventListener('dragover', (e) => { e.preventDefault(); drop.classList.add('over'); });
   drop.addEventListener('dragleave', () => drop.classList.remove('over'));
   drop.addEventListener('drop', (e) => {
     e.preventDefault();
     drop.classList.remove('over');
-    const f = e.dataTransfer.files[0];
-    if (f) upload(f);
+    const fs = Array.from(e.dataTransfer.files);
+    if (fs.length) upload(fs);
   });
 
   sceneSelect.addEventListener('change', () => store.set({ currentSceneId: sceneSelect.value || null }));
