@@ -13,7 +13,8 @@ wanted, whether the budget binds), the probe states, and the OFF probes by kind:
 and, from the trace stage's own rays of each OFF probe: ``free_in_cells``, an OFF probe one of whose rays leaves
 the solid (through a back face) within its 8 cells (``|exit − grid position| < spacing`` per axis): free space the
 probe could shade, so a probe the relocation missed; ``solid_cells``: the others, whose 8 cells hold no free space
-its rays find (nothing there to shade: OFF is right, whatever its neighbours);
+its rays find (nothing there to shade: OFF is right, whatever its neighbours); and those exits themselves: how
+many lie in a cell none of whose 8 probes is live (free space no probe shades: what an OFF probe costs);
 
 and how far the probes moved (the largest offset, as a fraction of the spacing, and how many moved further than
 the DDGI-P §5 limit of 0.45 spacing). ``--full`` runs the whole default bake (with a sun and a sky added, as
@@ -75,6 +76,34 @@ def off_free_in_cells(off: np.ndarray, base: np.ndarray, pos: np.ndarray, hits: 
     return n
 
 
+def orphan_free_space(states: np.ndarray, base: np.ndarray, pos: np.ndarray, hits: np.ndarray, dirs: np.ndarray,
+                      spacing: np.ndarray) -> tuple[int, int]:
+    """(free-space points, of them in a cell with no live corner probe): the back-face exits (2 cm past the face)
+    of the OFF probes' rays within their 8 cells and the grid's box, i.e. free space next to an OFF probe, and
+    whether any of the 8 probes of the cell holding it is live (ACTIVE or SLEEPING) to shade it. ``states``
+    (nz, ny, nx); ``base``, ``pos`` (P, 3) grid and relocated positions; ``hits`` (P, R, 4); ``dirs`` (R, 3)."""
+    nz, ny, nx = states.shape
+    live = states != OFF
+    lo, hi = base.min(axis=0), base.max(axis=0)
+    step = np.where(spacing > 0, spacing, np.inf)
+    top = np.maximum(np.array([nx, ny, nz]) - 2, 0)
+    total = orphan = 0
+    for p in np.flatnonzero(~live.ravel()):
+        b = (hits[p, :, 3] > 0.5) & np.isfinite(hits[p, :, 0])
+        e = pos[p] + dirs[b] * (hits[p, b, 0][:, None] + 0.02)
+        e = e[np.all(np.abs(e - base[p]) < step, axis=1) & np.all((e >= lo) & (e <= hi), axis=1)]
+        if not len(e):
+            continue
+        c = np.clip(np.floor((e - base[0]) / np.where(spacing > 0, spacing, 1.0)).astype(np.int64), 0, top)
+        seen = np.zeros(len(c), bool)
+        for d in np.ndindex(2, 2, 2):
+            seen |= live[np.minimum(c[:, 2] + d[2], nz - 1), np.minimum(c[:, 1] + d[1], ny - 1),
+                         np.minimum(c[:, 0] + d[0], nx - 1)]
+        total += len(c)
+        orphan += int((~seen).sum())
+    return total, orphan
+
+
 def run(scene_path: Path, overrides: dict, full: bool) -> dict:
     scene = ingest_file(scene_path)
     cfg_d = {"scene": {"lights": [SUN], "sky": [0.3, 0.35, 0.4]}}
@@ -107,6 +136,9 @@ def run(scene_path: Path, overrides: dict, full: bool) -> dict:
         kinds["free_in_cells"] = off_free_in_cells(states.ravel() == OFF, base, pos, np.asarray(recs["trace"]["ray_hits"]),
                                                    np.asarray(recs["trace"]["ray_directions"], np.float64), spacing)
         kinds["solid_cells"] = kinds["off"] - kinds["free_in_cells"]
+        kinds["free_points"], kinds["free_points_unserved"] = orphan_free_space(
+            states, base, pos, np.asarray(recs["trace"]["ray_hits"]),
+            np.asarray(recs["trace"]["ray_directions"], np.float64), spacing)
         out = {
             "scene": scene_path.name, "triangles": scene.n_triangles, "overrides": overrides,
             "counts": place["counts"], "probes": place["probes"], "spacing": spacing.tolist(),
@@ -148,6 +180,8 @@ def main() -> int:
     print(f"{st['active']:8d} {st['sleeping']:8d} {st['off']:8d} {ok['next_to_live']:16d} {ok['deep']:8d} "
           f"{ok['free_in_cells']:18d} {ok['solid_cells']:16d} {r['relocate'].get('moved', 0):8d} "
           f"{r['relocate'].get('rescued') or 0:8d} {r['moved_beyond_045']:8d} {r['max_offset_fraction']:11.3f}")
+    print(f"free space next to OFF probes (their rays' exits in their cells): {ok['free_points']} points, "
+          f"{ok['free_points_unserved']} in a cell without a live probe")
     print("seconds: " + ", ".join(f"{k} {v:.1f}" for k, v in r["seconds"].items()) + f"; total {r['total_seconds']:.1f}")
     print("CPU seconds (all threads; less sensitive to other load): "
           + ", ".join(f"{k} {v:.1f}" for k, v in r["cpu_seconds"].items()) + f"; total {r['total_cpu_seconds']:.1f}")
