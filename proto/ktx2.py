@@ -243,14 +243,17 @@ def pack_e5b9g9r9(rgb: np.ndarray) -> np.ndarray:
     the largest mantissa rounds up to 512. The largest channel keeps 9 significant bits (relative error ≤ 2^-9 ≈
     0.2%); smaller channels share its step.
     """
-    c = np.nan_to_num(np.asarray(rgb, np.float64), nan=0.0, posinf=RGB9E5_MAX, neginf=0.0)
-    c = np.clip(c, 0.0, RGB9E5_MAX)
+    # float32 throughout: the scales are powers of 2 and the mantissas below 2^10, so every step is exact
+    c = np.nan_to_num(np.asarray(rgb, np.float32), nan=0.0, posinf=RGB9E5_MAX, neginf=0.0)
+    c = np.clip(c, np.float32(0.0), np.float32(RGB9E5_MAX))
     top = c.max(axis=-1)
     _, e2 = np.frexp(top)                               # top = f · 2^e2, f in [0.5, 1): floor(log2(top)) = e2 − 1
     e = np.where(top > 0, np.maximum(e2 - 1, -16), -16) + 16        # biased exponent, floor(log2 max) + 1 + 15
-    top_m = np.floor(top / np.exp2(e - 24.0) + 0.5)
-    e = np.where(top_m >= 512, e + 1, e)
-    m = np.floor(c / np.exp2(e - 24.0)[..., None] + 0.5).astype(np.uint32)
+    scale = np.ldexp(np.float32(1.0), (24 - e).astype(np.int32))    # 1 / 2^(e − 15 − 9)
+    bump = np.floor(top * scale + np.float32(0.5)) >= 512           # the largest mantissa rounds up to 2^9
+    e = np.where(bump, e + 1, e)
+    scale = np.where(bump, scale * np.float32(0.5), scale)
+    m = np.floor(c * scale[..., None] + np.float32(0.5)).astype(np.uint32)
     return (m[..., 0] | (m[..., 1] << np.uint32(9)) | (m[..., 2] << np.uint32(18))
             | (e.astype(np.uint32) << np.uint32(27))).astype(np.uint32)
 
@@ -258,9 +261,11 @@ def pack_e5b9g9r9(rgb: np.ndarray) -> np.ndarray:
 def unpack_e5b9g9r9(words: np.ndarray) -> np.ndarray:
     """(...) uint32 E5B9G9R9_UFLOAT_PACK32 words -> (..., 3) float32 RGB (exact: 9 bits times a power of 2)."""
     w = np.asarray(words, np.uint32)
-    scale = np.exp2((w >> np.uint32(27)).astype(np.float64) - 24.0)
-    return np.stack([(w & 0x1FF) * scale, ((w >> np.uint32(9)) & 0x1FF) * scale,
-                     ((w >> np.uint32(18)) & 0x1FF) * scale], axis=-1).astype(np.float32)
+    scale = np.ldexp(np.float32(1.0), (w >> np.uint32(27)).astype(np.int32) - 24)   # exact in float32
+    out = np.empty(w.shape + (3,), np.float32)
+    for i in range(3):
+        out[..., i] = ((w >> np.uint32(9 * i)) & np.uint32(0x1FF)).astype(np.float32) * scale
+    return out
 
 
 def _pack(fmt: VkFormatInfo, rgb: np.ndarray) -> np.ndarray:
