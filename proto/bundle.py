@@ -26,6 +26,7 @@ from typing import Any, Literal
 
 import numpy as np
 
+from proto.atlas import atlas_add_border
 from proto.atomic import atomic_write_bytes
 from proto.ktx2 import KTX2Error, decode_ktx2, encode_ktx2
 from proto.models import FORMAT_VERSION, ArtifactInfo, Manifest
@@ -276,7 +277,9 @@ def load_artifact(path_or_bytes: str | os.PathLike[str] | bytes | bytearray | me
 
     KTX2 arrays come back in ``info.shape`` (e.g. without the channel axis when written
     that way, or a table's own shape: any shape with the texture's number of values, read in
-    level order); PNG previews and GLB scenes come back as their encoded bytes (1-D uint8).
+    level order), except an octahedral atlas stored without its tile borders (``meta.stored_border`` 0,
+    ``meta.texels`` n): it comes back with them, (rows·(n+2), cols·(n+2), C) (:func:`proto.atlas.atlas_add_border`);
+    PNG previews and GLB scenes come back as their encoded bytes (1-D uint8).
     """
     if isinstance(path_or_bytes, (str, os.PathLike)):
         data = Path(path_or_bytes).read_bytes()
@@ -299,7 +302,10 @@ def load_artifact(path_or_bytes: str | os.PathLike[str] | bytes | bytearray | me
         if want != arr.shape and not (arr.shape[-1] == 1 and want == arr.shape[:-1]) \
                 and not (table and int(np.prod(want, dtype=np.int64)) == arr.size):
             raise BundleError(f"{where}: texture of shape {arr.shape} does not fit manifest shape {info.shape}")
-        return _check_dtype(arr.reshape(info.shape), info, where)
+        arr = _check_dtype(arr.reshape(info.shape), info, where)
+        if info.meta.get("stored_border") == 0:      # a DDGI atlas stored without its tile borders (bundle.md 5.1)
+            arr = atlas_add_border(arr, int(info.meta["texels"]))
+        return arr
     if info.format == "npy":
         try:
             arr = np.load(io.BytesIO(data), allow_pickle=False)

@@ -4,8 +4,9 @@ The subset (see ``proto/bundle.md`` for the byte layout):
 
 * one mip level (``levelCount`` 1), no array layers (``layerCount`` 0), one face;
   2D (``pixelDepth`` 0) or 3D textures;
-* the uncompressed formats of :data:`FORMATS` only (one packed one, ``B10G11R11_UFLOAT_PACK32``, read and
-  written as float32 RGB arrays: :func:`pack_b10g11r11`);
+* the uncompressed formats of :data:`FORMATS` only (two packed ones, ``B10G11R11_UFLOAT_PACK32`` and the
+  shared-exponent ``E5B9G9R9_UFLOAT_PACK32``, read and written as float32 RGB arrays: :func:`pack_b10g11r11`,
+  :func:`pack_e5b9g9r9`);
 * ``supercompressionScheme`` 0 (none) or 2 (Zstandard, one frame per level);
 * a Basic Data Format Descriptor as the Khronos Data Format spec (1.3/1.4) and
   libktx's ``vk2dfd`` define it for the format;
@@ -43,8 +44,10 @@ __all__ = [
     "encode_ktx2",
     "format_for",
     "pack_b10g11r11",
+    "pack_e5b9g9r9",
     "read_ktx2",
     "unpack_b10g11r11",
+    "unpack_e5b9g9r9",
     "write_ktx2",
 ]
 
@@ -140,6 +143,8 @@ FORMATS: dict[int, VkFormatInfo] = {
         _fmt(106, "R32G32B32_SFLOAT", "<f4", 3, "SFLOAT"),
         _fmt(109, "R32G32B32A32_SFLOAT", "<f4", 4, "SFLOAT"),
         VkFormatInfo(122, "B10G11R11_UFLOAT_PACK32", np.dtype("<u4"), 3, "UFLOAT", (11, 11, 10)),
+        # shared exponent: 9-bit mantissas R, G, B from bit 0, the 5-bit exponent in bits 27-31
+        VkFormatInfo(123, "E5B9G9R9_UFLOAT_PACK32", np.dtype("<u4"), 3, "UFLOAT", (9, 9, 9, 5)),
     )
 }
 """Supported formats by VkFormat number."""
@@ -224,6 +229,53 @@ def pack_b10g11r11(rgb: np.ndarray) -> np.ndarray:
             | (_to_ufloat(rgb[..., 2], 5) << np.uint32(22))).astype(np.uint32)
 
 
+RGB9E5_MAX = 511.0 / 512.0 * 2.0 ** 16
+"""Largest value of E5B9G9R9_UFLOAT_PACK32: (2^9 − 1)/2^9 · 2^(31 − 15) = 65408."""
+
+
+def pack_e5b9g9r9(rgb: np.ndarray) -> np.ndarray:
+    """(..., 3) float RGB -> (...) uint32 E5B9G9R9_UFLOAT_PACK32 words (R bits 0-8, G 9-17, B 18-26, the shared
+    exponent 27-31; value = mantissa · 2^(e − 15 − 9)).
+
+    The conversion of the Vulkan spec ("Shared Exponent" in "Fixed-Point Data Conversions"; OpenGL's
+    EXT_texture_shared_exponent): each channel clamped to [0, 65408] (NaN to 0), the exponent from the largest
+    channel (at least −16), mantissas rounded to nearest with ``floor(x + 0.5)``, the exponent raised by one where
+    the largest mantissa rounds up to 512. The largest channel keeps 9 significant bits (relative error ≤ 2^-9 ≈
+    0.2%); smaller channels share its step.
+    """
+    # float32 throughout: the scales are powers of 2 and the mantissas below 2^10, so every step is exact
+    c = np.nan_to_num(np.asarray(rgb, np.float32), nan=0.0, posinf=RGB9E5_MAX, neginf=0.0)
+    c = np.clip(c, np.float32(0.0), np.float32(RGB9E5_MAX))
+    top = c.max(axis=-1)
+    _, e2 = np.frexp(top)                               # top = f · 2^e2, f in [0.5, 1): floor(log2(top)) = e2 − 1
+    e = np.where(top > 0, np.maximum(e2 - 1, -16), -16) + 16        # biased exponent, floor(log2 max) + 1 + 15
+    scale = np.ldexp(np.float32(1.0), (24 - e).astype(np.int32))    # 1 / 2^(e − 15 − 9)
+    bump = np.floor(top * scale + np.float32(0.5)) >= 512           # the largest mantissa rounds up to 2^9
+    e = np.where(bump, e + 1, e)
+    scale = np.where(bump, scale * np.float32(0.5), scale)
+    m = np.floor(c * scale[..., None] + np.float32(0.5)).astype(np.uint32)
+    return (m[..., 0] | (m[..., 1] << np.uint32(9)) | (m[..., 2] << np.uint32(18))
+            | (e.astype(np.uint32) << np.uint32(27))).astype(np.uint32)
+
+
+def unpack_e5b9g9r9(words: np.ndarray) -> np.ndarray:
+    """(...) uint32 E5B9G9R9_UFLOAT_PACK32 words -> (..., 3) float32 RGB (exact: 9 bits times a power of 2)."""
+    w = np.asarray(words, np.uint32)
+    scale = np.ldexp(np.float32(1.0), (w >> np.uint32(27)).astype(np.int32) - 24)   # exact in float32
+    out = np.empty(w.shape + (3,), np.float32)
+    for i in range(3):
+        out[..., i] = ((w >> np.uint32(9 * i)) & np.uint32(0x1FF)).astype(np.float32) * scale
+    return out
+
+
+def _pack(fmt: VkFormatInfo, rgb: np.ndarray) -> np.ndarray:
+    return pack_e5b9g9r9(rgb) if fmt.vk_format == 123 else pack_b10g11r11(rgb)
+
+
+def _unpack(fmt: VkFormatInfo, words: np.ndarray) -> np.ndarray:
+    return unpack_e5b9g9r9(words) if fmt.vk_format == 123 else unpack_b10g11r11(words)
+
+
 def unpack_b10g11r11(words: np.ndarray) -> np.ndarray:
     """(...) uint32 B10G11R11_UFLOAT_PACK32 words -> (..., 3) float32 RGB."""
     w = np.asarray(words, np.uint32)
@@ -239,6 +291,12 @@ def _expected_samples(fmt: VkFormatInfo) -> list[tuple[int, int, int, int, int]]
 
     As libktx's ``createDFDUnpacked`` (little-endian, one sample per channel).
     """
+    if fmt.vk_format == 123:  # libktx createDFDPacked's E5B9G9R9 case: per channel its mantissa, then the exponent
+        out = []
+        for i in range(3):
+            out.append((9 * i, 8, _CHANNEL_IDS[i], 0, 8448))
+            out.append((27, 4, _CHANNEL_IDS[i] | KHR_DF_SAMPLE_DATATYPE_EXPONENT, 15, 31))
+        return out
     if fmt.packed_bits:  # createDFDPacked, little-endian: one sample per channel from bit 0
         out, offset = [], 0
         for i, bits in enumerate(fmt.packed_bits):
@@ -464,7 +522,7 @@ def encode_ktx2(array: np.ndarray, vk_format: int | str | None = None, zstd_leve
         entries.setdefault("KTXwriterScParams", f"--zstd {zstd_level}")
 
     if fmt.packed_bits:
-        raw = np.ascontiguousarray(pack_b10g11r11(array.reshape(-1, 3)), dtype=fmt.dtype).tobytes()
+        raw = np.ascontiguousarray(_pack(fmt, array.reshape(-1, 3)), dtype=fmt.dtype).tobytes()
     else:
         raw = np.ascontiguousarray(array, dtype=fmt.dtype).tobytes()
     if zstd_level is None:
@@ -571,7 +629,7 @@ def decode_ktx2(data: bytes | bytearray | memoryview) -> tuple[np.ndarray, dict[
 
     shape = (d, h, w, fmt.channels) if d else (h, w, fmt.channels)
     if fmt.packed_bits:
-        array = unpack_b10g11r11(np.frombuffer(raw, dtype=fmt.dtype)).reshape(shape)
+        array = _unpack(fmt, np.frombuffer(raw, dtype=fmt.dtype)).reshape(shape)
     else:
         array = np.frombuffer(raw, dtype=fmt.dtype).reshape(shape).astype(fmt.dtype.newbyteorder("="))
     info = {

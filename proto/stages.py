@@ -45,11 +45,14 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("place", 7, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
-    StageDef("trace", 2, ("trace", "seed"), ("ingest", "place", "relocate"), timeout=3600),
+    # 3: depth_moments' far texels clamped to the probe's reach (workers/kernels/depth_moments.py clamp_far), which
+    # reads the runtime's self-shadow bias; OFF probes' moments 0; stored without the tile borders (proto/atlas.py)
+    StageDef("trace", 3, ("trace", "light.self_shadow_bias", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
     # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance and SH volumes RGBA16F,
-    # probe_sh a KTX2 table (issue 17)
-    StageDef("light", 5, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # probe_sh a KTX2 table (issue 17); 6: irradiance E5B9G9R9_UFLOAT_PACK32 without the tile borders,
+    # probe_sh a half-float table
+    StageDef("light", 6, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)

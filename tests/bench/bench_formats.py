@@ -19,7 +19,12 @@ indirect irradiance with the Python twins of the runtime shaders (``workers.kern
 Error = relative RMSE ‖E_q − E_f‖₂ / ‖E_f‖₂ over all points and the 3 channels (target ≤ 0.5%), plus the 99th
 percentile, the largest and the share of points over 1% and 10% of the per-point relative error
 |E_q − E_f| / (|E_f| + 1% of the mean |E_f|) (norms over rgb). Bytes per probe: the
-level (uncompressed) and the file with Zstandard at the bundle's default level, float32 and the new format.
+level (uncompressed) and the file with Zstandard at the bundle's default level (3; the stages write the DDGI atlases
+at 9), float32 and the new format; the ``irradiance`` and ``depth_moments`` rows as the stages store them (RGB9E5;
+far-clamped depth, OFF probes kept; tiles without their borders), the ``(…)`` rows the alternatives.
+
+Changes scored (besides the formats): ``depth clamp`` = the trace stage's far clamp
+(``workers.kernels.depth_moments.clamp_far``: exact, so its rows must read 0 error), in float32 and in RG16F.
 Prints a table per scene and the numbers as JSON on the last line.
 """
 from __future__ import annotations
@@ -54,7 +59,7 @@ AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0,
 def _float32_only():
     """Patch the precision module so that the stages keep float32 (the reference bake); returns an undo. The PRT
     basis is float32 there too: the float32 bake's arrays are what :func:`variants` quantizes."""
-    saved = precision.half, precision.rgb_ufloat
+    saved = precision.half, precision.rgb_ufloat, precision.rgb9e5
 
     def keep(a):
         a = np.ascontiguousarray(a, np.float32)
@@ -62,8 +67,9 @@ def _float32_only():
         return a, {1: "R32_SFLOAT", 2: "R32G32_SFLOAT", 4: "R32G32B32A32_SFLOAT"}[c], {}
 
     precision.half = keep
-    precision.rgb_ufloat = lambda a: keep(np.ascontiguousarray(a, np.float32))
-    return lambda: (setattr(precision, "half", saved[0]), setattr(precision, "rgb_ufloat", saved[1]))
+    precision.rgb_ufloat = precision.rgb9e5 = lambda a: keep(np.ascontiguousarray(a, np.float32))
+    return lambda: (setattr(precision, "half", saved[0]), setattr(precision, "rgb_ufloat", saved[1]),
+                    setattr(precision, "rgb9e5", saved[2]))
 
 
 def bake(scene, config: dict) -> dict:
@@ -82,7 +88,7 @@ def bake(scene, config: dict) -> dict:
                 recs[st.name] = pipeline._lazy(store, rec)
             names = ["irradiance", "sh_l1_r", "sh_l1_g", "sh_l1_b", "sh_l2", "probe_sh"]
             arrays = {n: np.asarray(recs["light"][n]) for n in names if n in recs["light"]}
-            arrays["depth_moments"] = np.asarray(recs["trace"]["depth_moments"])
+            arrays["depth_moments"] = np.asarray(recs["trace"]["depth_moments_full"])    # unclamped float32
             arrays["probe_states"] = np.asarray(recs["trace"]["probe_states"])
             arrays["probe_positions_relocated"] = np.asarray(recs["relocate"]["probe_positions_relocated"])
             if "prt" in recs and "prt" in recs["prt"]:          # PRT on: its section, tables and basis volumes
@@ -90,7 +96,7 @@ def bake(scene, config: dict) -> dict:
             place = recs["place"].stats
             grid = {k: place[k] for k in ("counts", "origin", "spacing")}
             return {"arrays": arrays, "grid": grid, "bias": cfg.light.self_shadow_bias,
-                    "lights": recs["ingest"]["lights"]["lights"]}
+                    "lights": recs["ingest"]["lights"]["lights"], "bounds": recs["ingest"].stats["bounds"]}
     finally:
         undo()
 
@@ -140,21 +146,46 @@ def errors(e_q: np.ndarray, e_f: np.ndarray) -> dict:
             "over_1pct": float((per > 0.01).mean()), "over_10pct": float((per > 0.1).mean())}
 
 
-def variants(arrays) -> dict:
-    """name -> (changed artifacts {name: (data, vk)}, modes to score)."""
+def clamped_depth(arrays, grid, bias: float, bounds) -> tuple[np.ndarray, float]:
+    """The trace stage's stored depth moments before rounding: far texels clamped to the probe's reach
+    (``workers.kernels.depth_moments.clamp_far``; B = ``bias``, the bake's ``light.self_shadow_bias``)."""
+    from workers.kernels.ddgi import bias_scale
+    from workers.kernels.depth_moments import clamp_far, reach
+    from workers.kernels.grid import pack_atlas, unpack_atlas
+
+    counts = grid["counts"]
+    atlas = np.asarray(arrays["depth_moments"], np.float32)
+    m = atlas.shape[0] // int(counts[1])
+    limit = reach(np.asarray(arrays["probe_positions_relocated"]).reshape(-1, 3), counts, grid["origin"],
+                  grid["spacing"], bias_scale(grid["spacing"], bias), bounds)
+    maps, share = clamp_far(unpack_atlas(atlas, counts, m), limit)
+    return pack_atlas(maps, counts), share
+
+
+def variants(arrays, depth_clamped=None) -> dict:
+    """name -> (changed artifacts {name: (data, vk)}, modes to score). ``depth_clamped``: the far-clamped float32
+    depth atlas (:func:`clamped_depth`)."""
     irr_u = precision.rgb_ufloat(arrays["irradiance"])
     irr_h = precision.half(arrays["irradiance"])
+    irr_e = precision.rgb9e5(arrays["irradiance"])
     dep = precision.half(arrays["depth_moments"])
     l1 = {f"sh_l1_{c}": precision.half(arrays[f"sh_l1_{c}"])[:2] for c in "rgb"}
     out = {
         "irradiance R11G11B10F": ({"irradiance": irr_u[:2]}, ["ddgi"]),
         "irradiance RGBA16F": ({"irradiance": irr_h[:2]}, ["ddgi"]),
+        "irradiance RGB9E5": ({"irradiance": irr_e[:2]}, ["ddgi"]),
         "depth_moments RG16F": ({"depth_moments": dep[:2]}, ["ddgi"]),
         "sh_l1_* RGBA16F": (l1, ["leaking_l1"]),
     }
     if "sh_l2" in arrays:
         out["sh_l2 RGBA16F"] = ({"sh_l2": precision.half(arrays["sh_l2"])[:2]}, ["leaking"])
-    shipped = {"irradiance": irr_h[:2], "depth_moments": dep[:2], **l1}
+    if depth_clamped is not None:
+        dep_c = precision.half(depth_clamped)
+        out["depth clamp (float32)"] = ({"depth_moments": (np.asarray(depth_clamped, np.float32), "R32G32_SFLOAT")},
+                                        ["ddgi"])
+        out["depth clamp + RG16F"] = ({"depth_moments": dep_c[:2]}, ["ddgi"])
+        dep = dep_c
+    shipped = {"irradiance": irr_e[:2], "depth_moments": dep[:2], **l1}
     if "sh_l2" in arrays:
         shipped["sh_l2"] = precision.half(arrays["sh_l2"])[:2]
     out["all (as shipped)"] = (shipped, ["leaking", "leaking_l1", "ddgi"])
@@ -172,6 +203,7 @@ def flat_field() -> dict:
     rgb = np.repeat(v[:, None], 3, axis=1)
     rel = {}
     for name, (data, vk, _) in (("R11G11B10F", precision.rgb_ufloat(rgb[None])),
+                                ("RGB9E5", precision.rgb9e5(rgb[None])),
                                 ("RGBA16F", precision.half(np.concatenate([rgb, np.ones_like(rgb[:, :1])], 1)[None]))):
         q = _roundtrip(data, vk).reshape(len(v), -1)[:, :3]
         e = np.sqrt((((q - rgb) / rgb) ** 2).mean(axis=1))       # relative RMSE over rgb, per grey value
@@ -209,18 +241,26 @@ def run_scene(name: str, scene, config: dict, n_points: int) -> dict:
     res = {"probes": P, "counts": grid["counts"], "points": {s: len(p["position"]) for s, p in sets.items()},
            "artifacts": {}, "changes": {}}
     # bytes per probe, float32 vs the shipped format (and the packed irradiance, measured, not shipped)
-    shipped = {"irradiance": precision.half(arrays["irradiance"]),
+    dep_c, share = clamped_depth(arrays, grid, b["bias"], b["bounds"])
+    res["depth_clamped_share"] = share
+    shipped = {"irradiance": precision.rgb9e5(arrays["irradiance"]),
+               "irradiance (RGBA16F)": precision.half(arrays["irradiance"]),
                "irradiance (packed)": precision.rgb_ufloat(arrays["irradiance"]),
-               "depth_moments": precision.half(arrays["depth_moments"]),
+               "depth_moments": precision.half(dep_c),
+               "depth_moments (unclamped)": precision.half(arrays["depth_moments"]),
                **{f"sh_l1_{c}": precision.half(arrays[f"sh_l1_{c}"]) for c in "rgb"}}
     if "sh_l2" in arrays:
         shipped["sh_l2"] = precision.half(arrays["sh_l2"])
     for group in (arrays["prt"]["sh"]["basis"] if "prt" in arrays else []):
         shipped.update({n: precision.half(arrays[n]) for n in group})
     f32 = {"depth_moments": "R32G32_SFLOAT"}
+    from proto.atlas import atlas_strip_border
+    ny = int(grid["counts"][1])
     for art, (data, vk, meta) in shipped.items():
         src = art.split(" ")[0]
         r32, z32 = _bytes(arrays[src], f32.get(src, "R32G32B32A32_SFLOAT"))
+        if art in ("irradiance", "depth_moments"):       # as the stages store them: tiles without their borders
+            data = atlas_strip_border(np.asarray(data), np.asarray(data).shape[0] // ny - 2)
         rn, zn = _bytes(data, vk)
         res["artifacts"][art] = {"float32": f32.get(src, "R32G32B32A32_SFLOAT"), "format": vk, "per_probe": {
             "float32": r32 / P, "float32_zstd": z32 / P, "new": rn / P, "new_zstd": zn / P},
@@ -233,7 +273,7 @@ def run_scene(name: str, scene, config: dict, n_points: int) -> dict:
             **rows[0], "per_probe": {k: sum(r["per_probe"][k] for r in rows) for k in rows[0]["per_probe"]},
             "texel_relative_rmse": max(r["texel_relative_rmse"] for r in rows),
             "fallback": next((r["fallback"] for r in rows if r["fallback"]), None)}
-    for vname, (changed, modes) in variants(arrays).items():
+    for vname, (changed, modes) in variants(arrays, dep_c).items():
         q = dict(arrays)
         for art, (data, vk) in changed.items():
             q[art] = _roundtrip(data, vk)

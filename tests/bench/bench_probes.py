@@ -192,8 +192,10 @@ def bundle_sizes(manifest, probes: int) -> dict:
             modes[m]["bytes_per_probe"] = modes[m]["bytes"] / probes
     whole = sum(size.values())
     scene = sum(a.bytes for a in manifest.artifacts if a.format == "glb")
+    arts = {a.name: {"bytes": a.bytes, "stage": a.stage, "format": a.format,
+                     "vk_format": (a.meta.get("ktx2") or {}).get("format")} for a in manifest.artifacts}
     return {"probes": probes, "modes": modes, "bundle_bytes": whole, "bundle_bytes_per_probe": whole / probes,
-            "bundle_bytes_without_scene": whole - scene, "scene_bytes": scene}
+            "bundle_bytes_without_scene": whole - scene, "scene_bytes": scene, "artifacts": arts}
 
 
 def bake_whole(scene, counts) -> dict:
@@ -237,6 +239,17 @@ def print_bundles(results: dict) -> None:
                                            + ")")
         print(f"{g:>10s} {z['probes']:8d} {cells} {z['bundle_bytes_per_probe']:14.1f} {z['bundle_bytes'] / 1e6:10.1f}"
               f" {z['bundle_bytes_without_scene'] / 1e6:12.1f}{flag}")
+    grids = [g for g, r in results.items() if "artifacts" in r["sizes"]]
+    if grids:                           # every artifact's stored bytes per probe: what the mode columns do not show
+        print("bundle artifacts, stored bytes per probe (file size / probes)")
+        print(f"{'artifact':>28s} {'stage':>9s} {'format':>26s} " + " ".join(f"{g:>10s}" for g in grids))
+        names = sorted({n for g in grids for n in results[g]["sizes"]["artifacts"]},
+                       key=lambda n: -results[grids[-1]]["sizes"]["artifacts"].get(n, {"bytes": 0})["bytes"])
+        for n in names:
+            info = next(results[g]["sizes"]["artifacts"][n] for g in grids if n in results[g]["sizes"]["artifacts"])
+            cells = " ".join(f"{results[g]['sizes']['artifacts'][n]['bytes'] / results[g]['sizes']['probes']:10.1f}"
+                             if n in results[g]["sizes"]["artifacts"] else f"{'-':>10s}" for g in grids)
+            print(f"{n:>28s} {info['stage']:>9s} {info['vk_format'] or info['format']:>26s} {cells}")
     for g, r in results.items():
         print(f"bake {g}: wall {r['wall_s']:.1f} s, CPU {r['cpu_s']:.1f} s (user+sys, threads and children), "
               f"peak RSS {r['peak_rss_mb']:.0f} MB (children {r['peak_rss_children_mb']:.0f} MB)"

@@ -21,9 +21,12 @@ from proto.ktx2 import (
     decode_ktx2,
     encode_ktx2,
     format_for,
+    RGB9E5_MAX,
     pack_b10g11r11,
+    pack_e5b9g9r9,
     read_ktx2,
     unpack_b10g11r11,
+    unpack_e5b9g9r9,
     write_ktx2,
 )
 
@@ -32,6 +35,8 @@ RNG_SEED = 1234
 
 def _random(fmt, shape, rng):
     """Random data covering the format's bit patterns (finite floats only; the packed format's representable)."""
+    if fmt.name == "E5B9G9R9_UFLOAT_PACK32":                          # every word is a finite value
+        return unpack_e5b9g9r9(rng.integers(0, 1 << 32, size=shape[:-1], dtype=np.uint32))
     if fmt.packed_bits:
         words = rng.integers(0, 1 << 32, size=shape[:-1], dtype=np.uint32)
         ok = ((words & 0x7C0) != 0x7C0) & ((words & 0x3E0000) != 0x3E0000) & ((words >> 27) != 31)  # exponent 31
@@ -90,7 +95,8 @@ def test_round_trip_every_format(vk, dims, zstd):
         assert h["byteLength"] == n
         # uncompressed levels start on lcm(texel size, 4)
         assert h["byteOffset"] % np.lcm(info["pixel_size"], 4) == 0
-        stored = pack_b10g11r11(a) if fmt.packed_bits else a.astype(fmt.dtype)
+        pack = pack_e5b9g9r9 if fmt.name == "E5B9G9R9_UFLOAT_PACK32" else pack_b10g11r11
+        stored = pack(a) if fmt.packed_bits else a.astype(fmt.dtype)
         assert data[h["byteOffset"]:] == stored.astype(fmt.dtype).tobytes()
 
 
@@ -137,6 +143,44 @@ def test_b10g11r11_dfd_as_libktx():
     assert [w[7 + 4 * s] for s in range(3)] == [0 | (10 << 16) | (0x80 << 24), 11 | (10 << 16) | (0x81 << 24),
                                                 22 | (9 << 16) | (0x82 << 24)]
     assert all(w[8 + 4 * s] == 0 and w[9 + 4 * s] == 0 and w[10 + 4 * s] == 0x3F800000 for s in range(3))
+
+
+def test_e5b9g9r9_rounds_to_nearest_on_the_shared_exponent():
+    """The Vulkan/GL shared-exponent conversion: the exponent from the largest channel, every channel the nearest
+    multiple of that exponent's step (ties up, floor(x + 0.5)); the largest channel keeps 9 significant bits, so
+    it is off by at most half a step, 2^-10 of 2^e, i.e. ≤ 2^-9 of itself; negatives and NaN give 0, values past
+    65408 clamp to it."""
+    rng = np.random.default_rng(RNG_SEED)
+    rgb = np.exp(rng.uniform(np.log(1e-8), np.log(7e4), (50000, 3))).astype(np.float32)
+    rgb[:100] = rgb[:100, :1]                                           # greys
+    words = pack_e5b9g9r9(rgb)
+    back = unpack_e5b9g9r9(words).astype(np.float64)
+    x = np.minimum(rgb.astype(np.float64), RGB9E5_MAX)
+    top = x.max(axis=1)
+    e = (words >> np.uint32(27)).astype(np.int64)
+    step = np.exp2(e - 24.0)
+    assert np.all(np.abs(back - x) <= step[:, None] / 2 * (1 + 1e-12))  # nearest multiple of the shared step
+    big = top >= 2.0 ** -15                                             # normal range: 9 significant bits
+    assert np.all(np.abs(back - x).max(axis=1)[big] <= top[big] * 2.0 ** -9)
+    assert np.all(((words & 0x1FF) | ((words >> np.uint32(9)) & 0x1FF) | ((words >> np.uint32(18)) & 0x1FF))
+                  [top >= 2.0 ** -24] > 0)                              # nothing from the smallest step up reads 0
+    assert np.all(np.maximum.reduce([words & 0x1FF, (words >> np.uint32(9)) & 0x1FF, (words >> np.uint32(18)) & 0x1FF])
+                  [big] >= 256)                                         # the largest mantissa is normalized
+    edge = unpack_e5b9g9r9(pack_e5b9g9r9(np.array([[-1.0, np.nan, 1e9], [RGB9E5_MAX, 0, 0], [0.99999, 0.5, 0],
+                                                   [2.0 ** -24, 0, 0]], np.float32)))
+    assert edge.tolist() == [[0.0, 0.0, RGB9E5_MAX], [RGB9E5_MAX, 0.0, 0.0], [1.0, 0.5, 0.0], [2.0 ** -24, 0.0, 0.0]]
+
+
+def test_e5b9g9r9_dfd_as_libktx():
+    """createDFDPacked(0, 6, ...)'s E5B9G9R9 case: one 4-byte plane, per channel its 9-bit mantissa (bit 9·c, no
+    qualifier, lower 0, upper 8448) then the shared exponent (bit 27, 5 bits, EXPONENT qualifier, lower 15, upper
+    31)."""
+    w = _dfd_words(123)
+    assert w[:7] == (4 + 24 + 96, 0, 2 | (120 << 16), 1 | (1 << 8) | (1 << 16), 0, 4, 0)
+    samples = [w[7 + 4 * s:11 + 4 * s] for s in range(6)]
+    for c in range(3):
+        assert samples[2 * c] == (9 * c | (8 << 16) | (c << 24), 0, 0, 8448)
+        assert samples[2 * c + 1] == (27 | (4 << 16) | ((0x20 | c) << 24), 0, 15, 31)
 
 
 def test_axis_order_x_fastest():

@@ -130,8 +130,13 @@ def test_buried_probes_are_dilated_in_the_runtime_volumes(tmp_path, scene_files)
 def test_stored_formats_of_trace_and_light(tmp_path, scene_files, scene_name):
     """Issue 17: what the runtime reads is stored at the precision it needs (workers/kernels/precision.py), every
     KTX2 Zstandard-supercompressed, no npy but internal artifacts; the float32 copies the light, PRT and masks
-    stages integrate with are internal and round to exactly the stored values. The furnace's rays run 1 km to its
-    far triangle: the squared distances overflow half floats, so its depth moments stay RG32F, saying why."""
+    stages integrate with are internal; the stored depth moments are their far-clamped copy (clamp_far to each
+    probe's reach) rounded, the irradiance its shared-exponent packing. The furnace's rays run 1 km to its far
+    triangle, which also sets its scene bounds: the probes' reach, and so the clamped squared distances, overflow
+    half floats, so its depth moments stay RG32F, saying why."""
+    from workers.kernels.ddgi import bias_scale
+    from workers.kernels.depth_moments import clamp_far, reach
+    from workers.kernels.grid import pack_atlas
     from persist.store import Store
     from proto.models import BakeConfig
     from proto.stages import plan
@@ -157,14 +162,24 @@ def test_stored_formats_of_trace_and_light(tmp_path, scene_files, scene_name):
                                                           "probe_sh")}
     far = scene_name == "furnace"
     assert fmt == {"depth_moments": "R32G32_SFLOAT" if far else "R16G16_SFLOAT",
-                   "irradiance": "R16G16B16A16_SFLOAT", "sh_l1_r": "R16G16B16A16_SFLOAT", "sh_l2": "R16G16B16A16_SFLOAT", "probe_sh": "R32_SFLOAT"}
+                   "irradiance": "E5B9G9R9_UFLOAT_PACK32", "sh_l1_r": "R16G16B16A16_SFLOAT", "sh_l2": "R16G16B16A16_SFLOAT", "probe_sh": "R16_SFLOAT"}
     assert infos["probe_sh"]["meta"]["ktx2"]["table"] and infos["probe_sh"]["shape"] == [3, 4, 3, 9, 3]
-    assert infos["irradiance"]["meta"]["precision"]["format"] == "R16G16B16A16_SFLOAT"
+    assert infos["irradiance"]["meta"]["precision"]["format"] == "E5B9G9R9_UFLOAT_PACK32"
     assert infos["depth_moments_full"]["meta"]["internal"] and infos["sh_l1_full"]["meta"]["internal"]
     tr, li = (pipeline._lazy(store, recs[n]) for n in ("trace", "light"))
     assert tr["depth_moments_full"].dtype == np.float32
-    depth = tr["depth_moments_full"] if far else tr["depth_moments_full"].astype(np.float16)
+    place, rel = (pipeline._lazy(store, recs[n]) for n in ("place", "relocate"))
+    counts, spacing = place.stats["counts"], np.asarray(place.stats["spacing"])
+    lim = reach(rel["probe_positions_relocated"].reshape(-1, 3), counts, place.stats["origin"], spacing,
+                bias_scale(spacing, cfg.light.self_shadow_bias), pipeline._lazy(store, recs["ingest"]).stats["bounds"])
+    clamped, share = clamp_far(unpack_atlas(tr["depth_moments_full"], counts, 18), lim)
+    clamped[tr["probe_states"].ravel() == OFF] = 0.0                 # never read
+    depth = pack_atlas(clamped, counts)
+    depth = depth if far else depth.astype(np.float16)
     assert np.array_equal(tr["depth_moments"], depth)
+    assert infos["depth_moments"]["meta"]["far_clamp"]["clamped_share"] == share
     assert ("> 65504" in infos["depth_moments"]["meta"]["precision"].get("fallback", "")) == far
     assert np.array_equal(li["sh_l1_r"], li["sh_l1_full"][..., 0].astype(np.float16))
-    assert li["irradiance"].dtype == np.float16 and li["irradiance"].shape[-1] == 4
+    assert li["irradiance"].dtype == np.float32 and li["irradiance"].shape[-1] == 3
+    from proto.ktx2 import pack_e5b9g9r9, unpack_e5b9g9r9
+    assert np.array_equal(unpack_e5b9g9r9(pack_e5b9g9r9(li["irradiance"])), li["irradiance"])

@@ -39,9 +39,13 @@ def test_furnace_nothing_moves_depth_is_max_distance(tmp_path, scene_files):
     states = s["trace"]["probe_states"].ravel()
     assert np.all(states == SLEEPING)
     dmax = s["trace"].stats["max_distance"]
-    depth = unpack_atlas(s["trace"]["depth_moments"], [3, 3, 3], 18)
+    depth = unpack_atlas(s["trace"]["depth_moments_full"], [3, 3, 3], 18)
     assert np.allclose(depth[..., 0], dmax, rtol=1e-5)
     assert np.allclose(depth[..., 1], dmax ** 2, rtol=1e-4)
+    # stored: every texel is beyond reach, so each probe's map is its reach, constant (depth_moments.clamp_far)
+    stored = unpack_atlas(s["trace"]["depth_moments"], [3, 3, 3], 18).astype(np.float64)
+    assert np.all(stored[..., 0] == stored[:, :1, :1, 0]) and np.all(stored[..., 0] < dmax)
+    assert s["trace"].stats["depth_clamped_share"] == 1.0
     hits = s["trace"]["ray_hits"]
     assert hits.shape == (27, 64, 4) and np.all(np.isinf(hits[..., 0]))
     assert np.all(s["trace"]["ray_tri"] == -1)
@@ -109,3 +113,38 @@ def test_depth_moments_of_a_box_interior(tmp_path, scene_files, sharp):
     depth = unpack_atlas(s["trace"]["depth_moments"], [1, 1, 1], 18)[0, 1:-1, 1:-1]
     assert np.all(depth[..., 0] > 0.44) and np.all(depth[..., 0] < 0.45 * np.sqrt(3) + 1e-3)
     assert np.all(depth[..., 1] >= depth[..., 0] ** 2 - 1e-5)  # E[d²] >= E[d]²
+
+
+def test_stored_depth_far_clamp_leaves_ddgi_unchanged(tmp_path, scene_files):
+    """Issue 17: the stored depth moments (far texels clamped to each probe's reach, workers/kernels/depth_moments.py)
+    give the DDGI sampler exactly the irradiance the unclamped moments in the same half floats give, at surface
+    points and at free points anywhere in the scene bounds, with view directions of all kinds (a sixth of the
+    texels of this coarse grid clamped)."""
+    from workers.kernels.ddgi import sample_irradiance
+    from workers.kernels.surface_points import area_points
+
+    lo, hi = BAKE_BOXES["two-rooms"]
+    cfg = {"place": {"counts": [8, 4, 6], "box": {"min": lo, "max": hi}}, "trace": {"rays_per_probe": 128}}
+    scene, s = bake_until(tmp_path, scene_files["two-rooms"], cfg, "light")
+    counts = [8, 4, 6]
+    place = s["place"].stats
+    tr = s["trace"]
+    stored = unpack_atlas(tr["depth_moments"], counts, 18)
+    unclamped = unpack_atlas(tr["depth_moments_full"], counts, 18).astype(np.float16)
+    assert stored.dtype == np.float16 and not np.array_equal(stored, unclamped)
+    assert tr.stats["depth_clamped_share"] > 0.1
+    irr = unpack_atlas(s["light"]["irradiance"], counts, 10)
+    rng = np.random.default_rng(11)
+    bounds = np.asarray(s["ingest"].stats["bounds"])
+    sp = area_points(scene, 4000, seed=3)
+    free = rng.uniform(bounds[0], bounds[1], (8000, 3))
+    unit = rng.standard_normal((8000, 3))
+    unit /= np.linalg.norm(unit, axis=1, keepdims=True)
+    pts = np.concatenate([sp["position"], free])
+    nrm = np.concatenate([sp["normal"], unit])
+    view = np.concatenate([sp["view"], unit[::-1]])
+    args = (pts, nrm, view, counts, place["origin"], place["spacing"],
+            s["relocate"]["probe_positions_relocated"].reshape(-1, 3), tr["probe_states"].ravel(), irr)
+    got = sample_irradiance(*args, stored.astype(np.float32), 0.3)
+    want = sample_irradiance(*args, unclamped.astype(np.float32), 0.3)
+    assert np.abs(want).max() > 0 and np.array_equal(got, want)

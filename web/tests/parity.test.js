@@ -32,6 +32,8 @@ describe('KTX2 loader on the Python-written fixtures', () => {
   it('keeps the packed irradiance as one word per texel and reads a table in its manifest shape', () => {
     const irr = load('irr_b10g11r11_zstd.ktx2');
     expect([irr.kind, irr.valuesPerTexel, irr.data.constructor.name]).toEqual(['ufloat-packed', 1, 'Uint32Array']);
+    const e5 = load('irr_e5b9g9r9_zstd.ktx2');
+    expect([e5.vkFormat, e5.kind, e5.valuesPerTexel, e5.data.constructor.name]).toEqual([123, 'ufloat-packed', 1, 'Uint32Array']);
     const v = expected.volumes.find((x) => x.file === 'table_r32i_zstd.ktx2');
     const t = tableFromKTX2(load(v.file), [2, 2, 3]);        // any shape with the level's 12 values
     expect(t.shape).toEqual([2, 2, 3]);
@@ -277,5 +279,18 @@ describe('the mode table is proto/gi_modes.json (one source with workers/render/
     expect(u(bake(0.8))).not.toBeCloseTo(u({}), 6);
     expect(selfShadowBias({ config: { light: { self_shadow_bias: 1.5 } } })).toBe(1.5);
     expect(ddgiBias([0, 2, 0.5], 1)).toBe(0.375);                   // D over axes with spacing > 0
+  });
+});
+
+describe('packed irradiance uploads', () => {
+  it('uploads E5B9G9R9 as RGB9_E5 and B10G11R11 as R11F_G11F_B10F, words as stored', async () => {
+    const { textureFromKTX2 } = await import('../src/renderer/textures.js');
+    const three = await import('three');
+    const e5 = load('irr_e5b9g9r9_zstd.ktx2');
+    const t5 = textureFromKTX2(e5);
+    expect([t5.format, t5.type]).toEqual([three.RGBFormat, three.UnsignedInt5999Type]);
+    expect(t5.image.data).toBe(e5.data);
+    const t11 = textureFromKTX2(load('irr_b10g11r11_zstd.ktx2'));
+    expect([t11.format, t11.type]).toEqual([three.RGBFormat, three.UnsignedInt101111Type]);
   });
 });

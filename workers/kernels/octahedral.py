@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from proto.atlas import add_border as _proto_add_border
+
 __all__ = [
     "oct_encode",
     "oct_decode",
@@ -164,18 +166,7 @@ def add_border(maps) -> np.ndarray:
 
 
 def _add_border(m: np.ndarray) -> np.ndarray:
-    n = m.shape[-3]
-    out = np.empty(m.shape[:-3] + (n + 2, n + 2, m.shape[-1]), dtype=m.dtype)
-    out[..., 1:-1, 1:-1, :] = m
-    out[..., 0, 1:-1, :] = m[..., 0, ::-1, :]  # top edge: first row, columns flipped
-    out[..., -1, 1:-1, :] = m[..., -1, ::-1, :]  # bottom edge: last row, columns flipped
-    out[..., 1:-1, 0, :] = m[..., ::-1, 0, :]  # left edge: first column, rows flipped
-    out[..., 1:-1, -1, :] = m[..., ::-1, -1, :]  # right edge: last column, rows flipped
-    out[..., 0, 0, :] = m[..., -1, -1, :]  # corners from the opposite corner
-    out[..., 0, -1, :] = m[..., -1, 0, :]
-    out[..., -1, 0, :] = m[..., 0, -1, :]
-    out[..., -1, -1, :] = m[..., 0, 0, :]
-    return out
+    return _proto_add_border(m)   # one implementation with the bundle readers (proto/atlas.py)
 
 
 def bilinear_sample(map_with_border, dirs) -> np.ndarray:

@@ -8,6 +8,8 @@ values stored (0 for an all-zero array) and ``fallback`` says why a narrower for
 =========================== =================================== ===========================================
 function                    formats, first that fits            fits when
 =========================== =================================== ===========================================
+:func:`rgb9e5`              E5B9G9R9_UFLOAT_PACK32 (4 B/texel), every value is finite, ≥ 0 and ≤ 65408
+                            else :func:`half` of RGBA           (the shared exponent's range)
 :func:`rgb_ufloat`          B10G11R11_UFLOAT_PACK32 (4 B/texel), every value is finite, ≥ 0 and ≤ 65024
                             else :func:`half` of RGBA           (the 11/10-bit floats' range)
 :func:`half`                R16…_SFLOAT (2 B per component),    every |value| ≤ 65504 (half's largest)
@@ -18,16 +20,18 @@ Both also fall back (to float32) when the largest magnitude is below :data:`SMAL
 subnormal spacing would be a visible part of the signal. Rounding is to nearest even (numpy's ``astype(float16)``,
 :func:`proto.ktx2.pack_b10g11r11`), so the same input always gives the same bytes. What each format adds to the GI
 error of the runtime modes is measured by ``tests/bench/bench_formats.py``. The stages use :func:`half` (depth moments,
-SH volumes, irradiance, the PRT basis); :func:`rgb_ufloat` is measured but not used for the irradiance: on a flatly
-lit region its rounding does not average out, and a grey value's error reaches 0.89% (over 0.5% for 38% of values).
+SH volumes, the PRT basis) and :func:`rgb9e5` (the irradiance atlas, issue 17: 4 bytes a texel instead of 8; 9
+significant bits for the largest channel, so a grey value is off by at most 2^-9 ≈ 0.2%); :func:`rgb_ufloat` is
+measured but not used: on a flatly lit region its rounding does not average out, and a grey value's error reaches
+0.89% (over 0.5% for 38% of values).
 """
 from __future__ import annotations
 
 import numpy as np
 
-from proto.ktx2 import UFLOAT11_MAX, pack_b10g11r11, unpack_b10g11r11
+from proto.ktx2 import RGB9E5_MAX, UFLOAT11_MAX, pack_b10g11r11, pack_e5b9g9r9, unpack_b10g11r11, unpack_e5b9g9r9
 
-__all__ = ["HALF_MAX", "SMALLEST_SCALE", "half", "rgb_ufloat", "relative_rmse"]
+__all__ = ["HALF_MAX", "SMALLEST_SCALE", "half", "rgb9e5", "rgb_ufloat", "relative_rmse"]
 
 HALF_MAX = 65504.0
 """Largest finite IEEE half."""
@@ -77,6 +81,32 @@ def half(a: np.ndarray) -> tuple[np.ndarray, str, dict]:
     return q, _HALF_FORMATS[c], {"precision": {"format": _HALF_FORMATS[c], "relative_rmse": relative_rmse(q, a)}}
 
 
+def _packed_rgb(rgba: np.ndarray, name: str, limit: float, pack, unpack) -> tuple[np.ndarray, str, dict]:
+    a = np.ascontiguousarray(rgba, np.float32)
+    rgb = a[..., :3]
+    why = _scale_fallback(rgb, limit)
+    if why is None and float(rgb.min(initial=0.0)) < 0.0:
+        why = f"negative values (smallest {float(rgb.min()):.6g})"
+    if why is None:
+        q = unpack(pack(rgb))
+        return q, name, {"precision": {"format": name, "relative_rmse": relative_rmse(q, rgb)}}
+    if a.shape[-1] == 3:
+        a = np.concatenate([a, np.ones(a.shape[:-1] + (1,), np.float32)], axis=-1)
+    data, vk, meta = half(a)
+    meta["precision"]["fallback_from"] = f"{name}: {why}"
+    return data, vk, meta
+
+
+def rgb9e5(rgba: np.ndarray) -> tuple[np.ndarray, str, dict]:
+    """(…, 3 or 4) float32 RGB(A) irradiance as E5B9G9R9_UFLOAT_PACK32 (shared exponent; alpha dropped: a reader
+    sees a = 1) where it holds it, else :func:`half` of RGBA (alpha 1 where the input has none).
+
+    Returns ``(data, vk_format, meta)``; ``data`` is the float32 RGB the packed format stores exactly (what a reader
+    decodes, :func:`proto.ktx2.unpack_e5b9g9r9`) or the :func:`half` result.
+    """
+    return _packed_rgb(rgba, "E5B9G9R9_UFLOAT_PACK32", RGB9E5_MAX, pack_e5b9g9r9, unpack_e5b9g9r9)
+
+
 def rgb_ufloat(rgba: np.ndarray) -> tuple[np.ndarray, str, dict]:
     """(…, 3 or 4) float32 RGB(A) irradiance as B10G11R11_UFLOAT_PACK32 (alpha dropped: it reads as 1) where the
     packed floats hold it, else :func:`half` of RGBA (alpha 1 where the input has none).
@@ -84,17 +114,4 @@ def rgb_ufloat(rgba: np.ndarray) -> tuple[np.ndarray, str, dict]:
     Returns ``(data, vk_format, meta)``; ``data`` is the float32 RGB the packed format stores exactly (what a
     reader decodes) or the :func:`half` result.
     """
-    a = np.ascontiguousarray(rgba, np.float32)
-    rgb = a[..., :3]
-    why = _scale_fallback(rgb, UFLOAT11_MAX)
-    if why is None and float(rgb.min(initial=0.0)) < 0.0:
-        why = f"negative values (smallest {float(rgb.min()):.6g})"
-    if why is None:
-        q = unpack_b10g11r11(pack_b10g11r11(rgb))
-        return q, "B10G11R11_UFLOAT_PACK32", {"precision": {
-            "format": "B10G11R11_UFLOAT_PACK32", "relative_rmse": relative_rmse(q, rgb)}}
-    if a.shape[-1] == 3:
-        a = np.concatenate([a, np.ones(a.shape[:-1] + (1,), np.float32)], axis=-1)
-    data, vk, meta = half(a)
-    meta["precision"]["fallback_from"] = f"B10G11R11_UFLOAT_PACK32: {why}"
-    return data, vk, meta
+    return _packed_rgb(rgba, "B10G11R11_UFLOAT_PACK32", UFLOAT11_MAX, pack_b10g11r11, unpack_b10g11r11)

@@ -12,8 +12,12 @@ under a seeded random rotation (DDGI-I §3.2; one rotation for all probes, as DD
   and back-face flag, so later stages re-shade without re-tracing.
 
 Outputs: ``probe_states`` (nz, ny, nx, 1) uint8 volume (0 OFF, 1 ACTIVE, 2 SLEEPING);
-``depth_moments`` 2D atlas (ny·(n+2), nz·nx·(n+2), 2) (grid.pack_atlas) RG16F where half floats hold it, else
-RG32F (:func:`workers.kernels.precision.half`; its GI error in tests/bench/bench_formats.py); internal
+``depth_moments`` 2D atlas (ny·(n+2), nz·nx·(n+2), 2) (grid.pack_atlas), stored without its tile borders
+((ny·n, nz·nx·n, 2), ``meta.stored_border`` 0: readers add them back, :mod:`proto.atlas`), RG16F where half floats hold it, else
+RG32F (:func:`workers.kernels.precision.half`; its GI error in tests/bench/bench_formats.py), every texel beyond the
+probe's reach (the farthest any shading point can be from it, with the runtime's self-shadow bias
+``light.self_shadow_bias``) clamped to it (:func:`workers.kernels.depth_moments.clamp_far`, ``meta.far_clamp``) and
+the OFF probes' maps 0 (no reader reads them: the DDGI sampler and mode_ddgi.glsl skip OFF probes first); internal
 ``depth_moments_full``, the float32 atlas the light and PRT stages integrate with;
 ``ray_directions`` (R, 3) float32, ``ray_hits`` (P, R, 4) float32 (t (inf on miss), u, v, backface)
 and ``ray_tri`` (P, R) int32.
@@ -23,7 +27,8 @@ from __future__ import annotations
 import numpy as np
 
 from workers.kernels.classification import classify
-from workers.kernels.depth_moments import depth_moments, max_ray_distance
+from workers.kernels.ddgi import bias_scale
+from workers.kernels.depth_moments import clamp_far, depth_moments, max_ray_distance, reach
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
 from workers.kernels import precision
 from workers.kernels.materials import double_sided_triangles
@@ -33,6 +38,9 @@ from workers.raycast.probes import trace_probes
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 STAGE_SEED_TAG = 0x7ACE
+ZSTD_LEVEL = 9
+"""Zstandard level of the stored depth moments (the largest artifact of a DDGI bundle): about 5% smaller than the
+default 3 for about 0.02 s per MB of raw texels (zdm2 at 32x16x32)."""
 
 
 def run_trace(ctx: StageContext) -> StageOutput:
@@ -63,14 +71,28 @@ def run_trace(ctx: StageContext) -> StageOutput:
     }
     n2 = sec.depth_texels + 2
     atlas = pack_atlas(depth, counts)
-    stored, vk, prec = precision.half(atlas)
+    # stored: texels beyond what any shading point can be from the probe clamped to that reach (depth_moments.py
+    # "Far clamp"), so the far texels are constant and Zstandard stores them almost for free; the bias is the
+    # runtime's (DDGI-P eq 2, light.self_shadow_bias)
+    bias = bias_scale(spacing, ctx.config.light.self_shadow_bias)
+    limit = reach(positions, counts, origin, spacing, bias, ctx.inputs["ingest"].stats["bounds"])
+    clamped, share = clamp_far(depth, limit)
+    clamped[states == OFF] = 0.0            # never read: every reader skips OFF probes before their moments
+    stats["depth_clamped_share"] = share
+    # the tile borders are copies (octahedral.add_border): stored without them, readers add them back (proto/atlas.py)
+    stored, vk, prec = precision.half(pack_atlas(clamped[:, 1:-1, 1:-1], counts))
+    del clamped
     return StageOutput(
         artifacts=[
             Artifact("probe_states", states.reshape(nz, ny, nx, 1),
                      description="probe states: 0 off, 1 active, 2 sleeping", meta={"states": ["off", "active", "sleeping"]}),
-            Artifact("depth_moments", stored, vk_format=vk,
+            Artifact("depth_moments", stored, vk_format=vk, zstd_level=ZSTD_LEVEL,
                      description="octahedral mean distance and squared distance per probe, with border, metres",
-                     meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax, **prec}),
+                     meta={"tile": n2, "texels": sec.depth_texels, "stored_border": 0, "max_distance": dmax,
+                           "far_clamp": {
+                         "bias": bias, "reach_min": float(limit.min(initial=0.0)),
+                         "reach_max": float(limit.max(initial=0.0)), "clamped_share": share, "off_zero": True},
+                         **prec}),
             Artifact("depth_moments_full", atlas, description="depth_moments in float32 (light and PRT stages)",
                      meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax, **internal}),
             Artifact("ray_directions", dirs, format="npy", description="final probe ray directions", meta=internal),

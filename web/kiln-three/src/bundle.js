@@ -16,6 +16,7 @@ import { FloatType, HalfFloatType, RGBAFormat, RGFormat, RedFormat, UnsignedByte
 import { KTX2Loader } from 'three/addons/loaders/KTX2Loader.js';
 import { GLTFLoader } from 'three/addons/loaders/GLTFLoader.js';
 import { parseKTX2 } from '../../src/loader/ktx2.js';
+import { withStoredBorder } from '../../src/math/atlas.js';
 import { parseNpy } from '../../src/loader/npy.js';
 
 /** vkFormats three's KTX2Loader (r187) turns into raw Data(3D)Textures (proto/bundle.md 4.3, column "three.js"). */
@@ -130,7 +131,8 @@ export class KilnBundle {
 
   /** An artifact decoded (cached): KTX2 and npy as a record, json as an object, glb as its bytes. */
   artifact(name) {
-    if (!this.cache.has(name)) this.cache.set(name, this._decode(name));
+    // a DDGI atlas stored without its tile borders comes back with them (proto/bundle.md 5.1)
+    if (!this.cache.has(name)) this.cache.set(name, this._decode(name).then((r) => withStoredBorder(r, this.byName.get(name))));
     return this.cache.get(name);
   }
 

@@ -6,6 +6,7 @@
  * fetches.
  */
 import { parseKTX2 } from './ktx2.js';
+import { withStoredBorder } from '../math/atlas.js';
 
 const CACHE_NAME = 'kiln-artifacts-v1';
 
@@ -93,7 +94,8 @@ export class ArtifactLoader {
   }
 
   async ktx2(bakeId, info, onProgress) {
-    return parseKTX2(await this.bytes(bakeId, info, onProgress));
+    // a DDGI atlas stored without its tile borders comes back with them (proto/bundle.md 5.1)
+    return withStoredBorder(parseKTX2(await this.bytes(bakeId, info, onProgress)), info);
   }
 
   async json(bakeId, info, onProgress) {

@@ -32,6 +32,9 @@ export const VK_FORMATS = {
   // one 32-bit word per texel: R bits 0-10, G 11-21 (5-bit exponent, 6-bit mantissa), B 22-31 (5 + 5); WebGL2's
   // R11F_G11F_B10F (RGB + UNSIGNED_INT_10F_11F_11F_REV), filterable everywhere
   122: { name: 'B10G11R11_UFLOAT_PACK32', components: 3, typeSize: 4, kind: 'ufloat-packed', texelBytes: 4 },
+  // one 32-bit word per texel: 9-bit mantissas R bits 0-8, G 9-17, B 18-26, the shared exponent 27-31 (bias 15);
+  // WebGL2's RGB9_E5 (RGB + UNSIGNED_INT_5_9_9_9_REV), filterable everywhere. The light stage's irradiance.
+  123: { name: 'E5B9G9R9_UFLOAT_PACK32', components: 3, typeSize: 4, kind: 'ufloat-packed', texelBytes: 4, samples: 6 },
 };
 
 function typedView(kind, typeSize, bytes) {
@@ -58,7 +61,8 @@ function typedView(kind, typeSize, bytes) {
  *   valuesPerTexel: number, kv: Record<string, string>,
  *   data: Float32Array|Uint16Array|Uint8Array|Uint32Array|Int32Array}}
  *   data holds width·height·max(depth,1)·valuesPerTexel values, x fastest, then y, then z (bundle.md 4.6):
- *   valuesPerTexel = components, except 1 (a Uint32Array word) for the packed B10G11R11_UFLOAT_PACK32.
+ *   valuesPerTexel = components, except 1 (a Uint32Array word) for the packed B10G11R11_UFLOAT_PACK32 and
+ *   E5B9G9R9_UFLOAT_PACK32.
  *   Little-endian hosts only (every browser we target).
  */
 export function parseKTX2(input) {
@@ -97,9 +101,10 @@ export function parseKTX2(input) {
   if (dfdOffset + dfdLength > bytes.byteLength || kvdOffset + kvdLength > bytes.byteLength) {
     throw new KTX2Error('file is shorter than its data format descriptor or key/value data');
   }
-  if (dfdLength !== 28 + 16 * fmt.components) throw new KTX2Error(`DFD of ${dfdLength} bytes does not fit ${fmt.name}`);
+  const nSamples = fmt.samples ?? fmt.components;  // E5B9G9R9: a mantissa and the exponent per channel
+  if (dfdLength !== 28 + 16 * nSamples) throw new KTX2Error(`DFD of ${dfdLength} bytes does not fit ${fmt.name}`);
   const samples = (u32(dfdOffset + 8) >>> 16) - 24;
-  if (samples !== 16 * fmt.components) throw new KTX2Error(`DFD describes ${samples / 16} samples, ${fmt.name} has ${fmt.components}`);
+  if (samples !== 16 * nSamples) throw new KTX2Error(`DFD describes ${samples / 16} samples, ${fmt.name} has ${nSamples}`);
   if (levelOffset + levelLength !== bytes.byteLength) {
     throw new KTX2Error(levelOffset + levelLength > bytes.byteLength ? 'file is shorter than its level data' : 'bytes after the level data');
   }
@@ -170,12 +175,25 @@ export function unpackB10G11R11(words) {
   return out;
 }
 
+/** E5B9G9R9_UFLOAT_PACK32 words -> Float32Array of r, g, b per texel: mantissa · 2^(e − 15 − 9) (as proto/ktx2.py). */
+export function unpackE5B9G9R9(words) {
+  const out = new Float32Array(words.length * 3);
+  for (let i = 0; i < words.length; i++) {
+    const w = words[i];
+    const scale = 2 ** ((w >>> 27) - 24);
+    out[i * 3] = (w & 0x1ff) * scale;
+    out[i * 3 + 1] = ((w >>> 9) & 0x1ff) * scale;
+    out[i * 3 + 2] = ((w >>> 18) & 0x1ff) * scale;
+  }
+  return out;
+}
+
 /**
  * The texel values of a parsed KTX2 as plain numbers, `components` per texel (halves decoded, the packed
- * format unpacked to r, g, b, UNORM as the stored integers).
+ * formats unpacked to r, g, b, UNORM as the stored integers).
  */
 export function texelsAsNumbers(tex) {
-  if (tex.kind === 'ufloat-packed') return unpackB10G11R11(tex.data);
+  if (tex.kind === 'ufloat-packed') return tex.vkFormat === 123 ? unpackE5B9G9R9(tex.data) : unpackB10G11R11(tex.data);
   return tex.kind === 'half' ? Float32Array.from(tex.data, halfToFloat) : tex.data;
 }
 

@@ -2,11 +2,13 @@
  * Parsed KTX2 artifacts (loader/ktx2.js) -> three.js textures. Float volumes sample with LINEAR filtering
  * where OES_texture_float_linear exists; elsewhere they are converted to half floats, which filter linearly
  * on every WebGL2 device (proto/bundle.md 4.3), as do the half-float artifacts (RGBA16F, RG16F) and the packed
- * B10G11R11_UFLOAT_PACK32 irradiance (uploaded as is: R11F_G11F_B10F, RGBFormat + UnsignedInt101111Type).
+ * packed irradiance formats, uploaded as they are: E5B9G9R9_UFLOAT_PACK32 (what the light stage writes) as RGB9_E5
+ * (RGBFormat + UnsignedInt5999Type), B10G11R11_UFLOAT_PACK32 as R11F_G11F_B10F (RGBFormat + UnsignedInt101111Type).
  */
 import {
   ClampToEdgeWrapping, Data3DTexture, DataTexture, DataUtils, FloatType, HalfFloatType, LinearFilter,
   NearestFilter, RGBAFormat, RGBFormat, RGFormat, RedFormat, UnsignedByteType, UnsignedInt101111Type,
+  UnsignedInt5999Type,
 } from 'three';
 import { texelsAsNumbers } from '../loader/ktx2.js';
 
@@ -14,7 +16,7 @@ const FORMATS = { 1: RedFormat, 2: RGFormat, 4: RGBAFormat };
 
 function widen(tex) {
   // RGB32F has no filterable format in WebGL2 as a render-independent texture: pad to RGBA (the packed
-  // B10G11R11 format is RGB and filterable as it is).
+  // B10G11R11 and E5B9G9R9 formats are RGB and filterable as they are).
   if (tex.components !== 3 || tex.kind === 'ufloat-packed') return tex;
   const n = tex.data.length / 3;
   const out = new tex.data.constructor(n * 4);
@@ -34,7 +36,7 @@ export function textureFromKTX2(ktx, { filter = 'linear', floatLinear = true } =
   let type;
   if (t.kind === 'ufloat-packed') {
     format = RGBFormat;
-    type = UnsignedInt101111Type;
+    type = t.vkFormat === 123 ? UnsignedInt5999Type : UnsignedInt101111Type;
   } else if (t.kind === 'float') {
     type = FloatType;
     if (filter === 'linear' && !floatLinear) { data = Uint16Array.from(data, (x) => DataUtils.toHalfFloat(x)); type = HalfFloatType; }
@@ -72,7 +74,7 @@ export function wrapAtlas(ktx, counts, columns) {
   const t = ktx.height / ny;
   const C = nx * nz;
   const rows = Math.ceil(C / columns);
-  const comp = ktx.valuesPerTexel ?? ktx.components;  // one packed word per texel for B10G11R11
+  const comp = ktx.valuesPerTexel ?? ktx.components;  // one packed word per texel for B10G11R11, E5B9G9R9
   const width = columns * t;
   const height = rows * ny * t;
   const data = new ktx.data.constructor(width * height * comp);
