@@ -132,18 +132,25 @@ def test_the_budget_counts_the_whole_box_and_the_record_says_what_free_space_wou
 
 
 def test_the_default_budget_binding_far_above_the_rooms_is_a_warning(tmp_path):
-    """Right by default: a hall 300 m wide and 3 m high asks for probes about a metre apart; the default budget
-    (24,000) cannot hold that, and the bake says so (``grid_coarse``, workers/stages/place.py) with what to do.
-    A room the budget covers, or a budget the user chose, gets no warning (the choice is in grid.auto.reason)."""
-    from workers.stages.place import COARSE_FACTOR
+    """Right by default: where the default budget (24,000) holds the automatic grid far coarser than the rooms ask
+    (truck-town, a 2 km town: 25 m where 1.85 m is wanted), the bake says so (``grid_coarse``,
+    workers/stages/place.py) with what to do. A budget the user chose, or a grid within COARSE_FACTOR of what the
+    rooms ask (zdm2 2.2x, sealed-box 2.8x, whose light is right: bench_fidelity), gets no warning."""
+    from tests.conftest import shared_path
+    from workers.gltf.pack import pack_model
+    from workers.stages.place import COARSE_FACTOR, coarse_grid_warning
 
-    hall = _room(tmp_path / "hall", [300, 3, 300], "hall")
-    _, s = bake_until(tmp_path / "a", hall, {}, "place")
-    auto, warnings = s["place"].stats["auto"], s["place"].stats.get("warnings") or []
+    auto = {"budget_bound": True, "spacing_wanted": 1.0, "spacing": COARSE_FACTOR * 1.01}
+    w = coarse_grid_warning(auto, 24000)
+    assert w["code"] == "grid_coarse" and "place.box" in w["message"] and "place.budget" in w["message"]
+    assert coarse_grid_warning(auto, 5000) is None                           # the user's own budget
+    assert coarse_grid_warning({**auto, "spacing": COARSE_FACTOR * 0.99}, 24000) is None
+    assert coarse_grid_warning({**auto, "budget_bound": False}, 24000) is None
+    town = shared_path("scenes", "truck-town", "town_model.gltf")
+    assert pack_model(town, tmp_path / "town.zip")
+    _, s = bake_until(tmp_path / "a", tmp_path / "town.zip", {}, "place")
+    auto = s["place"].stats["auto"]
     assert auto["budget_bound"] and auto["spacing"] > COARSE_FACTOR * auto["spacing_wanted"]
-    assert [w["code"] for w in warnings] == ["grid_coarse"]
-    assert "place.box" in warnings[0]["message"] and "place.budget" in warnings[0]["message"]
-    _, s = bake_until(tmp_path / "b", hall, {"place": {"budget": 5000}}, "place")
-    assert s["place"].stats["auto"]["budget_bound"] and "warnings" not in s["place"].stats
-    _, s = bake_until(tmp_path / "c", _room(tmp_path / "room", [4, 3, 4], "room"), {}, "place")
+    assert [w["code"] for w in s["place"].stats["warnings"]] == ["grid_coarse"]
+    _, s = bake_until(tmp_path / "b", _room(tmp_path / "room", [4, 3, 4], "room"), {}, "place")
     assert not s["place"].stats["auto"]["budget_bound"] and "warnings" not in s["place"].stats
