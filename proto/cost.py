@@ -263,12 +263,16 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     rescue = 1 if config.trace.rescue_offset > config.trace.max_offset else 0
     add("relocate", (config.trace.relocate_iterations + rescue) * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
         LIB_RAYS + scene_mem + N * RAY_MEM["relocate"], P * 24)
-    dt = config.trace.depth_texels + 2
+    # stored sizes before Zstandard (an upper bound: proto/bundle.md 5.1): depth moments RG16F and irradiance RGB9E5
+    # without their tile borders, the SH volumes RGBA16F, probe_sh half floats; internal: the float32 bordered depth
+    # moments and L1 SH the later stages integrate with, the rays' hits
+    dn, dt = config.trace.depth_texels, config.trace.depth_texels + 2
     add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale, LIB_RAYS + scene_mem + N * RAY_MEM["trace"],
-        P * (1 + dt * dt * 8), internal=N * 20 + R * 12)
-    it = config.light.irradiance_texels + 2
+        P * (1 + dn * dn * 4), internal=N * 20 + R * 12 + P * dt * dt * 8)
+    it = config.light.irradiance_texels
     add("light", N * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE),
-        LIB_RAYS + scene_mem + N * RAY_MEM["light"], P * (it * it * 16 + sh_k * 12 + 48))
+        LIB_RAYS + scene_mem + N * RAY_MEM["light"], P * (it * it * 4 + (56 if sh_k == 9 else 0) + sh_k * 6 + 24),
+        internal=P * 48)
     n_shard = F / shards
     chunk = VIS_CHUNK_SAMPLES / config.visibility.rays
     for i in range(slabs):
