@@ -46,7 +46,7 @@ def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
     with a spacing over :data:`COARSE_FACTOR` x the wanted one (``auto``: :func:`choose_grid`'s record), else None.
 
     Right by default: a user who set nothing gets told that the defaults cannot deliver the spacing this scene
-    needs (light blurs and can cross walls thinner than a cell), and what to do. A budget the user chose (a preset,
+    needs (the light loses its detail; the leaking and DDGI modes cross walls thinner than a cell), and what to do. A budget the user chose (a preset,
     a smaller preview) is a choice, recorded in ``grid.auto.reason``, not a warning."""
     from proto.models import PlaceSection
 
@@ -57,8 +57,9 @@ def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
     need = int(budget * (spacing / wanted) ** 3)
     return {"code": "grid_coarse", "message": (
         f"the automatic probe grid is {spacing:.2f} m apart where this scene's rooms ask for {wanted:.2f} m: the "
-        f"default budget of {budget} probes binds (that spacing needs about {need} probes). Light can blur and cross "
-        "walls thinner than a cell; set place.box to the part of the scene that matters, or raise place.budget "
+        f"default budget of {budget} probes binds (that spacing needs about {need} probes). The light loses its detail "
+        "(and the leaking and DDGI modes cross walls thinner than a cell); set place.box to the part of the scene "
+        "that matters, or raise place.budget "
         f"(at most {MAX_PROBES})")}
 
 
