@@ -81,9 +81,11 @@ def _noise_variance(ref, err, e_direct, albedo, emission, exposure: float) -> tu
     through the tone map's slope at the reference (central difference of ±s_i in irradiance)."""
     r, s = np.asarray(ref, np.float64), np.asarray(err, np.float64)
     d, a, e = (np.asarray(x, np.float64) for x in (e_direct, albedo, emission))
+    lo_r = np.maximum(r - s, 0.0)                                  # the slope over [max(R − s, 0), R + s]
     hi = MT.tonemap(radiance(d, r + s, a, e), exposure).astype(np.float64)
-    lo = MT.tonemap(radiance(d, np.maximum(r - s, 0.0), a, e), exposure).astype(np.float64)
-    return np.sum(s * s, axis=-1), ((hi - lo) / np.where(r - s > 0, 2.0, 1.0)) ** 2
+    lo = MT.tonemap(radiance(d, lo_r, a, e), exposure).astype(np.float64)
+    width = r + s - lo_r
+    return np.sum(s * s, axis=-1), np.where(width > 0, (hi - lo) * s / np.where(width > 0, width, 1.0), 0.0) ** 2
 
 
 def _prepare(refs, d, a, e, exposure: float) -> dict:
