@@ -64,16 +64,18 @@ def off_kinds(states: np.ndarray) -> dict:
     return {"off": int(off.sum()), "next_to_live": int((off & near).sum()), "deep": int((off & ~near).sum())}
 
 
+def _exits_in_cells(p: int, base, pos, hits, dirs, spacing, past: float = 0.0) -> np.ndarray:
+    """(E, 3) the back-face exits of probe ``p``'s rays (``hits`` (P, R, 4): t, u, v, back), ``past`` metres beyond
+    the face, within its 8 cells around the grid position ``base[p]``."""
+    b = (hits[p, :, 3] > 0.5) & np.isfinite(hits[p, :, 0])
+    e = pos[p] + dirs[b] * (hits[p, b, 0][:, None] + past)
+    return e[np.all(np.abs(e - base[p]) < np.where(spacing > 0, spacing, np.inf), axis=1)]
+
+
 def off_free_in_cells(off: np.ndarray, base: np.ndarray, pos: np.ndarray, hits: np.ndarray, dirs: np.ndarray,
                       spacing: np.ndarray) -> int:
-    """OFF probes (``off`` (P,) bool) with a back-face exit of their rays (``hits`` (P, R, 4): t, u, v, back) within
-    their 8 cells around the grid position ``base`` (P, 3)."""
-    n = 0
-    for p in np.flatnonzero(off):
-        b = (hits[p, :, 3] > 0.5) & np.isfinite(hits[p, :, 0])
-        e = pos[p] + dirs[b] * hits[p, b, 0][:, None]
-        n += bool(np.any(np.all(np.abs(e - base[p]) < np.where(spacing > 0, spacing, np.inf), axis=1)))
-    return n
+    """OFF probes (``off`` (P,) bool) with a back-face exit of their rays within their 8 cells."""
+    return sum(bool(len(_exits_in_cells(p, base, pos, hits, dirs, spacing))) for p in np.flatnonzero(off))
 
 
 def orphan_free_space(states: np.ndarray, base: np.ndarray, pos: np.ndarray, hits: np.ndarray, dirs: np.ndarray,
@@ -85,13 +87,11 @@ def orphan_free_space(states: np.ndarray, base: np.ndarray, pos: np.ndarray, hit
     nz, ny, nx = states.shape
     live = states != OFF
     lo, hi = base.min(axis=0), base.max(axis=0)
-    step = np.where(spacing > 0, spacing, np.inf)
     top = np.maximum(np.array([nx, ny, nz]) - 2, 0)
     total = orphan = 0
     for p in np.flatnonzero(~live.ravel()):
-        b = (hits[p, :, 3] > 0.5) & np.isfinite(hits[p, :, 0])
-        e = pos[p] + dirs[b] * (hits[p, b, 0][:, None] + 0.02)
-        e = e[np.all(np.abs(e - base[p]) < step, axis=1) & np.all((e >= lo) & (e <= hi), axis=1)]
+        e = _exits_in_cells(p, base, pos, hits, dirs, spacing, past=0.02)
+        e = e[np.all((e >= lo) & (e <= hi), axis=1)]
         if not len(e):
             continue
         c = np.clip(np.floor((e - base[0]) / np.where(spacing > 0, spacing, 1.0)).astype(np.int64), 0, top)

@@ -16,16 +16,13 @@ from __future__ import annotations
 import json
 import os
 import posixpath
-import struct
-import urllib.parse
 import zipfile
 from pathlib import Path
 
+from workers.gltf.container import climbs_out, read_glb, sniff, split_uri
+from workers.gltf.errors import IngestError
+
 __all__ = ["referenced_files", "pack_model", "MissingFile"]
-
-_GLB_MAGIC = b"glTF"
-_JSON_CHUNK = 0x4E4F534A
-
 
 class MissingFile(Exception):
     """A file the model references is not on disk beside it (``rel``: the decoded URI)."""
@@ -36,45 +33,34 @@ class MissingFile(Exception):
 
 
 def _json_of(path: Path) -> dict | None:
-    """The glTF JSON of a ``.gltf`` or a ``.glb`` (its first chunk); None when it is neither (the reader says why)."""
+    """The glTF JSON of a ``.gltf`` or a ``.glb`` (read by the reader's own :func:`read_glb`); None when it is neither
+    or cannot be read (the reader says why when the model is ingested)."""
     try:
         with open(path, "rb") as f:
-            head = f.read(20)
-            if head[:4] == _GLB_MAGIC:
-                if len(head) < 20:
-                    return None
-                length, kind = struct.unpack_from("<II", head, 12)
-                if kind != _JSON_CHUNK or length > os.path.getsize(path):
-                    return None
-                raw = f.read(length)
-            else:
-                raw = head + f.read()
-        doc = json.loads(raw)
-    except (OSError, ValueError, UnicodeDecodeError, RecursionError):
+            kind = sniff(f.read(4096))
+        raw = read_glb(path, path.name, [])[0] if kind == "glb" else path.read_bytes() if kind == "gltf" else None
+        doc = json.loads(raw) if raw is not None else None
+    except (IngestError, OSError, ValueError, UnicodeDecodeError, RecursionError):
         return None
     return doc if isinstance(doc, dict) else None
 
 
 def referenced_files(path: str | os.PathLike) -> list[tuple[str, str]]:
     """``[(relative path, what)]`` of the files a model references (``what``: "buffer 0", "image 3"), '/'-separated
-    and percent-decoded, without ``data:`` URIs, schemes, absolute paths and paths that leave the model's folder."""
+    and percent-decoded (:func:`split_uri`, as the reader resolves them), without ``data:`` URIs, schemes, absolute
+    paths and paths that leave the model's folder (:func:`climbs_out`)."""
     doc = _json_of(Path(path))
     out: list[tuple[str, str]] = []
-    if doc is None:
-        return out
     for key, noun in (("buffers", "buffer"), ("images", "image")):
-        items = doc.get(key)
+        items = doc.get(key) if doc else None
         for i, item in enumerate(items if isinstance(items, list) else []):
             uri = item.get("uri") if isinstance(item, dict) else None
-            if not isinstance(uri, str) or not uri or uri[:5].lower() == "data:":
-                continue
-            rel = urllib.parse.unquote(uri).replace("\\", "/")
-            if ":" in rel.split("/")[0] or rel.startswith("/") or "\x00" in rel:
-                continue                                         # a scheme or an absolute path: the reader refuses
+            try:
+                kind, rel = split_uri(uri, f"{noun} {i}")
+            except IngestError:
+                continue                                 # no URI, a scheme, an absolute path: the reader refuses
             norm = posixpath.normpath(rel)
-            if norm == ".." or norm.startswith("../"):
-                continue                                         # climbs out: the reader says path_traversal
-            if (norm, f"{noun} {i}") not in out:
+            if kind == "file" and not climbs_out(norm) and (norm, f"{noun} {i}") not in out:
                 out.append((norm, f"{noun} {i}"))
     return out
 

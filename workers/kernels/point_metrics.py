@@ -158,16 +158,17 @@ def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas:
     r = np.asarray(ref, np.float64)
     if exposure is None:
         exposure = MT.exposure_for(_img(radiance(e_direct, r, albedo, emission))) if len(r) else 1.0
-    out = point_metrics(test, r, e_direct, albedo, emission, exposure, err=err)
     if len(r) == 0:
-        return {**out, **{f"{k}_stderr": None for k in METRICS}}
-    yr = MT.luminance(r)
-    dark = yr <= MT.LEAK_TAU * yr.mean()           # the leak's standard error is conditional on its dark set
+        return {**{k: None for k in METRICS}, **{f"{k}_stderr": None for k in METRICS}}
     cache = {} if cache is None else cache
     if "noise" not in cache:
         d, a, e = (np.asarray(x, np.float64) for x in (e_direct, albedo, emission))
         cache["noise"] = _noise_variance(r, err, d, a, e, exposure)
         cache["replicas"] = _prepare(_replicas(r, err, replicas, seed), d, a, e, exposure)
+    b = _metrics_batch(test, r[None], e_direct, albedo, emission, exposure, noise=cache["noise"])
+    out = {k: _value(v[0]) for k, v in b.items()}          # point_metrics(..., err=err), its noise terms cached
+    yr = MT.luminance(r)
+    dark = yr <= MT.LEAK_TAU * yr.mean()           # the leak's standard error is conditional on its dark set
     reps = _metrics_batch(test, cache["replicas"], e_direct, albedo, emission, exposure, dark, cache["noise"])
     for k in METRICS:
         xs = reps[k][np.isfinite(reps[k])]

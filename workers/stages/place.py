@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from proto.models import MAX_PROBES
+from proto.models import MAX_PROBES, PlaceSection
 from workers.kernels.autogrid import analyze_free_space, choose_grid
 from workers.kernels.grid import grid_layout, grid_positions
 from workers.kernels.materials import double_sided_triangles
@@ -48,8 +48,6 @@ def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
     Right by default: a user who set nothing gets told that the defaults cannot deliver the spacing this scene
     needs (the light loses its detail; the leaking and DDGI modes cross walls thinner than a cell), and what to do. A budget the user chose (a preset,
     a smaller preview) is a choice, recorded in ``grid.auto.reason``, not a warning."""
-    from proto.models import PlaceSection
-
     wanted, spacing = float(auto.get("spacing_wanted") or 0.0), float(auto.get("spacing") or 0.0)
     if not auto.get("budget_bound") or int(budget) != PlaceSection().budget or wanted <= 0 \
             or spacing <= COARSE_FACTOR * wanted:
