@@ -111,10 +111,14 @@ def _virtual_lights(scene, caster, light: dict, c: float, double_sided: np.ndarr
     flux = e * ((4.0 * math.pi / PHOTONS) * d2 / np.maximum(cos_l, 1e-6))[:, None]
     out = np.asarray(s["albedo"], np.float64) * flux * share[:, None] / math.pi          # ρΦ_ex/π
     y, n, out = y[keep], n[keep], out[keep]
+    extent = float(np.ptp(y, axis=0).max())
     while True:                                         # at most MAX_VIRTUAL_LIGHTS cells: coarser ones if needed
         _, inv = np.unique(np.floor(y / cell).astype(np.int64), axis=0, return_inverse=True)
         inv = inv.reshape(-1)
         if inv.max() < MAX_VIRTUAL_LIGHTS:
+            break
+        if cell > extent:       # origin-anchored cells wider than the spot still split it in up to 8: merge all
+            inv = np.zeros_like(inv)
             break
         cell *= 2.0
     V = int(inv.max()) + 1
