@@ -35,7 +35,7 @@ def _store_is_consistent(data):
 
 
 def test_sigkill_worker_mid_stage_bake_still_succeeds(service, scene_files):
-    service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "1.5"})
+    service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "place=1.5"})  # only the stage it kills
     c = service.start_app()
     sid = service.upload(scene_files["two-rooms"]).json()["id"]
     bid = c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake(place={"counts": [5, 5, 5]})}).json()["id"]
@@ -53,7 +53,7 @@ def test_sigkill_worker_mid_stage_bake_still_succeeds(service, scene_files):
 
 
 def test_redis_restart_during_bake_loses_no_record(service, scene_files):
-    service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "1.0"})
+    service.start_workers(1, env={"KILN_FAULT_STAGE_DELAY": "ingest=2"})  # Redis dies under it
     c = service.start_app()
     sid = service.upload(scene_files["cornell"]).json()["id"]
     ids = [c.post("/v1/bakes", json={"scene_id": sid, "config": small_bake(place={"counts": [n, 2, 2]})}).json()["id"]
