@@ -38,6 +38,13 @@ has cast its planning rays. Light bounces until converged are estimated at :data
 Calibration (``tests/bench/bench_cost.py``, each stage in a forked work-horse): see :data:`CALIBRATION`.
 The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of the measured
 stages (within 3%, by at most 43%) and the time estimate of every measured bake (by 1.04x - 3.3x).
+
+Bytes (``artifact_bytes``: every file a stage writes to the store, internal ones included; ``bundle_bytes``: the
+bundle's) are the stored files: the visibility shards' internal ``npy`` parts raw (9 B a field sample), the fields'
+Zstandard-compressed volumes by the surface law F^(2/3) fitted in :data:`BYTES_CALIBRATION` (θ and the masks are
+constant away from surfaces, which Zstandard stores almost for free), the cluster volumes per probe, the baked scene
+at most the stored scene's bytes. The trace and light stages' arrays are counted at their stored formats before
+Zstandard (an upper bound).
 """
 from __future__ import annotations
 
@@ -111,6 +118,20 @@ EVAL_FLIP_SECONDS_PER_PIXEL = 5e-6         # FLIP, per mode
 EVAL_PATH_VERTICES = 3.0                   # mean vertices of a reference path (64 bounces, roulette from vertex 3)
 EVAL_SECONDS_PER_POINT_MODE = 2e-5         # a mode reconstructed at a point, with the metrics' bootstrap
 
+# -- stored bytes (Zstandard; fitted, see BYTES_CALIBRATION) --------------------------------------------------------
+ARTIFACT_HEADER = 320          # a KTX2 file's header, DFD, key/value data and Zstandard frame (all-zero volume: 298 B)
+NPY_HEADER = 128
+# bytes x F^(2/3) (F field samples): the visibility join's three volumes together (theta_0123, theta_4567,
+# dont_care), each RGBA8 mask volume (masks_0123, masks_4567), the mask atlas per cluster
+THETA_SURFACE_BYTES = 17
+MASK_SURFACE_BYTES = 30
+ATLAS_SURFACE_BYTES_PER_CLUSTER = 5
+INDIRECTION_BYTES_PER_CELL_GROUP = 4     # mask_indirection, per cell and group of 4 clusters (raw 8)
+CLUSTER_L1_BYTES_PER_PROBE = 36          # the 3K cluster_sh_{k}_{r,g,b} together: 1.5x one cluster's raw 24 B
+CLUSTER_L2_BYTES_PER_PROBE = 56          # the K cluster_sh_l2_{k} together: one cluster's raw (7 RGBA16F texels
+                                         # a probe, and 2 padding slices)
+CLUSTER_WEIGHT_BYTES_PER_PROBE = 1       # cluster_weights_0123 (+ _4567), each (raw 8)
+
 CALIBRATION = """
 Measured with ``tests/bench/bench_cost.py`` (each stage forked from a warm process, as RQ runs a work-horse, on
 this project's shared 2-core machine with other jobs running; the measurements are kept in
@@ -135,6 +156,42 @@ Large configurations are extrapolated: the memory terms are linear in what they 
 samples, PRT configurations x probe rays), which the largest calibrated bakes confirm (light: 260 - 350 B per
 probe ray; PRT: 88 B per configuration of a batch and probe ray). Times on a busier or faster machine differ: stage
 timeouts are 4x the estimate + 60 s, at least 2 minutes (:func:`stage_timeout`).
+"""
+
+BYTES_CALIBRATION = """
+Stored bytes measured with ``bench_cost.py --cases bytes`` (``tests/bench/cost_bytes.json``: every file each stage
+wrote, its raw size and whether it is internal) on 13 bakes, the defaults (S = 8, K = 4, 256 rays, four slabs)
+unless said: cornell 4³ - 12³ probes (S 4 - 12), two-rooms 12x6x8 and 16x8x12 (K 4 and 8), godot-living-room
+16x8x16 and 32x16x32, zdm2-sauerbraten 8x4x8, 16x8x16 (S 8 and 16), 32x16x32 and its automatic grid (2,850 probes,
+S = 16); zdm2 and living-room with a sun and a sky (as bench_probes bakes them).
+
+- The field volumes (θ, the dense masks, the mask atlas) are 0 or 255 or repeat away from surfaces; what Zstandard
+  keeps grows with the samples near surfaces, as F^(2/3) for a scene (F = cells x S³). zdm2, the densest scene
+  measured, stores its three θ volumes in 11.2 - 16.0 x F^(2/3) bytes from 8x4x8 to 32x16x32 and at S = 16 (0.27
+  down to 0.06 B a sample: per sample it is no constant), each mask volume in 23.0 - 27.6 x F^(2/3), the atlas in
+  11.7 - 18.9 x F^(2/3) (K = 4); living-room 1.7 - 7.3, the procedural rooms 0.2 - 9 (the smallest grids, where
+  headers count). The model takes 17, 30 and 5 x K: a scene with more surface per volume than zdm2 would be
+  under-estimated there.
+- Per probe: the 3K L1 cluster volumes 19 - 35 B together (about one SH: each cluster's is 0 elsewhere), the K
+  L2 ones 39 - 73 B (at most 0.94 of one cluster's raw volume, 56 (nz + 2) / nz B), the weights and the clusters
+  < 1 B; per cell and group of 4 clusters the indirection 0.2 - 3.6 B; every KTX2 file ~300 B of header and frame.
+- The visibility shards' ``theta_part`` / ``dont_care_part`` are raw npy (9 B a sample, internal): the largest
+  files of a bake (66 MB of zdm2's 32x16x32), so ``artifact_bytes`` stays ~9 B a field sample.
+- The baked scene's GLB (in every bundle) is 0.38x - 0.93x the stored scene's bytes.
+
+Estimate / measured (``bench_cost.py --check tests/bench/cost_bytes.json`` prints every stage and bake):
+
+- field stages (visibility with its shards, anneal, masks, compress; 52 of them), bundle bytes: an upper bound of
+  every one, zdm2 1.01x - 1.91x, living-room 1.4x - 11x, the procedural rooms up to 87x (a few kB stored: two-rooms'
+  3 kB atlas is estimated at 290 kB). Their artifact bytes 1.0x - 1.2x (the raw shards dominate) but on zdm2's
+  automatic grid, 0.92x: it chose S = 16 where the estimate's bound takes 15 (:func:`samples_per_cell`).
+- whole bakes: artifact bytes 1.05x - 1.66x, bundle bytes 1.68x - 4.32x (the trace and light stages' arrays before
+  Zstandard are most of it); ``tests/workers/test_cost_bytes.py`` holds a two-rooms and a zdm2 bake to 1x - 2x and
+  1x - 5x, and zdm2's field bundle to 1x - 2x.
+- before (the fields' raw bytes: F x 9 for θ, F x K for the masks and again for the atlas, P x 8 for the clusters;
+  no scene GLB): the field stages' bundle 0.6x - 1,400x (median 28x) what they stored, whole bundles 0.46x - 29x
+  (zdm2 at 8x4x8 under: its 3.5 MB scene GLB was not counted); zdm2 at 64x32x64 was estimated at 1.3 GB of bundle
+  for the 47.7 MB it stores.
 """
 
 
@@ -253,7 +310,9 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         st.append(StageCost(name, float(seconds), int(memory), int(artifacts + internal), int(artifacts),
                             bool(seconds > LONG_STAGE_SECONDS if long is None else long)))
 
-    add("ingest", scene_bytes / (200 * MB), LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE, 2048, rays=False)
+    # the lights (JSON) and the baked scene's GLB, at most the stored scene's bytes (measured 0.38x - 0.93x)
+    add("ingest", scene_bytes / (200 * MB), LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE, 2048 + scene_bytes,
+        rays=False)
     if exact:
         add("place", 0.0, LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE + P * 24, P * 12, rays=False)
     else:
@@ -275,23 +334,36 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         internal=P * 48)
     n_shard = F / shards
     chunk = VIS_CHUNK_SAMPLES / config.visibility.rays
+    # stored bytes of the fields (BYTES_CALIBRATION): the shards' θ (8 B a sample) and don't-care (1 B) parts raw npy,
+    # internal; the joined volumes, the masks and the atlas Zstandard-compressed, by the surface law F^(2/3) (at
+    # most their raw bytes)
+    surface = F ** (2 / 3)
+    G = (K + 3) // 4                          # RGBA8 volumes of 4 clusters each (masks_0123, masks_4567)
+    H = ARTIFACT_HEADER
     for i in range(slabs):
         if i < shards:
             add(f"visibility.{i}", n_shard * 8 * config.visibility.rays * VIS_SECONDS_PER_RAY,
                 LIB_RAYS + scene_mem + VIS_CHUNK_MEM * min(1.0, n_shard / chunk) + n_shard * VIS_MEM_PER_SAMPLE,
-                0, internal=n_shard * 9)
+                0, internal=n_shard * 9 + 2 * NPY_HEADER)
         else:
-            add(f"visibility.{i}", 0.0, LIB_SMALL, 0, internal=256, rays=False)
+            add(f"visibility.{i}", 0.0, LIB_SMALL, 0, internal=2 * NPY_HEADER, rays=False)
     add("visibility", F * FIELD_SECONDS_PER_SAMPLE["visibility"], LIB_SMALL + F * FIELD_MEM_PER_SAMPLE["visibility"],
-        F * 9, rays=False)
+        min(F * 9, THETA_SURFACE_BYTES * surface) + 3 * H, rays=False)
+    # the clusters (R8, 1 B a probe raw) and the loss after each sweep (float32)
     add("anneal", F * FIELD_SECONDS_PER_SAMPLE["anneal"] + config.masks.sweeps * P * ANNEAL_SECONDS_PER_PROBE_SWEEP,
-        LIB_NUMBA + F * FIELD_MEM_PER_SAMPLE["anneal"] + P * 64, P * 8)
+        LIB_NUMBA + F * FIELD_MEM_PER_SAMPLE["anneal"] + P * 64, P / 2 + 4 * (config.masks.sweeps + 1) + 2 * H)
+    # the G dense mask volumes; the K clusters' SH volumes, each 0 outside its cluster (about one SH a probe as
+    # stored): L1 (3K RGBA16F volumes) and for L2 bakes the K L2 atlases (7 (nz + 2) slices); the G weight volumes
+    l2 = nx * ny * (nz + 2) * CLUSTER_L2_BYTES_PER_PROBE + K * H if sh_k == 9 else 0
     add("masks", F * FIELD_SECONDS_PER_SAMPLE["masks"] * max(1.0, K / 4) ** 0.5,
         LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"]) + N * 4,
-        F * K + K * P * (sh_k * 12 + 4))
+        G * (min(F * 4, MASK_SURFACE_BYTES * surface) + H) + P * CLUSTER_L1_BYTES_PER_PROBE + 3 * K * H + l2
+        + G * (P * CLUSTER_WEIGHT_BYTES_PER_PROBE + H))
+    # the atlas of the non-constant (cell, cluster) blocks and the indirection (2 G RGBA8 texels a cell)
     add("compress", F * FIELD_SECONDS_PER_SAMPLE["compress"],
-        LIB_SMALL + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]), F * K,
-        rays=False)
+        LIB_SMALL + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]),
+        min(F * K, ATLAS_SURFACE_BYTES_PER_CLUSTER * K * surface) + cells * G * INDIRECTION_BYTES_PER_CELL_GROUP
+        + 2 * H, rays=False)
     prt = config.prt
     if prt.enabled:
         C, M = prt.configurations, prt.measurement_points * prt.supersampling * prt.scenario.count
@@ -379,3 +451,12 @@ def stage_timeout(stage: StageCost | None, *, factor: float = 4.0, minimum: floa
 
 def as_dict(est: Estimate) -> dict:
     return asdict(est)
+
+
+def stored_bytes(record: dict) -> tuple[int, int]:
+    """What a finished stage stored, the measured side of :class:`StageCost`: ``(artifact_bytes, bundle_bytes)`` of
+    its record (``{"artifacts": [ArtifactInfo dicts]}``): every file's bytes, and those of the files the bundle takes
+    (not ``meta.internal``, as :func:`proto.stages.build_manifest` selects them)."""
+    arts = record["artifacts"]
+    return (sum(int(a["bytes"]) for a in arts),
+            sum(int(a["bytes"]) for a in arts if not a.get("meta", {}).get("internal")))
