@@ -43,8 +43,8 @@ Bytes (``artifact_bytes``: every file a stage writes to the store, internal ones
 bundle's) are the stored files: the visibility shards' internal ``npy`` parts raw (9 B a field sample), the fields'
 Zstandard-compressed volumes by the surface law F^(2/3) fitted in :data:`BYTES_CALIBRATION` (θ and the masks are
 constant away from surfaces, which Zstandard stores almost for free), the cluster volumes per probe, the baked scene
-at most the stored scene's bytes. The trace and light stages' arrays are counted at their stored formats before
-Zstandard (an upper bound).
+at most the stored scene's bytes, the depth moments at most DEPTH_STORED of their RG16F bytes, the light stage's
+arrays at their stored formats (irradiance RGB9E5, half-float SH) without Zstandard.
 """
 from __future__ import annotations
 
@@ -131,6 +131,8 @@ CLUSTER_L1_BYTES_PER_PROBE = 36          # the 3K cluster_sh_{k}_{r,g,b} togethe
 CLUSTER_L2_BYTES_PER_PROBE = 56          # the K cluster_sh_l2_{k} together: one cluster's raw (7 RGBA16F texels
                                          # a probe, and 2 padding slices)
 CLUSTER_WEIGHT_BYTES_PER_PROBE = 1       # cluster_weights_0123 (+ _4567), each (raw 8)
+DEPTH_STORED = 0.65                      # depth_moments (RG16F) as stored / raw: 0.08 - 0.60 measured (0.60 on a
+                                         # 4x4x4 grid, 0.38 at 8x4x8, 0.08 on zdm2 at 64x32x64)
 
 CALIBRATION = """
 Measured with ``tests/bench/bench_cost.py`` (each stage forked from a warm process, as RQ runs a work-horse, on
@@ -178,6 +180,10 @@ S = 16); zdm2 and living-room with a sun and a sky (as bench_probes bakes them).
 - The visibility shards' ``theta_part`` / ``dont_care_part`` are raw npy (9 B a sample, internal): the largest
   files of a bake (66 MB of zdm2's 32x16x32), so ``artifact_bytes`` stays ~9 B a field sample.
 - The baked scene's GLB (in every bundle) is 0.38x - 0.93x the stored scene's bytes.
+- The trace stage's ``depth_moments`` (RG16F) store 0.08x - 0.60x their raw bytes (0.60 on a 4x4x4 grid, 0.08 on
+  zdm2 at 64x32x64: the ratio falls as probes get closer); the light stage's ``irradiance`` (RGB9E5) 0.0x (unlit) -
+  0.93x (cornell: a lit colourful room hardly compresses), so it is counted raw, as are its SH volumes (0.6x - 1.1x).
+  Internal: the rays' hits raw npy (20 B a ray), the float32 depth moments 0.45x - 0.62x raw (counted raw).
 
 Estimate / measured (``bench_cost.py --check tests/bench/cost_bytes.json`` prints every stage and bake):
 
@@ -185,9 +191,11 @@ Estimate / measured (``bench_cost.py --check tests/bench/cost_bytes.json`` print
   every one, zdm2 1.01x - 1.91x, living-room 1.4x - 11x, the procedural rooms up to 87x (a few kB stored: two-rooms'
   3 kB atlas is estimated at 290 kB). Their artifact bytes 1.0x - 1.2x (the raw shards dominate) but on zdm2's
   automatic grid, 0.92x: it chose S = 16 where the estimate's bound takes 15 (:func:`samples_per_cell`).
-- whole bakes: artifact bytes 1.05x - 1.66x, bundle bytes 1.68x - 4.32x (the trace and light stages' arrays before
-  Zstandard are most of it); ``tests/workers/test_cost_bytes.py`` holds a two-rooms and a zdm2 bake to 1x - 2x and
-  1x - 5x, and zdm2's field bundle to 1x - 2x.
+- trace: bundle 1.1x - 8.3x (living-room's depth moments compress to 0.08x at 32x16x32), artifacts 1.2x - 1.6x;
+  light 1.1x - 2.3x but on zdm2's unlit automatic grid (no sun: all zeros, 650x); ingest 1.1x - 2.7x.
+- whole bakes: artifact bytes 1.04x - 1.57x, bundle bytes 1.61x - 3.62x; ``tests/workers/test_cost_bytes.py`` holds
+  a two-rooms and a zdm2 bake to 1x - 2x and 1x - 4x, and zdm2's field bundle to 1x - 2x. zdm2 at 64x32x64 (not
+  in the set) is estimated at 173 MB of bundle for the 47.7 MB it stores (docs/architecture.md "Scale").
 - before (the fields' raw bytes: F x 9 for θ, F x K for the masks and again for the atlas, P x 8 for the clusters;
   no scene GLB): the field stages' bundle 0.6x - 1,400x (median 28x) what they stored, whole bundles 0.46x - 29x
   (zdm2 at 8x4x8 under: its 3.5 MB scene GLB was not counted); zdm2 at 64x32x64 was estimated at 1.3 GB of bundle
@@ -322,16 +330,19 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     rescue = 1 if config.trace.rescue_offset > config.trace.max_offset else 0
     add("relocate", (config.trace.relocate_iterations + rescue) * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
         LIB_RAYS + scene_mem + N * RAY_MEM["relocate"], P * 24)
-    # stored sizes before Zstandard (an upper bound: proto/bundle.md 5.1): depth moments RG16F and irradiance RGB9E5
-    # without their tile borders, the SH volumes RGBA16F, probe_sh half floats; internal: the float32 bordered depth
-    # moments and L1 SH the later stages integrate with, the rays' hits
+    # stored formats (proto/bundle.md 5.1): depth moments RG16F without their tile borders, at most DEPTH_STORED of
+    # that with Zstandard; irradiance RGB9E5 without borders, the SH volumes RGBA16F, probe_sh half floats, at their
+    # raw bytes (a lit colourful room's irradiance hardly compresses: cornell 0.93x); internal: the float32 bordered
+    # depth moments and L1 SH the later stages integrate with (Zstandard, counted raw), the rays' hits (raw npy)
     dn, dt = config.trace.depth_texels, config.trace.depth_texels + 2
     add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale, LIB_RAYS + scene_mem + N * RAY_MEM["trace"],
-        P * (1 + dn * dn * 4), internal=N * 20 + R * 12 + P * dt * dt * 8)
+        P * (1 + dn * dn * 4 * DEPTH_STORED) + 2 * ARTIFACT_HEADER,
+        internal=N * 20 + R * 12 + P * dt * dt * 8 + ARTIFACT_HEADER + 3 * NPY_HEADER)
     it = config.light.irradiance_texels
     add("light", N * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE),
-        LIB_RAYS + scene_mem + N * RAY_MEM["light"], P * (it * it * 4 + (56 if sh_k == 9 else 0) + sh_k * 6 + 24),
-        internal=P * 48)
+        LIB_RAYS + scene_mem + N * RAY_MEM["light"],
+        P * (it * it * 4 + (56 * (nz + 2) / nz if sh_k == 9 else 0) + sh_k * 6 + 24) + 6 * ARTIFACT_HEADER,
+        internal=P * 48 + ARTIFACT_HEADER)
     n_shard = F / shards
     chunk = VIS_CHUNK_SAMPLES / config.visibility.rays
     # stored bytes of the fields (BYTES_CALIBRATION): the shards' θ (8 B a sample) and don't-care (1 B) parts raw npy,

@@ -207,53 +207,54 @@ def check(files: list[str]) -> int:
     return 0
 
 
-FIELD_STAGES = ("visibility", "anneal", "masks", "compress")
+BYTE_GROUPS = ("ingest", "trace", "light", "visibility", "anneal", "masks", "compress")
+"""The stages whose stored bytes ``--check`` shows one by one (a sharded stage with its shards)."""
 
 
 def check_bytes(rows: list[dict], summaries: dict) -> None:
-    """Stored bytes against the model: every stage of ``FIELD_STAGES`` (the shards with their join) and every bake,
-    all artifacts (``artifact_bytes``) and the bundle's (``bundle_bytes``). Cached stages count: their record is the
-    one the bake would store."""
+    """Stored bytes against the model: every stage of ``BYTE_GROUPS`` (the visibility shards with their join) and
+    every bake, all artifacts (``artifact_bytes``) and the bundle's (``bundle_bytes``), and the range of
+    estimate / measured per stage and per bake. Cached stages count: their record is the one the bake would store."""
     if not rows:
         return
     import statistics as st
 
-    print(f"\n{'case':14s} {'stage':10s} {'artifact MB':>11s} {'est':>8s} {'ratio':>6s}   {'bundle MB':>9s} "
+    print(f"\n{'case':16s} {'stage':10s} {'artifact MB':>11s} {'est':>8s} {'ratio':>6s}   {'bundle MB':>9s} "
           f"{'est':>8s} {'ratio':>6s}")
-    bakes, ratios = {}, {"artifact": [], "bundle": []}
+    bakes, ratios = {}, {}
     for r in rows:
         est = cost.estimate(summaries[CASES[r["case"]][0]], BakeConfig.model_validate(CASES[r["case"]][1]))
         e = est.stage(r["stage"])
         b = bakes.setdefault(r["case"], {"a": 0, "b": 0, "ea": est.artifact_bytes, "eb": est.bundle_bytes,
-                                         "fields": {}})
+                                         "groups": {}})
         b["a"] += r["artifact_bytes"]
         b["b"] += r["bundle_bytes"]
         group = r["stage"].split(".")[0]
-        if e is not None and group in FIELD_STAGES:
-            f = b["fields"].setdefault(group, [0, 0, 0, 0])
+        if e is not None and group in BYTE_GROUPS:
+            f = b["groups"].setdefault(group, [0, 0, 0, 0])
             f[0] += r["artifact_bytes"]
             f[1] += e.artifact_bytes
             f[2] += r["bundle_bytes"]
             f[3] += e.bundle_bytes
     for name, b in bakes.items():
-        for group, (a, ea, bb, eb) in b["fields"].items():
+        for group, (a, ea, bb, eb) in b["groups"].items():
             ra, rb = ea / max(a, 1), (eb / bb if bb else float("nan"))
-            ratios["artifact"].append(ra)
+            ratios.setdefault(f"{group} artifact", []).append(ra)
             if bb:
-                ratios["bundle"].append(rb)
-            print(f"{name:14s} {group:10s} {a / 1e6:11.3f} {ea / 1e6:8.3f} {ra:6.2f}   {bb / 1e6:9.3f} {eb / 1e6:8.3f} "
+                ratios.setdefault(f"{group} bundle", []).append(rb)
+            print(f"{name:16s} {group:10s} {a / 1e6:11.3f} {ea / 1e6:8.3f} {ra:6.2f}   {bb / 1e6:9.3f} {eb / 1e6:8.3f} "
                   f"{rb:6.2f}")
     print()
     for name, b in bakes.items():
         ra, rb = b["ea"] / b["a"], b["eb"] / b["b"]
         ratios.setdefault("bake artifact", []).append(ra)
         ratios.setdefault("bake bundle", []).append(rb)
-        print(f"bake {name:14s} artifacts {b['a'] / 1e6:8.2f} MB est {b['ea'] / 1e6:8.2f} MB ({ra:5.2f}x)   "
+        print(f"bake {name:16s} artifacts {b['a'] / 1e6:8.2f} MB est {b['ea'] / 1e6:8.2f} MB ({ra:5.2f}x)   "
               f"bundle {b['b'] / 1e6:8.2f} MB est {b['eb'] / 1e6:8.2f} MB ({rb:5.2f}x)")
-    for label, xs in ratios.items():
+    for label, xs in sorted(ratios.items()):
         xs = sorted(xs)
-        print(f"{label} bytes: estimate/measured median {st.median(xs):.2f}, min {xs[0]:.2f}, max {xs[-1]:.2f}, "
-              f"under-estimated {sum(x < 1 for x in xs)} of {len(xs)}")
+        print(f"{label:20s} bytes: estimate/measured median {st.median(xs):6.2f}, min {xs[0]:6.2f}, "
+              f"max {xs[-1]:6.2f}, under-estimated {sum(x < 1 for x in xs)} of {len(xs)}")
 
 
 def main() -> int:

@@ -2,9 +2,8 @@
 
 A small bake of the procedural two-rooms and one of zdm2-sauerbraten at 8x4x8 run through the real pipeline into a
 store; each stage's record gives what it wrote (``cost.stored_bytes``: every file, and the bundle's). The estimate
-must be an upper bound of every field stage (visibility with its shards, anneal, masks, compress) and of the whole
-bake, within the error the calibration states: whole bakes at most 2x the stored artifact bytes and 5x the bundle
-(measured 1.05x - 1.66x and 1.68x - 4.32x), zdm2's field stages' bundle at most 2x (measured 1.06x - 1.50x: the
+must be an upper bound of every stage (the visibility shards with their join) and of the whole bake, within the error the calibration states: whole bakes at most 2x the stored artifact bytes and 4x the bundle
+(measured 1.04x - 1.57x and 1.61x - 3.62x), zdm2's field stages' bundle at most 2x (measured 1.06x - 1.50x: the
 surface law's constants are zdm2's). No timing is asserted.
 """
 from __future__ import annotations
@@ -22,7 +21,7 @@ from workers.gltf import ingest_file
 FIELD_STAGES = ("visibility", "anneal", "masks", "compress")
 SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0, "color": [1.0, 0.95, 0.9]}
 ARTIFACT_BAND = (1.0, 2.0)
-BUNDLE_BAND = (1.0, 5.0)
+BUNDLE_BAND = (1.0, 4.0)
 
 
 def bake_bytes(tmp_path, scene_path, config: BakeConfig) -> tuple[dict, dict[str, tuple[int, int]]]:
@@ -41,13 +40,12 @@ def bake_bytes(tmp_path, scene_path, config: BakeConfig) -> tuple[dict, dict[str
 
 
 def by_group(stages: dict[str, tuple[int, int]]) -> dict[str, tuple[int, int]]:
-    """Stage bytes summed per field stage, the visibility shards (``visibility.N``) with their join."""
+    """Stage bytes summed per stage, the visibility shards (``visibility.N``) with their join."""
     out: dict[str, tuple[int, int]] = {}
     for name, (a, b) in stages.items():
         g = name.split(".")[0]
-        if g in FIELD_STAGES:
-            a0, b0 = out.get(g, (0, 0))
-            out[g] = (a0 + a, b0 + b)
+        a0, b0 = out.get(g, (0, 0))
+        out[g] = (a0 + a, b0 + b)
     return out
 
 
@@ -58,8 +56,9 @@ def check(summary: dict, config: BakeConfig, stored: dict[str, tuple[int, int]])
     field = {}
     for g, (a, b) in by_group(stored).items():
         ea, eb = estimated[g]
-        assert ea >= a and eb >= b, (g, ea, a, eb, b)          # an upper bound of every field stage
-        field[g] = eb / b
+        assert ea >= a and eb >= b, (g, ea, a, eb, b)          # an upper bound of every stage
+        if g in FIELD_STAGES:
+            field[g] = eb / b
     a = sum(v[0] for v in stored.values())
     b = sum(v[1] for v in stored.values())
     assert ARTIFACT_BAND[0] <= est.artifact_bytes / a <= ARTIFACT_BAND[1], (est.artifact_bytes, a)
