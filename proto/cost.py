@@ -32,12 +32,13 @@ evaluate   points × modes + preview px × modes × draws    W × H per mode of 
 The automatic grid (``place.counts`` and ``place.spacing`` both None) is estimated at its upper bound:
 ``place.budget`` probes, and the visibility samples per cell it may choose (at most 16 and at most the field
 budget of 12 M samples, :mod:`workers.kernels.autogrid`), since neither is known before the place stage
-has cast its planning rays. Light bounces until converged are estimated at :data:`EXPECTED_BOUNCES`
+has cast its planning rays: F at most P x S³ for a given S, else min(P x 16³, max(12 M, P x 4³)) (with fewer
+probes than the budget it may choose a larger S). Light bounces until converged are estimated at :data:`EXPECTED_BOUNCES`
 (capped by ``light.max_bounces`` or set by ``light.bounces``).
 
 Calibration (``tests/bench/bench_cost.py``, each stage in a forked work-horse): see :data:`CALIBRATION`.
 The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of the measured
-stages (within 3%, by at most 43%) and the time estimate of every measured bake (by 1.04x - 3.3x).
+stages (within 3%, by at most 47%) and the time estimate of every measured bake (by 1.04x - 3.3x).
 
 Bytes (``artifact_bytes``: every file a stage writes to the store, internal ones included; ``bundle_bytes``: the
 bundle's) are the stored files: the visibility shards' internal ``npy`` parts raw (9 B a field sample), the fields'
@@ -146,9 +147,10 @@ surface points x 64 paths, one 160x120 preview) and at 8,192 points without prev
 
 Estimate / measured (``bench_cost.py --check tests/bench/cost_calibration.json`` prints every stage):
 
-- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.34x
-  (median 1.13x); per stage (171 stages) 0.97x - 1.43x, median 1.14x: an upper bound of every measured stage
-  within 3%, and above it by at most 43%.
+- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.47x
+  (median 1.13x); per stage (171 stages) 0.97x - 1.47x, median 1.15x: an upper bound of every measured stage
+  within 3%, and above it by at most 47% (zdm2's automatic grid: its field bound, 12 M samples, where it chose
+  9.3 M; 1.13x and 1.43x before that bound).
 - seconds of a bake: 1.04x - 3.3x (median 1.55x). The largest over-estimates come from the light bounces (26
   assumed until converged; zdm2 converged in 3, cornell in 8) and the reference's path lengths (3 vertices
   assumed; a dark scene's paths end sooner). Per stage 0.6x - 40x: sub-second stages are dominated by loading,
@@ -189,11 +191,11 @@ Estimate / measured (``bench_cost.py --check tests/bench/cost_bytes.json`` print
 
 - field stages (visibility with its shards, anneal, masks, compress; 52 of them), bundle bytes: an upper bound of
   every one, zdm2 1.01x - 1.91x, living-room 1.4x - 11x, the procedural rooms up to 87x (a few kB stored: two-rooms'
-  3 kB atlas is estimated at 290 kB). Their artifact bytes 1.0x - 1.2x (the raw shards dominate) but on zdm2's
-  automatic grid, 0.92x: it chose S = 16 where the estimate's bound takes 15 (:func:`samples_per_cell`).
+  3 kB atlas is estimated at 290 kB). Their artifact bytes 1.0x - 1.3x (the raw shards dominate; 1.29x on zdm2's
+  automatic grid, estimated at its bound of 12 M samples where it chose 9.3 M).
 - trace: bundle 1.1x - 8.3x (living-room's depth moments compress to 0.08x at 32x16x32), artifacts 1.2x - 1.6x;
   light 1.1x - 2.3x but on zdm2's unlit automatic grid (no sun: all zeros, 650x); ingest 1.1x - 2.7x.
-- whole bakes: artifact bytes 1.04x - 1.57x, bundle bytes 1.61x - 3.62x; ``tests/workers/test_cost_bytes.py`` holds
+- whole bakes: artifact bytes 1.08x - 1.57x, bundle bytes 1.61x - 3.62x; ``tests/workers/test_cost_bytes.py`` holds
   a two-rooms and a zdm2 bake to 1x - 2x and 1x - 4x, and zdm2's field bundle to 1x - 2x. zdm2 at 64x32x64 (not
   in the set) is estimated at 173 MB of bundle for the 47.7 MB it stores (docs/architecture.md "Scale").
 - before (the fields' raw bytes: F x 9 for θ, F x K for the masks and again for the atlas, P x 8 for the clusters;
@@ -304,6 +306,12 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     S = samples_per_cell(config, P)
     cells = max(nx - 1, 1) * max(ny - 1, 1) * max(nz - 1, 1)
     F = cells * S**3
+    if not exact:
+        # the automatic grid places at most P probes (fewer cells) and may then choose a larger S: bound F by what it
+        # can choose, n S³ <= max(FIELD_BUDGET, n 4³) and <= n 16³ (workers.kernels.autogrid; zdm2 at budget 3,000:
+        # 2,850 probes, S = 16, 9.3 M samples where cells x S³ of the cube of P probes gives 8.6 M)
+        F = P * S**3 if config.visibility.samples_per_cell is not None else \
+            min(P * AUTO_MAX_S**3, max(FIELD_BUDGET, P * AUTO_MIN_S**3))
     K = config.masks.clusters
     B = config.light.bounces or min(config.light.max_bounces, EXPECTED_BOUNCES)
     slabs = config.visibility.slabs
