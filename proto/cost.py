@@ -87,7 +87,7 @@ RAY_MEM = {"relocate": 75, "trace": 125, "light": 360}   # per probe ray at the 
 VIS_CHUNK_SAMPLES = (1 << 21) // 8                       # workers.kernels.visibility.CHUNK_RAYS / 8 corners
 VIS_CHUNK_MEM = 130 * MB       # a full chunk of visibility rays (bounded by CHUNK_RAYS)
 VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
-FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 7}
+FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 30}
 FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 10, "compress": 2.5}
 PATH_CHUNK = 1 << 18          # paths in flight per wavefront chunk (workers.kernels.pathtrace.DEFAULT_MAX_PATHS)
 PATH_BYTES = 512              # bytes per path in flight (ibid.)
@@ -150,11 +150,18 @@ Estimate / measured (``bench_cost.py --check tests/bench/cost_calibration.json``
 - peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.47x
   (median 1.13x); per stage (171 stages) 0.97x - 1.47x, median 1.15x: an upper bound of every measured stage
   within 3%, and above it by at most 47% (zdm2's automatic grid: its field bound, 12 M samples, where it chose
-  9.3 M; 1.13x and 1.43x before that bound).
+  9.3 M; 1.13x and 1.43x before that bound). The compress stage excepted: these rows predate its numba channel
+  atlas (13 - 34 MB then, 127 - 305 MB now); refitted (``LIB_NUMBA`` + 40 B a sample at K = 4) on the 13 bakes of
+  :data:`BYTES_CALIBRATION` (``tests/bench/cost_bytes.json``, today's code), 0.95x - 1.77x there (0.95x: a 64-probe
+  bake whose work-horse compiled the kernels), 2.2x - 2.8x on these old rows. Those 13 bakes also show relocate and
+  light at 0.87x - 0.96x on the small procedural rooms with the defaults (256 rays, 5 relocation iterations; light
+  350 MB where these rows had 252 MB): memory grown since this calibration, not refitted.
 - seconds of a bake: 1.04x - 3.3x (median 1.55x). The largest over-estimates come from the light bounces (26
   assumed until converged; zdm2 converged in 3, cornell in 8) and the reference's path lengths (3 vertices
   assumed; a dark scene's paths end sooner). Per stage 0.6x - 40x: sub-second stages are dominated by loading,
-  and 17 of 171 stages ran longer than estimated (by at most 1/0.6), none of them long.
+  and 17 of 171 stages ran longer than estimated (by at most 1/0.6), none of them long. On today's code the compress
+  stage takes longer (the 13 bakes of BYTES_CALIBRATION: 0.3 - 17 s, 0.07x - 0.7x of its estimate, the most on zdm2
+  at S = 16; not refitted).
 
 Large configurations are extrapolated: the memory terms are linear in what they hold (probe rays, field
 samples, PRT configurations x probe rays), which the largest calibrated bakes confirm (light: 260 - 350 B per
@@ -380,7 +387,7 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         + G * (P * CLUSTER_WEIGHT_BYTES_PER_PROBE + H))
     # the atlas of the non-constant (cell, cluster) blocks and the indirection (2 G RGBA8 texels a cell)
     add("compress", F * FIELD_SECONDS_PER_SAMPLE["compress"],
-        LIB_SMALL + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]),
+        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]),
         min(F * K, ATLAS_SURFACE_BYTES_PER_CLUSTER * K * surface) + cells * G * INDIRECTION_BYTES_PER_CELL_GROUP
         + 2 * H, rays=False)
     prt = config.prt
