@@ -32,12 +32,20 @@ evaluate   points × modes + preview px × modes × draws    W × H per mode of 
 The automatic grid (``place.counts`` and ``place.spacing`` both None) is estimated at its upper bound:
 ``place.budget`` probes, and the visibility samples per cell it may choose (at most 16 and at most the field
 budget of 12 M samples, :mod:`workers.kernels.autogrid`), since neither is known before the place stage
-has cast its planning rays. Light bounces until converged are estimated at :data:`EXPECTED_BOUNCES`
+has cast its planning rays: F at most P x S³ for a given S, else min(P x 16³, max(12 M, P x 4³)) (with fewer
+probes than the budget it may choose a larger S). Light bounces until converged are estimated at :data:`EXPECTED_BOUNCES`
 (capped by ``light.max_bounces`` or set by ``light.bounces``).
 
 Calibration (``tests/bench/bench_cost.py``, each stage in a forked work-horse): see :data:`CALIBRATION`.
 The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of the measured
-stages (within 3%, by at most 43%) and the time estimate of every measured bake (by 1.04x - 3.3x).
+stages (within 3%, by at most 47%) and the time estimate of every measured bake (by 1.04x - 3.3x).
+
+Bytes (``artifact_bytes``: every file a stage writes to the store, internal ones included; ``bundle_bytes``: the
+bundle's) are the stored files: the visibility shards' internal ``npy`` parts raw (9 B a field sample), the fields'
+Zstandard-compressed volumes by the surface law F^(2/3) fitted in :data:`BYTES_CALIBRATION` (θ and the masks are
+constant away from surfaces, which Zstandard stores almost for free), the cluster volumes per probe, the baked scene
+at most the stored scene's bytes, the depth moments at most DEPTH_STORED of their RG16F bytes, the light stage's
+arrays at their stored formats (irradiance RGB9E5, half-float SH) without Zstandard.
 """
 from __future__ import annotations
 
@@ -79,7 +87,7 @@ RAY_MEM = {"relocate": 75, "trace": 125, "light": 360}   # per probe ray at the 
 VIS_CHUNK_SAMPLES = (1 << 21) // 8                       # workers.kernels.visibility.CHUNK_RAYS / 8 corners
 VIS_CHUNK_MEM = 130 * MB       # a full chunk of visibility rays (bounded by CHUNK_RAYS)
 VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
-FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 7}
+FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 30}
 FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 10, "compress": 2.5}
 PATH_CHUNK = 1 << 18          # paths in flight per wavefront chunk (workers.kernels.pathtrace.DEFAULT_MAX_PATHS)
 PATH_BYTES = 512              # bytes per path in flight (ibid.)
@@ -111,6 +119,22 @@ EVAL_FLIP_SECONDS_PER_PIXEL = 5e-6         # FLIP, per mode
 EVAL_PATH_VERTICES = 3.0                   # mean vertices of a reference path (64 bounces, roulette from vertex 3)
 EVAL_SECONDS_PER_POINT_MODE = 2e-5         # a mode reconstructed at a point, with the metrics' bootstrap
 
+# -- stored bytes (Zstandard; fitted, see BYTES_CALIBRATION) --------------------------------------------------------
+ARTIFACT_HEADER = 320          # a KTX2 file's header, DFD, key/value data and Zstandard frame (all-zero volume: 298 B)
+NPY_HEADER = 128
+# bytes x F^(2/3) (F field samples): the visibility join's three volumes together (theta_0123, theta_4567,
+# dont_care), each RGBA8 mask volume (masks_0123, masks_4567), the mask atlas per cluster
+THETA_SURFACE_BYTES = 17
+MASK_SURFACE_BYTES = 30
+ATLAS_SURFACE_BYTES_PER_CLUSTER = 5
+INDIRECTION_BYTES_PER_CELL_GROUP = 4     # mask_indirection, per cell and group of 4 clusters (raw 8)
+CLUSTER_L1_BYTES_PER_PROBE = 36          # the 3K cluster_sh_{k}_{r,g,b} together: 1.5x one cluster's raw 24 B
+CLUSTER_L2_BYTES_PER_PROBE = 56          # the K cluster_sh_l2_{k} together: one cluster's raw (7 RGBA16F texels
+                                         # a probe, and 2 padding slices)
+CLUSTER_WEIGHT_BYTES_PER_PROBE = 1       # cluster_weights_0123 (+ _4567), each (raw 8)
+DEPTH_STORED = 0.65                      # depth_moments (RG16F) as stored / raw: 0.08 - 0.60 measured (0.60 on a
+                                         # 4x4x4 grid, 0.38 at 8x4x8, 0.08 on zdm2 at 64x32x64)
+
 CALIBRATION = """
 Measured with ``tests/bench/bench_cost.py`` (each stage forked from a warm process, as RQ runs a work-horse, on
 this project's shared 2-core machine with other jobs running; the measurements are kept in
@@ -123,18 +147,68 @@ surface points x 64 paths, one 160x120 preview) and at 8,192 points without prev
 
 Estimate / measured (``bench_cost.py --check tests/bench/cost_calibration.json`` prints every stage):
 
-- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.34x
-  (median 1.13x); per stage (171 stages) 0.97x - 1.43x, median 1.14x: an upper bound of every measured stage
-  within 3%, and above it by at most 43%.
+- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.47x
+  (median 1.13x); per stage (171 stages) 0.97x - 1.47x, median 1.15x: an upper bound of every measured stage
+  within 3%, and above it by at most 47% (zdm2's automatic grid: its field bound, 12 M samples, where it chose
+  9.3 M; 1.13x and 1.43x before that bound). The compress stage excepted: these rows predate its numba channel
+  atlas (13 - 34 MB then, 127 - 305 MB now); refitted (``LIB_NUMBA`` + 40 B a sample at K = 4) on the 13 bakes of
+  :data:`BYTES_CALIBRATION` (``tests/bench/cost_bytes.json``, today's code), 0.95x - 1.77x there (0.95x: a 64-probe
+  bake whose work-horse compiled the kernels), 2.2x - 2.8x on these old rows. Those 13 bakes also show relocate and
+  light at 0.87x - 0.96x on the small procedural rooms with the defaults (256 rays, 5 relocation iterations; light
+  350 MB where these rows had 252 MB): memory grown since this calibration, not refitted.
 - seconds of a bake: 1.04x - 3.3x (median 1.55x). The largest over-estimates come from the light bounces (26
   assumed until converged; zdm2 converged in 3, cornell in 8) and the reference's path lengths (3 vertices
   assumed; a dark scene's paths end sooner). Per stage 0.6x - 40x: sub-second stages are dominated by loading,
-  and 17 of 171 stages ran longer than estimated (by at most 1/0.6), none of them long.
+  and 17 of 171 stages ran longer than estimated (by at most 1/0.6), none of them long. On today's code the compress
+  stage takes longer (the 13 bakes of BYTES_CALIBRATION: 0.3 - 17 s, 0.07x - 0.7x of its estimate, the most on zdm2
+  at S = 16; not refitted).
 
 Large configurations are extrapolated: the memory terms are linear in what they hold (probe rays, field
 samples, PRT configurations x probe rays), which the largest calibrated bakes confirm (light: 260 - 350 B per
 probe ray; PRT: 88 B per configuration of a batch and probe ray). Times on a busier or faster machine differ: stage
 timeouts are 4x the estimate + 60 s, at least 2 minutes (:func:`stage_timeout`).
+"""
+
+BYTES_CALIBRATION = """
+Stored bytes measured with ``bench_cost.py --cases bytes`` (``tests/bench/cost_bytes.json``: every file each stage
+wrote, its raw size and whether it is internal) on 13 bakes, the defaults (S = 8, K = 4, 256 rays, four slabs)
+unless said: cornell 4³ - 12³ probes (S 4 - 12), two-rooms 12x6x8 and 16x8x12 (K 4 and 8), godot-living-room
+16x8x16 and 32x16x32, zdm2-sauerbraten 8x4x8, 16x8x16 (S 8 and 16), 32x16x32 and its automatic grid (2,850 probes,
+S = 16); zdm2 and living-room with a sun and a sky (as bench_probes bakes them).
+
+- The field volumes (θ, the dense masks, the mask atlas) are 0 or 255 or repeat away from surfaces; what Zstandard
+  keeps grows with the samples near surfaces, as F^(2/3) for a scene (F = cells x S³). zdm2, the densest scene
+  measured, stores its three θ volumes in 11.2 - 16.0 x F^(2/3) bytes from 8x4x8 to 32x16x32 and at S = 16 (0.27
+  down to 0.06 B a sample: per sample it is no constant), each mask volume in 23.0 - 27.6 x F^(2/3), the atlas in
+  11.7 - 18.9 x F^(2/3) (K = 4); living-room 1.7 - 7.3, the procedural rooms 0.2 - 9 (the smallest grids, where
+  headers count). The model takes 17, 30 and 5 x K: a scene with more surface per volume than zdm2 would be
+  under-estimated there.
+- Per probe: the 3K L1 cluster volumes 19 - 35 B together (about one SH: each cluster's is 0 elsewhere), the K
+  L2 ones 39 - 73 B (at most 0.94 of one cluster's raw volume, 56 (nz + 2) / nz B), the weights and the clusters
+  < 1 B; per cell and group of 4 clusters the indirection 0.2 - 3.6 B; every KTX2 file ~300 B of header and frame.
+- The visibility shards' ``theta_part`` / ``dont_care_part`` are raw npy (9 B a sample, internal): the largest
+  files of a bake (66 MB of zdm2's 32x16x32), so ``artifact_bytes`` stays ~9 B a field sample.
+- The baked scene's GLB (in every bundle) is 0.38x - 0.93x the stored scene's bytes.
+- The trace stage's ``depth_moments`` (RG16F) store 0.08x - 0.60x their raw bytes (0.60 on a 4x4x4 grid, 0.08 on
+  zdm2 at 64x32x64: the ratio falls as probes get closer); the light stage's ``irradiance`` (RGB9E5) 0.0x (unlit) -
+  0.93x (cornell: a lit colourful room hardly compresses), so it is counted raw, as are its SH volumes (0.6x - 1.1x).
+  Internal: the rays' hits raw npy (20 B a ray), the float32 depth moments 0.45x - 0.62x raw (counted raw).
+
+Estimate / measured (``bench_cost.py --check tests/bench/cost_bytes.json`` prints every stage and bake):
+
+- field stages (visibility with its shards, anneal, masks, compress; 52 of them), bundle bytes: an upper bound of
+  every one, zdm2 1.01x - 1.91x, living-room 1.4x - 11x, the procedural rooms up to 87x (a few kB stored: two-rooms'
+  3 kB atlas is estimated at 290 kB). Their artifact bytes 1.0x - 1.3x (the raw shards dominate; 1.29x on zdm2's
+  automatic grid, estimated at its bound of 12 M samples where it chose 9.3 M).
+- trace: bundle 1.1x - 8.3x (living-room's depth moments compress to 0.08x at 32x16x32), artifacts 1.2x - 1.6x;
+  light 1.1x - 2.3x but on zdm2's unlit automatic grid (no sun: all zeros, 650x); ingest 1.1x - 2.7x.
+- whole bakes: artifact bytes 1.08x - 1.57x, bundle bytes 1.61x - 3.62x; ``tests/workers/test_cost_bytes.py`` holds
+  a two-rooms and a zdm2 bake to 1x - 2x and 1x - 4x, and zdm2's field bundle to 1x - 2x. zdm2 at 64x32x64 (not
+  in the set) is estimated at 173 MB of bundle for the 47.7 MB it stores (docs/architecture.md "Scale").
+- before (the fields' raw bytes: F x 9 for θ, F x K for the masks and again for the atlas, P x 8 for the clusters;
+  no scene GLB): the field stages' bundle 0.6x - 1,400x (median 28x) what they stored, whole bundles 0.46x - 29x
+  (zdm2 at 8x4x8 under: its 3.5 MB scene GLB was not counted); zdm2 at 64x32x64 was estimated at 1.3 GB of bundle
+  for the 47.7 MB it stores.
 """
 
 
@@ -239,6 +313,12 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     S = samples_per_cell(config, P)
     cells = max(nx - 1, 1) * max(ny - 1, 1) * max(nz - 1, 1)
     F = cells * S**3
+    if not exact:
+        # the automatic grid places at most P probes (fewer cells) and may then choose a larger S: bound F by what it
+        # can choose, n S³ <= max(FIELD_BUDGET, n 4³) and <= n 16³ (workers.kernels.autogrid; zdm2 at budget 3,000:
+        # 2,850 probes, S = 16, 9.3 M samples where cells x S³ of the cube of P probes gives 8.6 M)
+        F = P * S**3 if config.visibility.samples_per_cell is not None else \
+            min(P * AUTO_MAX_S**3, max(FIELD_BUDGET, P * AUTO_MIN_S**3))
     K = config.masks.clusters
     B = config.light.bounces or min(config.light.max_bounces, EXPECTED_BOUNCES)
     slabs = config.visibility.slabs
@@ -253,7 +333,9 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         st.append(StageCost(name, float(seconds), int(memory), int(artifacts + internal), int(artifacts),
                             bool(seconds > LONG_STAGE_SECONDS if long is None else long)))
 
-    add("ingest", scene_bytes / (200 * MB), LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE, 2048, rays=False)
+    # the lights (JSON) and the baked scene's GLB, at most the stored scene's bytes (measured 0.38x - 0.93x)
+    add("ingest", scene_bytes / (200 * MB), LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE, 2048 + scene_bytes,
+        rays=False)
     if exact:
         add("place", 0.0, LIB_SMALL + scene_bytes * SCENE_MEM_PER_BYTE + P * 24, P * 12, rays=False)
     else:
@@ -263,35 +345,51 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     rescue = 1 if config.trace.rescue_offset > config.trace.max_offset else 0
     add("relocate", (config.trace.relocate_iterations + rescue) * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
         LIB_RAYS + scene_mem + N * RAY_MEM["relocate"], P * 24)
-    # stored sizes before Zstandard (an upper bound: proto/bundle.md 5.1): depth moments RG16F and irradiance RGB9E5
-    # without their tile borders, the SH volumes RGBA16F, probe_sh half floats; internal: the float32 bordered depth
-    # moments and L1 SH the later stages integrate with, the rays' hits
+    # stored formats (proto/bundle.md 5.1): depth moments RG16F without their tile borders, at most DEPTH_STORED of
+    # that with Zstandard; irradiance RGB9E5 without borders, the SH volumes RGBA16F, probe_sh half floats, at their
+    # raw bytes (a lit colourful room's irradiance hardly compresses: cornell 0.93x); internal: the float32 bordered
+    # depth moments and L1 SH the later stages integrate with (Zstandard, counted raw), the rays' hits (raw npy)
     dn, dt = config.trace.depth_texels, config.trace.depth_texels + 2
     add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale, LIB_RAYS + scene_mem + N * RAY_MEM["trace"],
-        P * (1 + dn * dn * 4), internal=N * 20 + R * 12 + P * dt * dt * 8)
+        P * (1 + dn * dn * 4 * DEPTH_STORED) + 2 * ARTIFACT_HEADER,
+        internal=N * 20 + R * 12 + P * dt * dt * 8 + ARTIFACT_HEADER + 3 * NPY_HEADER)
     it = config.light.irradiance_texels
     add("light", N * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE),
-        LIB_RAYS + scene_mem + N * RAY_MEM["light"], P * (it * it * 4 + (56 if sh_k == 9 else 0) + sh_k * 6 + 24),
-        internal=P * 48)
+        LIB_RAYS + scene_mem + N * RAY_MEM["light"],
+        P * (it * it * 4 + (56 * (nz + 2) / nz if sh_k == 9 else 0) + sh_k * 6 + 24) + 6 * ARTIFACT_HEADER,
+        internal=P * 48 + ARTIFACT_HEADER)
     n_shard = F / shards
     chunk = VIS_CHUNK_SAMPLES / config.visibility.rays
+    # stored bytes of the fields (BYTES_CALIBRATION): the shards' θ (8 B a sample) and don't-care (1 B) parts raw npy,
+    # internal; the joined volumes, the masks and the atlas Zstandard-compressed, by the surface law F^(2/3) (at
+    # most their raw bytes)
+    surface = F ** (2 / 3)
+    G = (K + 3) // 4                          # RGBA8 volumes of 4 clusters each (masks_0123, masks_4567)
+    H = ARTIFACT_HEADER
     for i in range(slabs):
         if i < shards:
             add(f"visibility.{i}", n_shard * 8 * config.visibility.rays * VIS_SECONDS_PER_RAY,
                 LIB_RAYS + scene_mem + VIS_CHUNK_MEM * min(1.0, n_shard / chunk) + n_shard * VIS_MEM_PER_SAMPLE,
-                0, internal=n_shard * 9)
+                0, internal=n_shard * 9 + 2 * NPY_HEADER)
         else:
-            add(f"visibility.{i}", 0.0, LIB_SMALL, 0, internal=256, rays=False)
+            add(f"visibility.{i}", 0.0, LIB_SMALL, 0, internal=2 * NPY_HEADER, rays=False)
     add("visibility", F * FIELD_SECONDS_PER_SAMPLE["visibility"], LIB_SMALL + F * FIELD_MEM_PER_SAMPLE["visibility"],
-        F * 9, rays=False)
+        min(F * 9, THETA_SURFACE_BYTES * surface) + 3 * H, rays=False)
+    # the clusters (R8, 1 B a probe raw) and the loss after each sweep (float32)
     add("anneal", F * FIELD_SECONDS_PER_SAMPLE["anneal"] + config.masks.sweeps * P * ANNEAL_SECONDS_PER_PROBE_SWEEP,
-        LIB_NUMBA + F * FIELD_MEM_PER_SAMPLE["anneal"] + P * 64, P * 8)
+        LIB_NUMBA + F * FIELD_MEM_PER_SAMPLE["anneal"] + P * 64, P / 2 + 4 * (config.masks.sweeps + 1) + 2 * H)
+    # the G dense mask volumes; the K clusters' SH volumes, each 0 outside its cluster (about one SH a probe as
+    # stored): L1 (3K RGBA16F volumes) and for L2 bakes the K L2 atlases (7 (nz + 2) slices); the G weight volumes
+    l2 = nx * ny * (nz + 2) * CLUSTER_L2_BYTES_PER_PROBE + K * H if sh_k == 9 else 0
     add("masks", F * FIELD_SECONDS_PER_SAMPLE["masks"] * max(1.0, K / 4) ** 0.5,
         LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"]) + N * 4,
-        F * K + K * P * (sh_k * 12 + 4))
+        G * (min(F * 4, MASK_SURFACE_BYTES * surface) + H) + P * CLUSTER_L1_BYTES_PER_PROBE + 3 * K * H + l2
+        + G * (P * CLUSTER_WEIGHT_BYTES_PER_PROBE + H))
+    # the atlas of the non-constant (cell, cluster) blocks and the indirection (2 G RGBA8 texels a cell)
     add("compress", F * FIELD_SECONDS_PER_SAMPLE["compress"],
-        LIB_SMALL + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]), F * K,
-        rays=False)
+        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]),
+        min(F * K, ATLAS_SURFACE_BYTES_PER_CLUSTER * K * surface) + cells * G * INDIRECTION_BYTES_PER_CELL_GROUP
+        + 2 * H, rays=False)
     prt = config.prt
     if prt.enabled:
         C, M = prt.configurations, prt.measurement_points * prt.supersampling * prt.scenario.count
@@ -379,3 +477,12 @@ def stage_timeout(stage: StageCost | None, *, factor: float = 4.0, minimum: floa
 
 def as_dict(est: Estimate) -> dict:
     return asdict(est)
+
+
+def stored_bytes(record: dict) -> tuple[int, int]:
+    """What a finished stage stored, the measured side of :class:`StageCost`: ``(artifact_bytes, bundle_bytes)`` of
+    its record (``{"artifacts": [ArtifactInfo dicts]}``): every file's bytes, and those of the files the bundle takes
+    (not ``meta.internal``, as :func:`proto.stages.build_manifest` selects them)."""
+    arts = record["artifacts"]
+    return (sum(int(a["bytes"]) for a in arts),
+            sum(int(a["bytes"]) for a in arts if not a.get("meta", {}).get("internal")))

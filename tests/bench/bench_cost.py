@@ -8,6 +8,15 @@ child reports its seconds, its RSS growth (``VmHWM`` at the end minus ``VmRSS`` 
 itself allocated, the worker's own footprint excluded) and its address-space growth (``VmPeak`` - ``VmSize``,
 what ``RLIMIT_AS`` counts). Next to each measurement it prints the model's estimate for that stage and the
 ratio. Prints a table and writes the measurements as JSON (``--out``).
+
+Each row also holds the stage's stored bytes: ``artifact_bytes`` (every file it wrote to the store, internal ones
+included), ``bundle_bytes`` (the artifacts the bundle takes) and per artifact ``[file bytes, raw bytes (its array's
+size before Zstandard), internal]``. The byte cases (``--cases bytes``: the procedural scenes and zdm2 at 16x8x16 and
+32x16x32 with the defaults) calibrate :data:`proto.cost.BYTES_CALIBRATION`; ``--check`` compares every row that has
+bytes with the model's ``artifact_bytes`` / ``bundle_bytes``, per stage and per bake:
+
+    .venv/bin/python tests/bench/bench_cost.py --cases bytes --out tests/bench/cost_bytes.json
+    .venv/bin/python tests/bench/bench_cost.py --check tests/bench/cost_bytes.json
 """
 from __future__ import annotations
 
@@ -32,6 +41,9 @@ from workers.gltf import ingest_file  # noqa: E402
 from workers.procedural import write_scene  # noqa: E402
 
 ZDM2 = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
+REAL = {"zdm2": ZDM2, "living-room": ROOT.parent / "shared" / "scenes" / "godot-living-room" / "living_room.glb"}
+SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0, "color": [1.0, 0.95, 0.9]}
+LIT = {"scene": {"lights": [SUN], "sky": [0.3, 0.35, 0.4]}}     # zdm2 has no lights (as bench_probes bakes it)
 
 OFF = {"evaluate": {"enabled": False}}
 SMALL = {"trace": {"rays_per_probe": 64}, "visibility": {"samples_per_cell": 4, "slabs": 1},
@@ -64,7 +76,20 @@ CASES = {
     "ref_points": ("two-rooms", {"place": {"counts": [12, 6, 8]}, **SMALL,
                                  "evaluate": {"enabled": True, "surface_points": 8192, "previews": 0}}),
     "ref_zdm2": ("zdm2", {"place": {"spacing": 4.0}, **SMALL, "evaluate": {"enabled": True}}),
+    # the stored bytes of the defaults (S = 8, K = 4, 256 rays, four slabs) and of K = 8 (proto.cost.BYTES_CALIBRATION)
+    "bytes_cornell": ("cornell", {"place": {"counts": [12, 12, 12]}, **OFF}),
+    "bytes_k8": ("two-rooms", {"place": {"counts": [16, 8, 12]}, "masks": {"clusters": 8}, **OFF}),
+    "bytes_zdm2_16": ("zdm2", {"place": {"counts": [16, 8, 16]}, **LIT, **OFF}),
+    "bytes_zdm2_32": ("zdm2", {"place": {"counts": [32, 16, 32]}, **LIT, **OFF}),
+    "bytes_zdm2_8": ("zdm2", {"place": {"counts": [8, 4, 8]}, **LIT, **OFF}),
+    "bytes_zdm2_s16": ("zdm2", {"place": {"counts": [16, 8, 16]}, "visibility": {"samples_per_cell": 16},
+                                **LIT, **OFF}),
+    "bytes_living_16": ("living-room", {"place": {"counts": [16, 8, 16]}, **LIT, **OFF}),
+    "bytes_living_32": ("living-room", {"place": {"counts": [32, 16, 32]}, **LIT, **OFF}),
 }
+GROUPS = {"bytes": ["tiny", "small", "field", "defaults", "bytes_cornell", "bytes_k8", "bytes_zdm2_16",
+                    "bytes_zdm2_32", "bytes_zdm2_8", "bytes_zdm2_s16", "zdm2_auto", "bytes_living_16",
+                    "bytes_living_32"]}
 
 
 def _status() -> dict[str, int]:
@@ -74,6 +99,23 @@ def _status() -> dict[str, int]:
         if k in ("VmRSS", "VmHWM", "VmSize", "VmPeak"):
             out[k] = int(v.split()[0]) * 1024
     return out
+
+
+def stored_bytes(rec: dict) -> dict:
+    """A stage record's stored bytes: every file (``artifact_bytes``), the bundle's (``bundle_bytes``) and per
+    artifact ``[file bytes, raw bytes, internal]`` (raw: the array's bytes before Zstandard; a file's own for
+    json, png, glb)."""
+    import numpy as np
+
+    arts = {}
+    for a in rec["artifacts"]:
+        internal = bool(a.get("meta", {}).get("internal"))
+        raw = a["bytes"]
+        if a["format"] in ("ktx2", "npy"):
+            raw = int(np.prod(a["shape"], dtype=np.int64)) * np.dtype(a["dtype"]).itemsize
+        arts[a["name"]] = [a["bytes"], raw, internal]
+    total, bundle = cost.stored_bytes(rec)
+    return {"artifact_bytes": total, "bundle_bytes": bundle, "artifacts": arts}
 
 
 def run_forked(store: Store, scene_id: str, config: BakeConfig, stage: str) -> dict:
@@ -88,7 +130,7 @@ def run_forked(store: Store, scene_id: str, config: BakeConfig, stage: str) -> d
             sec = time.perf_counter() - t0
             s1 = _status()
             out = {"seconds": sec, "rss": s1["VmHWM"] - s0["VmRSS"], "vm": s1["VmPeak"] - s0["VmSize"],
-                   "base_rss": s0["VmRSS"], "cached": cached, "stats": {k: v for k, v in rec["stats"].items()
+                   "base_rss": s0["VmRSS"], "cached": cached, **stored_bytes(rec), "stats": {k: v for k, v in rec["stats"].items()
                                                                           if k in ("probes", "samples_per_cell",
                                                                                    "bounces", "counts")}}
         except BaseException as e:  # noqa: BLE001
@@ -106,10 +148,10 @@ def run_forked(store: Store, scene_id: str, config: BakeConfig, stage: str) -> d
 
 
 def _summary(store: Store, tmp: str, scene_name: str) -> tuple[str, dict] | None:
-    if scene_name == "zdm2":
-        if not ZDM2.exists():
+    if scene_name in REAL:
+        if not REAL[scene_name].exists():
             return None
-        path = ZDM2
+        path = REAL[scene_name]
     else:
         path = Path(tmp) / f"{scene_name}.glb"
         write_scene(scene_name, path)
@@ -161,34 +203,80 @@ def check(files: list[str]) -> int:
         under = sum(x < 1 for x in xs)
         print(f"stage {label}: estimate/measured median {st.median(xs):.2f}, min {xs[0]:.2f}, max {xs[-1]:.2f}, "
               f"under-estimated {under} of {len(xs)}")
+    check_bytes([r for r in rows if "artifact_bytes" in r and CASES[r["case"]][0] in summaries], summaries)
     return 0
+
+
+BYTE_GROUPS = ("ingest", "trace", "light", "visibility", "anneal", "masks", "compress")
+"""The stages whose stored bytes ``--check`` shows one by one (a sharded stage with its shards)."""
+
+
+def check_bytes(rows: list[dict], summaries: dict) -> None:
+    """Stored bytes against the model: every stage of ``BYTE_GROUPS`` (the visibility shards with their join) and
+    every bake, all artifacts (``artifact_bytes``) and the bundle's (``bundle_bytes``), and the range of
+    estimate / measured per stage and per bake. Cached stages count: their record is the one the bake would store."""
+    if not rows:
+        return
+    import statistics as st
+
+    print(f"\n{'case':16s} {'stage':10s} {'artifact MB':>11s} {'est':>8s} {'ratio':>6s}   {'bundle MB':>9s} "
+          f"{'est':>8s} {'ratio':>6s}")
+    bakes, ratios = {}, {}
+    for r in rows:
+        est = cost.estimate(summaries[CASES[r["case"]][0]], BakeConfig.model_validate(CASES[r["case"]][1]))
+        e = est.stage(r["stage"])
+        b = bakes.setdefault(r["case"], {"a": 0, "b": 0, "ea": est.artifact_bytes, "eb": est.bundle_bytes,
+                                         "groups": {}})
+        b["a"] += r["artifact_bytes"]
+        b["b"] += r["bundle_bytes"]
+        group = r["stage"].split(".")[0]
+        if e is not None and group in BYTE_GROUPS:
+            f = b["groups"].setdefault(group, [0, 0, 0, 0])
+            f[0] += r["artifact_bytes"]
+            f[1] += e.artifact_bytes
+            f[2] += r["bundle_bytes"]
+            f[3] += e.bundle_bytes
+    for name, b in bakes.items():
+        for group, (a, ea, bb, eb) in b["groups"].items():
+            ra, rb = ea / max(a, 1), (eb / bb if bb else float("nan"))
+            ratios.setdefault(f"{group} artifact", []).append(ra)
+            if bb:
+                ratios.setdefault(f"{group} bundle", []).append(rb)
+            print(f"{name:16s} {group:10s} {a / 1e6:11.3f} {ea / 1e6:8.3f} {ra:6.2f}   {bb / 1e6:9.3f} {eb / 1e6:8.3f} "
+                  f"{rb:6.2f}")
+    print()
+    for name, b in bakes.items():
+        ra, rb = b["ea"] / b["a"], b["eb"] / b["b"]
+        ratios.setdefault("bake artifact", []).append(ra)
+        ratios.setdefault("bake bundle", []).append(rb)
+        print(f"bake {name:16s} artifacts {b['a'] / 1e6:8.2f} MB est {b['ea'] / 1e6:8.2f} MB ({ra:5.2f}x)   "
+              f"bundle {b['b'] / 1e6:8.2f} MB est {b['eb'] / 1e6:8.2f} MB ({rb:5.2f}x)")
+    for label, xs in sorted(ratios.items()):
+        xs = sorted(xs)
+        print(f"{label:20s} bytes: estimate/measured median {st.median(xs):6.2f}, min {xs[0]:6.2f}, "
+              f"max {xs[-1]:6.2f}, under-estimated {sum(x < 1 for x in xs)} of {len(xs)}")
 
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--cases", default=",".join(CASES))
+    ap.add_argument("--cases", default=",".join(c for c in CASES if not c.startswith("bytes_")),
+                    help="case names, or the group \"bytes\" (default: the 14 cases of proto.cost.CALIBRATION)")
     ap.add_argument("--out", default=None)
     ap.add_argument("--check", nargs="*", default=None, help="compare stored measurements with the model")
     args = ap.parse_args()
     if args.check:
         return check(args.check)
     rows, results = [], []
+    names = [n for c in args.cases.split(",") for n in GROUPS.get(c, [c])]
     with tempfile.TemporaryDirectory() as tmp:
         store = Store(Path(tmp) / "store")
-        for name in args.cases.split(","):
+        for name in names:
             scene_name, cfg = CASES[name]
-            if scene_name == "zdm2":
-                if not ZDM2.exists():
-                    print(f"skip {name}: {ZDM2} absent", file=sys.stderr)
-                    continue
-                path = ZDM2
-            else:
-                path = Path(tmp) / f"{scene_name}.glb"
-                write_scene(scene_name, path)
-            scene = ingest_file(path)
-            sid = store.put_bytes(scene.to_bytes())
-            summary = scene.summary(sid)
-            summary["bytes"] = store.blob_path(sid).stat().st_size
+            got = _summary(store, tmp, scene_name)
+            if got is None:
+                print(f"skip {name}: {REAL[scene_name]} absent", file=sys.stderr)
+                continue
+            sid, summary = got
             config = BakeConfig.model_validate(cfg)
             est = cost.estimate(summary, config)
             by_stage = {s.name: s for s in est.stages}
@@ -209,8 +297,8 @@ def main() -> int:
                       flush=True)
             print(f"{name}: {time.perf_counter() - t_case:.1f} s in all; estimate {est.seconds:.1f} s, "
                   f"{est.peak_memory_bytes / 2**20:.0f} MB, {est.probes} probes", flush=True)
-    if args.out:
-        Path(args.out).write_text(json.dumps(results, indent=1))
+            if args.out:                # after every case: a long run that stops keeps what it measured
+                Path(args.out).write_text(json.dumps(results, indent=1))
     return 0
 
 
