@@ -22,7 +22,9 @@ Measured at HEAD 6a4925b (numbers in each test's docstring; llvmpipe, this 2-cor
    0.55 -> 0.37), still xfail on the RMS (0.3; the 16-slot basis's own projection is 0.33-0.36 there).
    Re-measured at 167a145: 0.0007 and 0.53 (projection 0.52) since the rescue relocation put the wall layers'
    probes 3 cm off the walls, next to the light; no basis size, dataset size, norm, ridge or reconstruction
-   tried reaches 0.3 (table in the test).
+   tried reaches 0.3 (table in the test). The reported symptoms are tested on their own numbers and pass
+   (near-black 0.0007, brightest direction 0.59 of the reference's, 2.1% of lit directions over 2x; before the
+   fixes 0.039 / 0.31 / 16.6%); the RMS stays a strict xfail.
 6. found on the way: DDGI rendered 0 on grids whose atlas is wider than GL_MAX_TEXTURE_SIZE: fixed, tested.
 """
 from __future__ import annotations
@@ -266,9 +268,38 @@ PRT_CFG = {"place": {"counts": [8, 8, 8]}, "trace": {"rays_per_probe": 128}, "vi
            "prt": {"enabled": True, "lightmap": 0, "configurations": 64}}
 
 
+@pytest.fixture(scope="module")
+def prt_near_light(tmp_path_factory, scene_files) -> dict:
+    """:func:`_prt_near_light` of PRT_CFG, baked once for the two tests below."""
+    return _prt_near_light(tmp_path_factory.mktemp("prt"), scene_files, PRT_CFG)
+
+
+def test_prt_indirect_no_hotspot_or_black_walls(prt_near_light):
+    """Artifact 5 as reported: a saturated hotspot and near-black walls in PRT's indirect-only view (Cornell, a point
+    light 8 cm above the floor; the setting and the metrics of :func:`_prt_near_light`, whose docstring below has the
+    history). Numbers at the probes over the 6 axis normals, PRT against the light stage's own bounce loop for that
+    light: near-black (the share of lit directions PRT gives < 0.1 of) ≤ 0.01; hotspot: PRT's brightest direction
+    over the reference's brightest ≤ 1.25, and the share of lit directions PRT reads more than 2x ≤ 0.05.
+    Before the fixes (uniform scenario lights, L2 norm, λ = 1e-3; ``prt.scenario.near_surface`` 0, ``prt.norm``
+    "l2", ``prt.ridge_folds`` 0, ``prt.ridge`` 1e-3, on this HEAD's bake, d86ebe2): near-black 0.039, peak 0.31,
+    over 2x 0.166 — fails on near-black and on the many directions read 2x and more (the speckled overshoot; the
+    brightest direction itself is under-read). Shipped: 0.0007, 0.59, 0.021. What stays wrong is the size of the
+    local response next to the light, not a hotspot: the relative RMS (0.61 before, 0.53 shipped;
+    :func:`test_prt_indirect_relative_rms_near_a_light`, xfail)."""
+    m = prt_near_light
+    assert m["black"] <= 0.01 and m["peak"] <= 1.25 and m["over2"] <= 0.05, m
+
+
 @pytest.mark.xfail(strict=True, reason="relative RMS 0.53 > 0.3: the 16-slot basis's own projection is 0.52 "
                                        "since the rescue relocation (docstring)")
-def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
+def test_prt_indirect_relative_rms_near_a_light(prt_near_light):
+    """PRT's relative RMS error at the probes for a light 8 cm above the floor (≤ 0.3 asked): 0.53. See
+    :func:`_prt_near_light`."""
+    m = prt_near_light
+    assert m["rms"] <= 0.3, m
+
+
+def _prt_near_light(tmp_path, scene_files, cfg) -> dict:
     """Artifact 5: PRT's indirect-only view shows a saturated hotspot and near-black walls (Cornell).
 
     A point light 8 cm above the floor, (0.5, 0.1, 0.3), 1 cd, relit through the baked transfer
@@ -376,8 +407,8 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     from workers.stages import prt as P
     from workers.stages.base import StageContext
 
-    scene, s = bake_until(tmp_path, scene_files["cornell"], PRT_CFG, "light")
-    bc = BakeConfig.model_validate(PRT_CFG)
+    scene, s = bake_until(tmp_path, scene_files["cornell"], cfg, "light")
+    bc = BakeConfig.model_validate(cfg)
     ctx = StageContext(bc, lambda: scene, s, lambda f: None)
     ds = P.prt_dataset(ctx)
     arrays = {a.name: a.data for a in P.prt_output(ctx, ds).artifacts}
@@ -395,7 +426,8 @@ def test_prt_indirect_no_hotspot_or_black_walls(tmp_path, scene_files):
     med = np.median(er)
     black = float(((eg < 0.1 * er) & (er > 0.2 * med)).mean())
     rms = float(np.sqrt(np.mean((eg - er) ** 2) / np.mean(er ** 2)))
-    assert black <= 0.01 and rms <= 0.3, (black, rms)
+    lit = er > 0.2 * med
+    return {"black": black, "rms": rms, "peak": float(eg.max() / er.max()), "over2": float((lit & (eg > 2 * er)).mean())}
 
 
 # --------------------------------------------------------------------------------------------- found on the way
