@@ -51,7 +51,7 @@ def _estimate(page) -> dict:
     assert m and d["text"].startswith("Estimate:"), d["text"]
     assert int(m.group(1)) == int(d["probes"]), d   # the number shown is the server's
     return {"probes": int(d["probes"]), "seconds": float(d["seconds"]), "memory": int(d["peakMemoryBytes"]),
-            "bytes": int(d["artifactBytes"]), "preset": d["preset"], "text": d["text"]}
+            "bytes": int(d["artifactBytes"]), "bundle": int(d["bundleBytes"]), "preset": d["preset"], "text": d["text"]}
 
 
 def _sent(page) -> dict:
@@ -69,8 +69,9 @@ def _choose(page, preset: str, kiln_server, scene_id: str) -> dict:
     # what the server estimates for the form's config now (dry run: nothing is started)
     config = page.evaluate("window.kiln.configForm.config()")
     dry = kiln_server.api("/v1/bakes?dry_run=true", "POST", json={"scene_id": scene_id, "config": config})["estimate"]
-    assert (est["probes"], est["seconds"], est["memory"], est["bytes"]) == (
-        dry["probes"], dry["seconds"], dry["peak_memory_bytes"], dry["artifact_bytes"]), (est, dry)
+    assert (est["probes"], est["seconds"], est["memory"], est["bytes"], est["bundle"]) == (
+        dry["probes"], dry["seconds"], dry["peak_memory_bytes"], dry["artifact_bytes"], dry["bundle_bytes"]), (est, dry)
+    assert "bundle download" in est["text"] and 0 < est["bundle"] < est["bytes"], est
     return est
 
 

@@ -110,10 +110,12 @@ export function createBakePage(app) {
         // the numbers as the server gave them (for scripts and the browser tests), the words below for people
         Object.assign(estimate.dataset, {
           probes: String(e.probes ?? ''), seconds: String(e.seconds ?? ''), peakMemoryBytes: String(e.peak_memory_bytes ?? ''),
-          artifactBytes: String(e.artifact_bytes ?? ''), preset: form.preset() || 'custom',
+          artifactBytes: String(e.artifact_bytes ?? ''), bundleBytes: String(e.bundle_bytes ?? ''),
+          preset: form.preset() || 'custom',
         });
         estimate.textContent = `Estimate: ${e.probes_exact === false ? 'at most ' : ''}${e.probes ?? '?'} probes · about ${formatSeconds(e.seconds)}`
           + ` · peak memory ${formatBytes(e.peak_memory_bytes)} · artifact size ${formatBytes(e.artifact_bytes)}`
+          + ` (bundle download ${formatBytes(e.bundle_bytes)})`
           + `${r.over_budget && r.over_budget.length ? ' · over the server\'s budget: the bake would be refused' : ''}`;
         estimate.classList.toggle('error', !!(r.over_budget && r.over_budget.length));
       } catch (err) {
