@@ -46,6 +46,11 @@ with a points file in tests/data/fidelity (:data:`DEFAULT_SCENES`). Per scene:
    absolute mean instead (``=<value>``). The JSON (``--json``) also holds per-channel ratios and per-receiver
    relative RMS errors.
 
+``furnace`` has no Cycles reference but a closed form (``furnace.closed-form.reference.json``, made by
+``tests/data/fidelity/make_closed_form.py``): the default config with a uniform sky of radiance 1, where every receiver
+gets E = π whatever its normal — a white furnace for every mode, the light stage's bounces and the automatic grid
+around a scene that is almost nothing (one 1 mm triangle).
+
 ``metal-room`` has two references: ``lambert`` (every surface diffuse with albedo base x (1 - metallic): the
 model of a diffuse-only probe bake) and ``importer`` (Blender's Principled BSDF with glossy bounces; Blender 3.4
 adds its specular lobe on top of an undimmed diffuse, so closed bright rooms read ~20-27% above a diffuse model:
@@ -307,7 +312,7 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
         return None
     scene_config = pdoc.get("config") or {}
     refs = {}
-    for path in sorted(DATA.glob(f"{name}.*.cycles.json")):
+    for path in sorted([*DATA.glob(f"{name}.*.cycles.json"), *DATA.glob(f"{name}.*.reference.json")]):
         ref = json.loads(path.read_text())
         refs[ref["material"]] = ref
     if not refs:
@@ -411,10 +416,14 @@ def table(res: dict) -> list[str]:
         regs = r["regions"]
         top = max((abs(v["cycles_mean"]) for v in regs.values()), default=0.0)
         sky = r["settings"].get("sky") or [0, 0, 0]
-        lines.append(f"== {res['scene']} vs Cycles {mat} ({r['settings']['samples']} spp x {len(r['seeds'])} seeds, "
-                     f"{r['settings']['bounces']} bounces{f', sky {sky}' if max(sky) > 0 else ''}): "
-                     "mean(kiln)/mean(cycles) of the indirect irradiance"
-                     + (" (+ the sky seen directly)" if max(sky) > 0 else ""))
+        if r["settings"].get("closed_form"):
+            lines.append(f"== {res['scene']} vs the closed form (E = pi x L_sky on every normal, sky {sky}): "
+                         "mean(kiln)/mean(closed form); the 'cycles W/m2' column is the closed form's value")
+        else:
+            lines.append(f"== {res['scene']} vs Cycles {mat} ({r['settings']['samples']} spp x {len(r['seeds'])} "
+                         f"seeds, {r['settings']['bounces']} bounces{f', sky {sky}' if max(sky) > 0 else ''}): "
+                         "mean(kiln)/mean(cycles) of the indirect irradiance"
+                         + (" (+ the sky seen directly)" if max(sky) > 0 else ""))
         lines.append(f"{'region':<13}{'cycles W/m2':>12}" + "".join(f"{c:>11}" for c in
                      ("kiln_pt", "pt_diffuse", "leaking", "vis_wtd", "ddgi", "mask", "mask_norm", "probe_oct", "probe_sh")) + f"{'ref sem':>9}")
         spr = {**(r.get("spread") or {}).get("region_rel_sem", {}),
