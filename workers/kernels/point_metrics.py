@@ -45,8 +45,10 @@ bake). :func:`point_metrics` with ``err`` (and :func:`metrics_with_stderr`, alwa
 from the mean squared irradiance error of ``indirect_relative_rmse``, and from the mean squared tone-mapped error
 of ``rmse`` the variance of each tone-mapped channel by the delta method (the tone map's slope at the reference,
 a central difference of ±s_i). Clamped at 0. What remains is the error against the exact reference up to the
-accuracy of the ``s_i`` themselves (sample standard deviations of each point's paths, which heavy-tailed path
-distributions underestimate: two-rooms reads 0.070 at 128 paths, 0.057 at 192). ``leak`` (a mean absolute
+accuracy of the ``s_i`` themselves (unbiased sample variances of each point's paths, as long as nothing chose the
+points' path counts on those same paths: :func:`workers.kernels.reference.refine_points` chooses on a pilot pass;
+two-rooms, ddgi: 0.057 with the choice made on the first pass, 0.039 with the pilot, 0.038-0.044 unrefined at 192
+and 384 paths). ``leak`` (a mean absolute
 difference) and ``indirect_excess`` are not corrected; ``mean_ratio`` is linear and unbiased.
 
 Regions (:func:`region_ratios`): for named groups of check points, the ratio of the group's mean luminance to
