@@ -15,18 +15,18 @@ stage      seconds                                       memory (beyond the work
 ========== ============================================= ===============================================
 ingest     scene load                                    the scene (its stored bytes ~ 4 x T x 100 B)
 place      planning rays (automatic grid) + BVH build    the scene + BVH
-relocate   iterations × N rays                           N rays (origins, directions, hits)
-trace      N rays + depth moments                        N rays, hits kept (20 B a ray)
-light      N (shading, 8 occlusion rays a hit) × bounces N hits and per-bounce radiance
+relocate   iterations × N rays                           N rays (hits), chunked temporaries (up to 1 M rays)
+trace      N rays + depth moments                        N rays, hits kept (20 B a ray), P x depth texels
+light      N (shading, 8 occlusion rays a hit) × bounces N hits and radiance, chunked temporaries (1 M rays)
 visibility F × 8 corner rays × visibility.rays            F × 8 (θ) per shard; the join F × 9
 anneal     sweeps × P + F (edge loss)                    F × 9
-masks      F × K                                         F × K floats
+masks      F × K                                         F × K floats, P × K cluster SH volumes
 compress   F × K                                         F × K
 prt        C × (M + N bounces) + lightmap texels         a batch × N + C × (P × SH + lightmap texels)
 reference  (points × spp + preview px × preview_spp) × ~3  the preview G-buffers and reference images
            path vertices (path tracer, Russian roulette);
            check-point normals × check_spp paths
-evaluate   points × modes + preview px × modes × draws    W × H per mode of the previews
+evaluate   points × modes + preview px × modes × draws    W × H per mode of the previews, points × modes
 ========== ============================================= ===============================================
 
 The automatic grid (``place.counts`` and ``place.spacing`` both None) is estimated at its upper bound:
@@ -37,8 +37,9 @@ probes than the budget it may choose a larger S). Light bounces until converged 
 (capped by ``light.max_bounces`` or set by ``light.bounces``).
 
 Calibration (``tests/bench/bench_cost.py``, each stage in a forked work-horse): see :data:`CALIBRATION`.
-The coefficients below are fitted to those bakes so that the memory estimate is an upper bound of the measured
-stages (within 3%, by at most 47%) and the time estimate of every measured bake (by 1.04x - 3.3x).
+The memory coefficients below are fitted to those bakes (a linear program: the smallest estimate that is at least
+every measured stage) so that the memory estimate is an upper bound of every measured stage (by at most 61%) and
+bake peak (by at most 39%); the time estimates are rougher (a loaded machine, see there).
 
 Bytes (``artifact_bytes``: every file a stage writes to the store, internal ones included; ``bundle_bytes``: the
 bundle's) are the stored files: the visibility shards' internal ``npy`` parts raw (9 B a field sample), the fields'
@@ -77,26 +78,35 @@ stage, cached per scene (issue 13), evaluate and reference go by their estimates
 
 # -- memory, bytes (fitted, see CALIBRATION) ----------------------------------------------------------------
 LIB_RAYS = 135 * MB            # Embree, its threads and the numba kernels, loaded by every ray-casting stage
-LIB_NUMBA = 118 * MB           # numba kernels of anneal and masks
+LIB_NUMBA = 150 * MB           # numba kernels of anneal, masks and compress (compiled on first use: +30 - 50 MB)
 LIB_SMALL = 12 * MB            # stages that only load and write arrays
 LIB_EVAL = 250 * MB            # moderngl on EGL (Mesa llvmpipe) + the path tracer
 SCENE_BYTES_PER_TRIANGLE = 112 # the stored normalized scene without textures (triangles, normals, uv0, material)
 SCENE_MEM_PER_TRIANGLE = 300   # the loaded scene, its Embree BVH and material tables
-SCENE_MEM_PER_BYTE = 1.5       # textures and other stored arrays, loaded (+ derived)
-RAY_MEM = {"relocate": 75, "trace": 125, "light": 360}   # per probe ray at the stage's peak
+SCENE_MEM_PER_BYTE = 2.0       # textures and other stored arrays, loaded (+ derived)
+RAY_MEM = {"relocate": 40, "trace": 24, "light": 185}    # per probe ray at the stage's peak (hits, per-ray arrays)
+RAY_MEM_CHUNKED = {"relocate": 215, "light": 315}        # more per ray up to RAY_MEM_CHUNK rays: the temporaries the
+RAY_MEM_CHUNK = 1 << 20                                  # stage bounds (relocation's rescue and optimizer; the light's
+                                                         # float64 chunks of 1-2 M hits, kernels.probe_hits)
+TRACE_FIXED_MEM = 20 * MB      # the trace stage beyond LIB_RAYS
+LIGHT_FIXED_MEM = 40 * MB      # the light stage beyond LIB_RAYS: its numba kernels (spot lights, L2 deringing)
+DEPTH_MEM_PER_TEXEL = 78       # trace: per probe and bordered depth-moment texel (the maps and their sums)
+VIS_FIXED_MEM = 8 * MB         # a visibility shard beyond LIB_RAYS: its numba kernels
 VIS_CHUNK_SAMPLES = (1 << 21) // 8                       # workers.kernels.visibility.CHUNK_RAYS / 8 corners
 VIS_CHUNK_MEM = 130 * MB       # a full chunk of visibility rays (bounded by CHUNK_RAYS)
 VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
-FIELD_MEM_PER_SAMPLE = {"visibility": 40, "anneal": 26, "masks": 50, "compress": 30}
-FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 10, "compress": 2.5}
+FIELD_MEM_PER_SAMPLE = {"visibility": 44, "anneal": 15, "masks": 60, "compress": 27}
+FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 4, "compress": 1}
+MASK_MEM_PER_PROBE_CLUSTER = 2050   # masks: each cluster's L1 and L2 SH volumes over the probes, as it builds them
 PATH_CHUNK = 1 << 18          # paths in flight per wavefront chunk (workers.kernels.pathtrace.DEFAULT_MAX_PATHS)
 PATH_BYTES = 512              # bytes per path in flight (ibid.)
-PRT_FIXED_MEM = 40 * MB       # the measurement points, the lightmap's atlas (xatlas)
-PRT_MEM_PER_CONFIG_RAY = 88    # the batched bounce loop: a batch's configurations' radiance on every probe ray
+PRT_FIXED_MEM = 100 * MB      # the measurement points, the lightmap's atlas (xatlas), the prt kernels
+PRT_MEM_PER_CONFIG_RAY = 92    # the batched bounce loop: a batch's configurations' radiance on every probe ray
 PRT_MEM_PER_CONFIG_TEXEL = 48  # every configuration's lightmap texels, and their fit (float64)
 PRT_MEM_PER_RAY = 256          # the DDGI sampler as a sparse matrix, a row per probe-ray hit
 PRT_BATCH_BYTES = 256 << 20    # kernels.prt_dataset.BATCH_BYTES: per-ray radiance of one batch of configurations
 EVAL_MEM_PER_PIXEL = 4600      # G-buffer, reference accumulators, every mode's image and FLIP, per pixel
+EVAL_MEM_PER_POINT_MODE = 1100 # evaluate: a mode reconstructed at a surface point, its metrics and bootstrap
 
 # -- seconds on this 2-core machine (fitted, see CALIBRATION) -------------------------------------------------
 RAY_STAGE_OVERHEAD_S = 0.5     # loading Embree and the numba kernels, reading inputs, writing artifacts
@@ -107,12 +117,13 @@ TRACE_SECONDS_PER_RAY = 1.0e-6             # per probe ray, depth moments includ
 LIGHT_SECONDS_PER_HIT = 1.25e-6            # direct light and the cage-probe occlusion rays, once (x ray-cost scale)
 LIGHT_SECONDS_PER_HIT_BOUNCE = 0.6e-6      # one bounce of shading and gathering, per probe ray
 VIS_SECONDS_PER_RAY = 0.35e-6              # visibility: per occlusion ray (8 per sample and visibility.rays)
-FIELD_SECONDS_PER_SAMPLE = {"visibility": 0.15e-6, "anneal": 0.15e-6, "masks": 1.0e-6, "compress": 0.12e-6}
+FIELD_SECONDS_PER_SAMPLE = {"visibility": 0.15e-6, "anneal": 0.15e-6, "masks": 1.0e-6, "compress": 2.0e-6}
 ANNEAL_SECONDS_PER_PROBE_SWEEP = 0.1e-6
 PRT_SECONDS_PER_CONFIG_RAY_BOUNCE = 0.11e-6
 PRT_SECONDS_PER_CONFIG_TEXEL = 2.3e-6
 PRT_SECONDS_PER_CONFIG_POINT = 9e-5        # direct light (shadow rays) per configuration and measurement sample
 EVAL_FIXED_SECONDS = 1.0                   # EGL context and shader compiles (with previews), camera placement
+EVAL_STAGE_SECONDS = 2.0                   # evaluate: loading the reference and the bake, setting up the modes
 EVAL_SECONDS_PER_PATH_BOUNCE = 2.8e-6      # the path-traced reference, per path vertex (x ray-cost scale)
 EVAL_SECONDS_PER_PIXEL_PASS = 1e-6         # each mode's shading pass, per repeat
 EVAL_FLIP_SECONDS_PER_PIXEL = 5e-6         # FLIP, per mode
@@ -137,36 +148,48 @@ DEPTH_STORED = 0.65                      # depth_moments (RG16F) as stored / raw
 
 CALIBRATION = """
 Measured with ``tests/bench/bench_cost.py`` (each stage forked from a warm process, as RQ runs a work-horse, on
-this project's shared 2-core machine with other jobs running; the measurements are kept in
-``tests/bench/cost_calibration.json``) on 14 bakes: the procedural cornell (1,036 triangles) and two-rooms (352)
-at 64 - 4,608 probes, 64 - 1,024 rays per probe, S = 2 - 12, one and four slabs, PRT with 64 - 128
-configurations and lightmaps of 0 - 256², the evaluate stage and its reference at their defaults (2,048
-surface points x 64 paths, one 160x120 preview) and at 8,192 points without previews; and zdm2-sauerbraten
-(58,772 triangles) at 12,800 probes (spacing 2.5 m), at 3,360 probes with evaluate, and on its automatic grid
-(budget 3,000: 2,850 probes, S = 16, 9.3 M field samples).
+this project's shared 2-core machine, loaded by other jobs (load average 4 - 6) while it ran; the measurements are
+kept in ``tests/bench/cost_calibration.json``) on 15 bakes: the procedural cornell (1,036 triangles) and two-rooms
+(352) at 64 - 18,432 probes, 64 - 1,024 rays per probe (up to 4.7 M probe rays: ``big_room``, a closed room where
+every ray hits), S = 2 - 12, one and four slabs, PRT with 64 - 128 configurations and lightmaps of 0 - 256², the
+evaluate stage and its reference at their defaults (2,048 surface points x 192 paths, one 160x120 preview) and at
+8,192 points without previews; and zdm2-sauerbraten (58,772 triangles) at 12,800 probes (spacing 2.5 m), at 3,360
+probes with evaluate, and on its automatic grid (budget 3,000: 2,850 probes, S = 16, 9.3 M field samples). The 13
+bakes of :data:`BYTES_CALIBRATION` (``tests/bench/cost_bytes.json``, the same code) hold the fit too.
 
 Estimate / measured (``bench_cost.py --check tests/bench/cost_calibration.json`` prints every stage):
 
-- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.47x
-  (median 1.13x); per stage (171 stages) 0.97x - 1.47x, median 1.15x: an upper bound of every measured stage
-  within 3%, and above it by at most 47% (zdm2's automatic grid: its field bound, 12 M samples, where it chose
-  9.3 M; 1.13x and 1.43x before that bound). The compress stage excepted: these rows predate its numba channel
-  atlas (13 - 34 MB then, 127 - 305 MB now); refitted (``LIB_NUMBA`` + 40 B a sample at K = 4) on the 13 bakes of
-  :data:`BYTES_CALIBRATION` (``tests/bench/cost_bytes.json``, today's code), 0.95x - 1.77x there (0.95x: a 64-probe
-  bake whose work-horse compiled the kernels), 2.2x - 2.8x on these old rows. Those 13 bakes also show relocate and
-  light at 0.87x - 0.96x on the small procedural rooms with the defaults (256 rays, 5 relocation iterations; light
-  350 MB where these rows had 252 MB): memory grown since this calibration, not refitted.
-- seconds of a bake: 1.04x - 3.3x (median 1.55x). The largest over-estimates come from the light bounces (26
-  assumed until converged; zdm2 converged in 3, cornell in 8) and the reference's path lengths (3 vertices
-  assumed; a dark scene's paths end sooner). Per stage 0.6x - 40x: sub-second stages are dominated by loading,
-  and 17 of 171 stages ran longer than estimated (by at most 1/0.6), none of them long. On today's code the compress
-  stage takes longer (the 13 bakes of BYTES_CALIBRATION: 0.3 - 17 s, 0.07x - 0.7x of its estimate, the most on zdm2
-  at S = 16; not refitted).
+- peak memory of a bake (its largest work-horse's RSS, the starting footprint included): 1.01x - 1.39x (median
+  1.09x; the 13 byte bakes 1.01x - 1.54x, median 1.17x); per stage (157 stages) 1.00x - 1.61x, median 1.23x (the 172
+  of the byte bakes 1.00x - 1.59x): an upper bound of every one. Per stage: relocate 1.02 - 1.44, trace 1.01 - 1.17,
+  light 1.01 - 1.49, the visibility shards 1.00 - 1.26, anneal 1.01 - 1.27, masks 1.05 - 1.36, compress 1.09 - 1.61,
+  prt 1.01 - 1.12, reference 1.04 - 1.18, evaluate 1.00 - 1.28. The loosest: zdm2's automatic grid (its field bound,
+  12 M samples, where it chose 9.3 M), and the ray stages of open scenes (zdm2, living-room: a ray that misses holds
+  less than a hit; the light stage is fitted to closed rooms). Before this fit (the model fitted to last cycle's code)
+  the same rows measured 0.65x - 1.80x per stage (34 of 157 under: the light stage 0.81x on two-rooms, trace 0.73x
+  on zdm2, relocate 0.75x at 1,024 rays, masks 0.65x at 18,432 probes, prt 0.87x, reference 0.77x without previews)
+  and 0.81x - 1.49x per bake (8 of 15 under).
+- what the light stage holds beyond the footprint and ``LIB_RAYS`` is not linear in the probe rays: 495 B a ray at
+  1.2 M rays (medium), 260 B at 4.7 M (big_room); relocation likewise (and its rescue pass depends on how many probes start
+  inside walls: 240 B a ray at 1,024 rays per probe, 70 B on big_room). Both are modelled as a per-ray term and bounded temporaries
+  (``RAY_MEM_CHUNKED`` up to ``RAY_MEM_CHUNK`` rays); beyond the largest bake measured (4.7 M rays) the per-ray
+  term is extrapolated.
+- the first bake after a checkout compiles the numba kernels in its work-horses (``cache=True`` writes them next to
+  the sources): ``tiny`` ran first here, +15 - 50 MB a stage over the same bake with the kernels cached (anneal +50,
+  light +34, masks, compress and a visibility shard +28 - 30, relocate +15); the fixed footprints cover it.
+- seconds of a bake: 0.8x - 3.0x (median 1.2x), but ``tiny`` (0.16x: it compiled the kernels, 27 s for a 4 s
+  bake). Per stage 0.06x - 22x; 50 of 157 stages ran longer than estimated on the loaded machine (17 of 171 when
+  the previous calibration was measured): the seconds were not refitted but the compress stage (its numba channel
+  atlas: 0.3 - 23 s, 2 - 2.5 µs a field sample on zdm2 at S = 16, where it was estimated at 0.12 µs: now 2 µs and the
+  0.5 s of a stage that loads numba kernels) and the evaluate stage's fixed 2 s (loading the reference and the
+  bake: 2.4 - 4.9 s measured where it was estimated at 1.4 - 1.5 s).
 
-Large configurations are extrapolated: the memory terms are linear in what they hold (probe rays, field
-samples, PRT configurations x probe rays), which the largest calibrated bakes confirm (light: 260 - 350 B per
-probe ray; PRT: 88 B per configuration of a batch and probe ray). Times on a busier or faster machine differ: stage
-timeouts are 4x the estimate + 60 s, at least 2 minutes (:func:`stage_timeout`).
+Large configurations are extrapolated: the memory terms are linear in what they hold (probe rays, field samples,
+probes x clusters, PRT configurations x probe rays); the largest calibrated bakes (4.7 M probe rays, 12 M field
+samples, 64 PRT configurations on 0.3 M rays) bound what is confirmed. zdm2 at 64x32x64 (33.5 M probe rays, sun and
+sky; docs/architecture.md "Scale": peak RSS 4.5 GB, the light stage 3.6 GB) is estimated at 6.4 GB (light 6.3 GB;
+11.5 GB before this fit). Times on a busier or faster machine differ:
+stage timeouts are 4x the estimate + 60 s, at least 2 minutes (:func:`stage_timeout`).
 """
 
 BYTES_CALIBRATION = """
@@ -344,18 +367,19 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     # probes inside, each with its rays, their later hits and 6 x 64 test rays)
     rescue = 1 if config.trace.rescue_offset > config.trace.max_offset else 0
     add("relocate", (config.trace.relocate_iterations + rescue) * N * RELOCATE_SECONDS_PER_RAY * rays_scale,
-        LIB_RAYS + scene_mem + N * RAY_MEM["relocate"], P * 24)
+        LIB_RAYS + scene_mem + N * RAY_MEM["relocate"] + min(N, RAY_MEM_CHUNK) * RAY_MEM_CHUNKED["relocate"], P * 24)
     # stored formats (proto/bundle.md 5.1): depth moments RG16F without their tile borders, at most DEPTH_STORED of
     # that with Zstandard; irradiance RGB9E5 without borders, the SH volumes RGBA16F, probe_sh half floats, at their
     # raw bytes (a lit colourful room's irradiance hardly compresses: cornell 0.93x); internal: the float32 bordered
     # depth moments and L1 SH the later stages integrate with (Zstandard, counted raw), the rays' hits (raw npy)
     dn, dt = config.trace.depth_texels, config.trace.depth_texels + 2
-    add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale, LIB_RAYS + scene_mem + N * RAY_MEM["trace"],
+    add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale,
+        LIB_RAYS + TRACE_FIXED_MEM + scene_mem + N * RAY_MEM["trace"] + P * dt * dt * DEPTH_MEM_PER_TEXEL,
         P * (1 + dn * dn * 4 * DEPTH_STORED) + 2 * ARTIFACT_HEADER,
         internal=N * 20 + R * 12 + P * dt * dt * 8 + ARTIFACT_HEADER + 3 * NPY_HEADER)
     it = config.light.irradiance_texels
     add("light", N * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE),
-        LIB_RAYS + scene_mem + N * RAY_MEM["light"],
+        LIB_RAYS + LIGHT_FIXED_MEM + scene_mem + N * RAY_MEM["light"] + min(N, RAY_MEM_CHUNK) * RAY_MEM_CHUNKED["light"],
         P * (it * it * 4 + (56 * (nz + 2) / nz if sh_k == 9 else 0) + sh_k * 6 + 24) + 6 * ARTIFACT_HEADER,
         internal=P * 48 + ARTIFACT_HEADER)
     n_shard = F / shards
@@ -369,7 +393,8 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     for i in range(slabs):
         if i < shards:
             add(f"visibility.{i}", n_shard * 8 * config.visibility.rays * VIS_SECONDS_PER_RAY,
-                LIB_RAYS + scene_mem + VIS_CHUNK_MEM * min(1.0, n_shard / chunk) + n_shard * VIS_MEM_PER_SAMPLE,
+                LIB_RAYS + VIS_FIXED_MEM + scene_mem + VIS_CHUNK_MEM * min(1.0, n_shard / chunk)
+                + n_shard * VIS_MEM_PER_SAMPLE,
                 0, internal=n_shard * 9 + 2 * NPY_HEADER)
         else:
             add(f"visibility.{i}", 0.0, LIB_SMALL, 0, internal=2 * NPY_HEADER, rays=False)
@@ -382,14 +407,15 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     # stored): L1 (3K RGBA16F volumes) and for L2 bakes the K L2 atlases (7 (nz + 2) slices); the G weight volumes
     l2 = nx * ny * (nz + 2) * CLUSTER_L2_BYTES_PER_PROBE + K * H if sh_k == 9 else 0
     add("masks", F * FIELD_SECONDS_PER_SAMPLE["masks"] * max(1.0, K / 4) ** 0.5,
-        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"]) + N * 4,
+        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"])
+        + P * K * MASK_MEM_PER_PROBE_CLUSTER,
         G * (min(F * 4, MASK_SURFACE_BYTES * surface) + H) + P * CLUSTER_L1_BYTES_PER_PROBE + 3 * K * H + l2
         + G * (P * CLUSTER_WEIGHT_BYTES_PER_PROBE + H))
     # the atlas of the non-constant (cell, cluster) blocks and the indirection (2 G RGBA8 texels a cell)
     add("compress", F * FIELD_SECONDS_PER_SAMPLE["compress"],
         LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]),
         min(F * K, ATLAS_SURFACE_BYTES_PER_CLUSTER * K * surface) + cells * G * INDIRECTION_BYTES_PER_CELL_GROUP
-        + 2 * H, rays=False)
+        + 2 * H)   # its numba kernels load like a ray stage's (RAY_STAGE_OVERHEAD_S)
     prt = config.prt
     if prt.enabled:
         C, M = prt.configurations, prt.measurement_points * prt.supersampling * prt.scenario.count
@@ -418,17 +444,16 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
             cpn * ev.effective_check_spp() + 0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp)
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6
-        lib = LIB_EVAL if px else LIB_RAYS                      # EGL only for the previews
         add("reference", (EVAL_FIXED_SECONDS if px else 0.0) + (paths + px * ev.preview_spp) * vertices
             * EVAL_SECONDS_PER_PATH_BOUNCE * rays_scale,
-            lib + scene_mem + px * EVAL_MEM_PER_PIXEL + ev.surface_points * ev.spp * 64
+            LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + ev.surface_points * ev.spp * 64
             + min(cpn * ev.effective_check_spp(), PATH_CHUNK) * PATH_BYTES, 0, internal=pts * 108 + px * 120)
         # draws per mode and preview: the image and E_indirect, plus a warm-up and `repeats` timed when repeats > 0;
         # EVAL_SECONDS_PER_PIXEL_PASS was calibrated per timed repeat at repeats = 3 (6 draws): half of it a draw
         draws = 2 + (ev.repeats + 1 if ev.repeats else 0)
-        seconds = (0.5 * EVAL_FIXED_SECONDS if px else 0.0) + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
+        seconds = EVAL_STAGE_SECONDS + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
             draws * EVAL_SECONDS_PER_PIXEL_PASS / 2 + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
-        add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * 64 + F * 9,
+        add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * EVAL_MEM_PER_POINT_MODE + F * 9,
             px * 4 * (2 * modes + 2) + pts * modes * 24)
     else:
         add("reference", 0.0, LIB_SMALL, 0, rays=False, long=False)

@@ -93,10 +93,11 @@ def test_failed_stage_is_recorded_with_stage_and_code(service, scene_files, stag
     c = service.start_app()
     sid = service.upload(scene_files["cornell"]).json()["id"]
     # a spacing so fine the grid exceeds the probe limit (103³ > 2^20): a deterministic input error in `place`;
-    # everything else minimal, so the cost model's budget (proto/cost.py) lets it through to the stage
+    # everything else minimal (one cluster: the masks stage holds every cluster's SH volumes over the 1.1 M probes),
+    # so the cost model's budget (proto/cost.py) lets it through to the stage
     cfg = {"place": {"spacing": 0.0098}, "trace": {"rays_per_probe": 16, "depth_texels": 4, "relocate_iterations": 0},
            "light": {"irradiance_texels": 4, "max_bounces": 1}, "visibility": {"samples_per_cell": 1},
-           "masks": {"sweeps": 0}, "evaluate": {"enabled": False}}
+           "masks": {"sweeps": 0, "clusters": 1}, "evaluate": {"enabled": False}}
     r = c.post("/v1/bakes", json={"scene_id": sid, "config": cfg})
     assert r.status_code == 202, r.text
     bid = r.json()["id"]
