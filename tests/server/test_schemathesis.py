@@ -82,6 +82,7 @@ schema = schemathesis.openapi.from_dict(DOCUMENT, config=schemathesis.Config.fro
     "generation": {"mode": "all", "max-examples": MAX_EXAMPLES, "no-shrink": True, "database": "none"},
 }))
 _checks = None
+FRAMING_HEADERS = {"content-length", "transfer-encoding", "host", "connection"}
 
 
 def _the_checks():
@@ -123,6 +124,10 @@ def _with_real_ids(case, kiln):
 @settings(max_examples=MAX_EXAMPLES, derandomize=True, deadline=None, database=None,
           phases=[Phase.explicit, Phase.generate], suppress_health_check=list(HealthCheck))
 def test_responses_conform_to_the_openapi_document(case, kiln):
+    # framing headers are the HTTP client's: a generated "Content-Length: O\\s" is refused by the HTTP parser
+    # (uvicorn/h11: 400 "Invalid HTTP request received.") before any route sees it, so it says nothing of the API
+    if case.headers:
+        case.headers = {k: v for k, v in case.headers.items() if k.lower() not in FRAMING_HEADERS}
     case.call_and_validate(base_url=kiln["url"], headers=AUTH, checks=_the_checks(), timeout=60)
     again = _with_real_ids(case, kiln)
     if again is not None:
