@@ -17,10 +17,10 @@ Also prints the probes a grid needs to reach each spacing near every surface of 
 lower bound: one layer of probes per ``spacing²`` of surface area, zdm2's 29,349 m² of triangles) and a uniform
 grid over the default box, against the default budget (``place.budget``, 24,000).
 
-Measured (2026-12-03, loaded machine; spot 5, normalized mask GI per normal +X -X +Y -Y +Z -Z): 2.19 m
-1.26 1.01 1.06 1.86 1.21 1.37; 1.1 m 1.10 1.06 1.04 1.41 1.15 1.19; 0.55 m 1.00 0.98 0.98 0.99 0.99 1.01 — the
-error is the spacing, and 0.55 m near all surfaces takes ~97,000 probes in a single layer (4x the budget) where a
-uniform grid over the default box would take ~1.5 million.
+Measured (2026-12-03, loaded machine; normalized mask GI / Cycles at 2.19 / 1.1 / 0.55 m): spot 5 1.145 / 1.106 /
+0.995, spot 8 1.298 / 1.087 / 0.987, spot 9 1.379 / 1.307 / 1.061 (its +Z normal, facing a close dark surface, 1.83 at
+0.55 m). The error is the spacing; 0.55 m near every surface takes ~97,000 probes in a single layer (4x the budget),
+1.1 m ~24,000 (the whole budget), a uniform grid over the default box at 0.55 m ~1.3 million.
 """
 from __future__ import annotations
 
