@@ -72,8 +72,9 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("reference", 4, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
-    # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py)
-    StageDef("evaluate", 3, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+    # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by
+    # the delta method (the bootstrap understated them)
+    StageDef("evaluate", 4, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
              ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
               "reference"), timeout=7200),
 )
