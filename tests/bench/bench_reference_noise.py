@@ -129,7 +129,8 @@ def main() -> None:
                                "mean_reported_stderr": float(e.mean()),
                                "relative_spread": float(v.std(ddof=1) / abs(v.mean())),
                                "relative_reported": float(e.mean() / abs(v.mean()))}
-            print(f"{m}.{q}: mean {v.mean():.5f} spread {v.std(ddof=1):.5f} ({100 * v.std(ddof=1) / abs(v.mean()):.2f}%)"
+            rel = 100 * v.std(ddof=1) / abs(v.mean())
+            print(f"{m}.{q}: mean {v.mean():.5f} spread {v.std(ddof=1):.5f} ({rel:.2f}%)"
                   f"  reported {e.mean():.5f} ({100 * e.mean() / abs(v.mean()):.2f}%)")
     print(f"points' luminance: summed variance across references {out['summed_variance']:.4g}, "
           f"summed mean reported s² {out['summed_mean_s2']:.4g}")

@@ -141,8 +141,9 @@ class Emitters:
         uni = np.zeros((0, 3)) if uniforms is None else np.ascontiguousarray(uniforms, np.float64)
         if uni.shape not in ((0, 3), (L, 3)):
             raise ValueError(f"Emitters.irradiance: uniforms must be ({L}, 3), got {uni.shape}")
-        _nee_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(ns), pid, np.uint64(seed), int(vertex), uni, self.cdf,
-                    self.tri, self.tris, self.ngeo, self.double_sided, self.tri_pmf, self.area, tri, u, v, d, dist, w)
+        _nee_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(ns), pid, np.uint64(seed), int(vertex), uni,
+                    self.cdf, self.tri, self.tris, self.ngeo, self.double_sided, self.tri_pmf, self.area, tri, u, v, d,
+                    dist, w)
         ok = np.flatnonzero((w > 0) & (dist > 2 * eps))
         if ok.size == 0:
             return out

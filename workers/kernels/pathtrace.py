@@ -50,11 +50,14 @@ quasi-Monte Carlo sets per point (:func:`workers.kernels.path_rng.stratified_uni
 (0, 2)-nets; path j in set ``j mod G``). Every path's numbers are still uniform, so the estimate is unbiased, but
 within a set they are stratified, so the first bounce's noise drops (a square emitter seen by cosine sampling,
 32 paths: variance 2.5x lower; with emitter sampling 1.5x; test_pathtrace.py). The paths' sample variance then no
-longer measures the error (it overstates it: 2.9x in that test), so the standard error is taken from the G
-independent sets: ``s² = var(set means, ddof=1) / G``, the estimate the mean of the set means — unbiased
-(test_pathtrace.py: mean s² / variance across 4000 independent estimates 0.99-1.03), with G − 1 = 7 degrees of
-freedom per point. Deeper vertices stay plain counter-based random numbers. On two-rooms the first direction is
+longer measures the error (it overstates it: 8x in that test, 2.9x with emitter sampling), so the standard error
+is taken from the G independent sets: ``s² = var(set means, ddof=1) / G``, the estimate the mean of the set
+means — unbiased (test_pathtrace.py: mean s² / variance across 4000 independent estimates 1.00-1.03), with
+G − 1 = 7 degrees of freedom per point. Deeper vertices stay plain counter-based random numbers. On two-rooms the first direction is
 a small part of the noise (the sum of the variances 145 → 122 at 192 paths: 1.19x; its one-bounce part 26 → 13).
+With both, the reference stage's points on two-rooms (pilot, first pass, refinement; 10 seeds each,
+tests/bench/bench_reference_noise.py): summed variance 396 → 247, mean s² 393 → 249 (the standard errors
+unbiased), the per-point values unchanged (+0.08% ± 0.07%).
 
 Emitter sampling (next-event estimation, on by default): small bright emitters are found by few
 cosine-sampled rays, so at every vertex that continues (the shading point itself and vertices

@@ -17,7 +17,8 @@ from workers.kernels import metrics as MT
 from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, scene_eps
 from workers.kernels.shading import direct_irradiance
 
-__all__ = ["refine_points", "pilot_spp", "tail_guess", "PILOT_FRACTION", "DARK_FRACTION", "NOISE_TARGET", "REFINE_BUDGET", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
+__all__ = ["refine_points", "pilot_spp", "tail_guess", "PILOT_FRACTION", "DARK_FRACTION", "NOISE_TARGET",
+           "REFINE_BUDGET", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
 
 
 def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), caster=None, eps=None, spp: int = 64,

@@ -16,9 +16,10 @@ is scored at the same points, from the same cameras.
    error (:func:`workers.kernels.reference.irradiance_at_points`): ``spp`` paths per surface point, ``check_spp``
    per check-point normal (then surface points that are dark, or noisy relative to their light, get more, up
    to ``dark_spp`` in all: :func:`workers.kernels.reference.refine_points`, chosen on an independent pilot pass of
-   :func:`~workers.kernels.reference.pilot_spp` paths a point that is then discarded, so the choice does not bias
-   the values or their standard errors), ``bounces`` vertices (default :data:`DEFAULT_BOUNCES`: the converged light the light
-   stage iterates to), Russian roulette from vertex :data:`RR_DEPTH`, in batches of :data:`BATCH_POINTS` points.
+   :func:`~workers.kernels.reference.pilot_spp` paths a point, traced first, so the choice does not bias
+   the values or their standard errors; the pilot's values are also the Russian-roulette control variate of the
+   surface points' passes, :func:`~workers.kernels.reference.tail_guess`), ``bounces`` vertices
+   (default :data:`DEFAULT_BOUNCES`: the converged light the light stage iterates to), Russian roulette from vertex :data:`RR_DEPTH`, in batches of :data:`BATCH_POINTS` points.
 5. **Previews** (needs EGL; pictures only): :func:`workers.render.previews.reference_previews` for the first
    ``previews`` review cameras; without EGL skipped with the warning ``previews_unavailable``.
 
