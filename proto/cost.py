@@ -439,8 +439,9 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         # refined surface points (reference.refine_points): dark ones get dark_spp paths, 5% of the points at most
         # in the scenes measured (two-rooms 2.6%); noisy ones about the first pass again (two-rooms 1.04x,
         # zdm2 0.02x; at most REFINE_BUDGET = 1.5x)
-        # (+ the pilot that chooses them, a quarter of spp: kernels/reference.pilot_spp)
-        paths = ev.surface_points * ev.spp * (2.25 if ev.dark_spp > ev.spp else 1.0) + \
+        # (+ the pilot that chooses them and is the roulette's control variate, a quarter of spp, always run:
+        # kernels/reference.pilot_spp)
+        paths = ev.surface_points * ev.spp * (2.25 if ev.dark_spp > ev.spp else 1.25) + \
             cpn * ev.effective_check_spp() + 0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp)
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6

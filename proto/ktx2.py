@@ -22,9 +22,11 @@ Everything is little-endian as KTX requires, whatever the host.
 from __future__ import annotations
 
 import io
+import hashlib
 import math
 import os
 import struct
+from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, BinaryIO
@@ -49,6 +51,7 @@ __all__ = [
     "unpack_b10g11r11",
     "unpack_e5b9g9r9",
     "write_ktx2",
+    "zstd_frame",
 ]
 
 KTX2_IDENTIFIER = b"\xabKTX 20\xbb\r\n\x1a\n"
@@ -502,6 +505,28 @@ def _image_shape(array: np.ndarray, fmt_channels: int | None, volume: bool | Non
     return d, h, w, c
 
 
+_ZSTD_MEMO: "OrderedDict[tuple[bytes, int], bytes]" = OrderedDict()
+_ZSTD_MEMO_ENTRIES = 8
+
+
+def zstd_frame(raw: bytes, level: int) -> bytes:
+    """The Zstandard frame KTX2 supercompression stores for ``raw`` (level ``level``, content checksum on).
+
+    Deterministic, so the last :data:`_ZSTD_MEMO_ENTRIES` frames are kept by the BLAKE2b digest of their input and
+    level: a stage that reports its stored sizes (``workers.stages.compress``: the mask atlas at level 19, about
+    5 CPU seconds on zdm2) and then writes the same array pays for the compression once."""
+    key = (hashlib.blake2b(raw, digest_size=20).digest(), int(level))
+    hit = _ZSTD_MEMO.get(key)
+    if hit is not None:
+        _ZSTD_MEMO.move_to_end(key)
+        return hit
+    frame = pyzstd.compress(raw, {pyzstd.CParameter.compressionLevel: int(level), pyzstd.CParameter.checksumFlag: 1})
+    _ZSTD_MEMO[key] = frame
+    while len(_ZSTD_MEMO) > _ZSTD_MEMO_ENTRIES:
+        _ZSTD_MEMO.popitem(last=False)
+    return frame
+
+
 def encode_ktx2(array: np.ndarray, vk_format: int | str | None = None, zstd_level: int | None = None,
                 kv: dict[str, str] | None = None, *, volume: bool | None = None) -> bytes:
     """The bytes of a KTX2 file holding ``array`` (see :func:`write_ktx2`)."""
@@ -529,8 +554,7 @@ def encode_ktx2(array: np.ndarray, vk_format: int | str | None = None, zstd_leve
         scheme, level_data = SUPERCOMPRESSION_NONE, raw
     else:
         scheme = SUPERCOMPRESSION_ZSTD
-        level_data = pyzstd.compress(raw, {pyzstd.CParameter.compressionLevel: zstd_level,
-                                           pyzstd.CParameter.checksumFlag: 1})
+        level_data = zstd_frame(raw, zstd_level)
 
     dfd = build_dfd(fmt)
     kvd = _encode_kvd(entries)

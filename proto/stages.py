@@ -66,12 +66,15 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("prt", 3, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones; 3: which points are
-    # refined is chosen on an independent pilot pass (the choice on the first pass biased values and errors low)
-    StageDef("reference", 3, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
+    # refined is chosen on an independent pilot pass (the choice on the first pass biased values and errors low);
+    # 4: stratified first directions with replicate standard errors, the pilot's Russian-roulette control variate
+    # (workers/kernels/pathtrace.py)
+    StageDef("reference", 4, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
-    # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py)
-    StageDef("evaluate", 3, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+    # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by
+    # the delta method (the bootstrap understated them)
+    StageDef("evaluate", 4, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
              ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
               "reference"), timeout=7200),
 )

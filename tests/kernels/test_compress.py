@@ -375,9 +375,12 @@ def test_stage_run_compress(two):
     ind, atlas = arts["mask_indirection"].data, arts["mask_atlas"].data
     assert ind.shape == (2 * (K // 4) * 4, 3, 6, 4) and ind.dtype == np.uint8
     assert atlas.dtype == np.uint8 and atlas.ndim == 4 and atlas.shape[3] == 1 and arts["mask_atlas"].meta == meta
+    stored = 0
     for x in (atlas, ind):
-        back, _ = decode_ktx2(encode_ktx2(x, zstd_level=19))               # R8 / RGBA8 3D KTX2
+        back, info = decode_ktx2(encode_ktx2(x, zstd_level=19))            # R8 / RGBA8 3D KTX2
         np.testing.assert_array_equal(back.reshape(x.shape), x)
+        stored += info["byte_length"]
+    assert st["compressed_zstd_bytes"] == stored      # the stats' sizes are the frames the artifacts store
     for got, want in zip(decompress_channels(atlas, ind, meta), vols.values()):
         np.testing.assert_array_equal(got, want)
     import json

@@ -128,3 +128,49 @@ def test_noise_bias_is_removed_from_the_squared_errors():
     assert PM.point_metrics(test, truth, d, a, e, k, err=np.zeros_like(s)) == exact
     with_se = PM.metrics_with_stderr(test, noisy, s, d, a, e, exposure=k)
     assert with_se["indirect_relative_rmse"] == fixed["indirect_relative_rmse"]
+
+
+def test_debiased_rmse_standard_errors_match_their_spread():
+    """The regime of an accurate mode (5% off) against a reference whose noise (10%) is larger than the error: many
+    references drawn around one truth, each point's value the mean of NOISE_DOF + 1 independent sets and its
+    standard error their spread (as the path tracer's). The reported standard errors of rmse and
+    indirect_relative_rmse match the spread of the values across the references (within 20%; 150 draws: ±6%
+    sampling noise). The parametric bootstrap around the noisy reference — what they were before — reads 0.6-0.8 of
+    the spread (its replicas add their noise on top of the reference's, where the square root is flatter)."""
+    rng = np.random.default_rng(11)
+    n, G, draws = 2000, PM.NOISE_DOF + 1, 150
+    truth = rng.gamma(2.0, 1.0, (n, 1)) * np.array([1.0, 0.9, 0.8])
+    test = truth * rng.normal(1.0, 0.05, (n, 1))
+    sigma = 0.1 * truth
+    d, a, e = rng.uniform(0, 3, (n, 3)), np.full((n, 3), 0.5), np.zeros((n, 3))
+    k = MT.exposure_for(PM.radiance(d, truth, a, e).reshape(-1, 1, 3))
+    vals, errs, boot = ({m: [] for m in ("rmse", "indirect_relative_rmse")} for _ in range(3))
+    for i in range(draws):
+        sets = truth[:, None] + sigma[:, None] * np.sqrt(G) * rng.standard_normal((n, G, 1))
+        ref, s = sets.mean(axis=1), np.sqrt(sets.var(axis=1, ddof=1) / G)
+        r = PM.metrics_with_stderr(test, ref, s, d, a, e, exposure=k, replicas=32, seed=i)
+        noise = PM._noise_variance(ref, s, d, a, e, k)
+        reps = PM._metrics_batch(test, PM._replicas(ref, s, 32, i), d, a, e, k, noise=noise)
+        for m in vals:
+            vals[m].append(r[m])
+            errs[m].append(r[f"{m}_stderr"])
+            boot[m].append(np.std(reps[m], ddof=1))
+    for m in vals:
+        spread = np.std(vals[m], ddof=1)
+        assert 0.8 < np.mean(errs[m]) / spread < 1.2, (m, np.mean(errs[m]), spread)
+        assert np.mean(boot[m]) / spread < 0.85, (m, np.mean(boot[m]), spread)
+
+
+def test_debiased_rmse_stderr_near_zero_and_without_noise():
+    """No noise: 0. An rmse near 0 (the test equal to the truth): the fourth root of the variance, not a delta
+    method that divides by 0."""
+    u = np.full((100, 3), 0.1)
+    assert PM._debiased_rmse_stderr(np.ones((100, 3)), np.zeros((100, 3)), 1.0) == 0.0
+    v = PM._debiased_rmse_stderr(0.1 * np.ones((100, 3)), u, 0.0)
+    assert 0 < v < 1 and np.isfinite(v)
+
+
+def test_noise_dof_is_the_path_tracers():
+    from workers.kernels.pathtrace import REPLICATES
+
+    assert PM.NOISE_DOF == REPLICATES - 1

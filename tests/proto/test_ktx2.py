@@ -578,3 +578,21 @@ def test_libktx_loads_files(tmp_path):
     r = subprocess.run(["node", str(script), str(Path(root).resolve()), *map(str, files)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip().endswith("OK"), r.stdout + r.stderr
+
+
+def test_zstd_frame_is_kept_and_identical_to_a_fresh_compression():
+    """proto.ktx2.zstd_frame keeps recent frames (a stage reports stored sizes, then writes the same array): the
+    kept frame is byte-identical to compressing anew, decodes to the input, and differs per level."""
+    import pyzstd
+
+    from proto import ktx2
+
+    raw = np.random.default_rng(3).integers(0, 4, 200_000, dtype=np.uint8).tobytes()
+    fresh = pyzstd.compress(raw, {pyzstd.CParameter.compressionLevel: 19, pyzstd.CParameter.checksumFlag: 1})
+    first = ktx2.zstd_frame(raw, 19)
+    assert first == fresh and pyzstd.decompress(first) == raw
+    assert ktx2.zstd_frame(bytes(raw), 19) is first                         # an equal input: the kept frame
+    assert ktx2.zstd_frame(raw, 3) != first and pyzstd.decompress(ktx2.zstd_frame(raw, 3)) == raw
+    for i in range(ktx2._ZSTD_MEMO_ENTRIES + 1):                            # bounded: the oldest frames go
+        ktx2.zstd_frame(raw + bytes([i]), 1)
+    assert len(ktx2._ZSTD_MEMO) == ktx2._ZSTD_MEMO_ENTRIES

@@ -24,15 +24,17 @@ __all__ = ["Emitters"]
 
 
 @numba.njit(cache=True, nogil=True)
-def _nee_kernel(pos, ns, pid, seed, vertex, cdf, em_tri, tris, ngeo, dsided, tri_pmf, area,
+def _nee_kernel(pos, ns, pid, seed, vertex, uni, cdf, em_tri, tris, ngeo, dsided, tri_pmf, area,
                 out_tri, out_u, out_v, out_dir, out_dist, out_w):
     """Pick an emissive triangle (pmf ∝ area × max emissive factor) and a uniform point on it per shading
     point; out_w = cos θ · w_light / p_light (solid-angle pdf, power heuristic against the cosine pdf),
-    0 when the point is behind the shading point or sees the back of a single-sided emitter."""
+    0 when the point is behind the shading point or sees the back of a single-sided emitter. The uniforms:
+    ``uni`` (L, 3) when it has L rows (the pick, the point's two), else dimensions 3, 4, 5 of (seed, pid, vertex)."""
     n_em = em_tri.shape[0]
+    given = uni.shape[0] == pos.shape[0]
     for i in range(pos.shape[0]):
         out_w[i] = 0.0
-        xi = _uniform(seed, pid[i], vertex, 3)
+        xi = uni[i, 0] if given else _uniform(seed, pid[i], vertex, 3)
         lo, hi = 0, n_em - 1
         while lo < hi:  # first cdf entry > xi
             mid = (lo + hi) // 2
@@ -41,8 +43,8 @@ def _nee_kernel(pos, ns, pid, seed, vertex, cdf, em_tri, tris, ngeo, dsided, tri
             else:
                 lo = mid + 1
         t = em_tri[lo]
-        su = math.sqrt(_uniform(seed, pid[i], vertex, 4))
-        u = _uniform(seed, pid[i], vertex, 5) * su
+        su = math.sqrt(uni[i, 1] if given else _uniform(seed, pid[i], vertex, 4))
+        u = (uni[i, 2] if given else _uniform(seed, pid[i], vertex, 5)) * su
         b0 = 1.0 - su
         v = 1.0 - b0 - u
         out_tri[i] = t
@@ -122,8 +124,10 @@ class Emitters:
             w[e] = p_b * p_b / (p_b * p_b + p_l * p_l)
         return w
 
-    def irradiance(self, scene, caster, pos, ns, ng, pid, seed, vertex, eps) -> np.ndarray:
-        """(L, 3) MIS-weighted one-sample estimate of the emitted irradiance arriving at the points."""
+    def irradiance(self, scene, caster, pos, ns, ng, pid, seed, vertex, eps, uniforms=None) -> np.ndarray:
+        """(L, 3) MIS-weighted one-sample estimate of the emitted irradiance arriving at the points. ``uniforms``
+        (L, 3) in [0, 1): the emitter pick and the point on it (e.g. stratified); default: the counter-based
+        dimensions 3, 4, 5 of (seed, pid, vertex) (:mod:`workers.kernels.path_rng`)."""
         L = pos.shape[0]
         out = np.zeros((L, 3))
         if L == 0:
@@ -134,8 +138,12 @@ class Emitters:
         d = np.zeros((L, 3))
         dist = np.zeros(L)
         w = np.empty(L)
-        _nee_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(ns), pid, np.uint64(seed), int(vertex), self.cdf,
-                    self.tri, self.tris, self.ngeo, self.double_sided, self.tri_pmf, self.area, tri, u, v, d, dist, w)
+        uni = np.zeros((0, 3)) if uniforms is None else np.ascontiguousarray(uniforms, np.float64)
+        if uni.shape not in ((0, 3), (L, 3)):
+            raise ValueError(f"Emitters.irradiance: uniforms must be ({L}, 3), got {uni.shape}")
+        _nee_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(ns), pid, np.uint64(seed), int(vertex), uni,
+                    self.cdf, self.tri, self.tris, self.ngeo, self.double_sided, self.tri_pmf, self.area, tri, u, v, d,
+                    dist, w)
         ok = np.flatnonzero((w > 0) & (dist > 2 * eps))
         if ok.size == 0:
             return out

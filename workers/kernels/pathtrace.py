@@ -31,6 +31,35 @@ after ``bounces`` vertices, so the estimate converges to the ``bounces``-bounce 
 Russian roulette (from vertex ``rr_depth`` on, survival ``q = min(0.95, max_c throughput)``,
 throughput divided by q) is unbiased with respect to that truncation.
 
+Russian roulette with a control variate (``tail``): a killed path loses everything it would have gathered
+after the vertex, and survivors carry it 1/q times, which in a closed, bright room (albedo ~0.7, half the light
+after the third bounce) made roulette the largest noise of the reference: two-rooms, 384 surface points, 12
+bounces, variance of the luminance estimates summed over the points 104 with roulette from vertex 3, 44 without
+(at 2.6x the vertices). With a guess G of the radiance a continuing path gathers per unit throughput (fixed before
+the path is traced, e.g. E_indirect/π of the point from an independent pilot pass), the roulette at throughput t
+(after the vertex's albedo) is played on the difference from the guess: a killed path adds ``t·G``, a survivor
+adds ``t·G·(1 − 1/q)`` and continues with ``t/q``. In expectation ``(1 − q)·t·G + q·(t·G(1 − 1/q) + t·μ/q) =
+t·μ`` (μ the true gathered radiance), whatever G: unbiased; where G ≈ μ both branches add about ``t·μ``, so the
+roulette's noise goes (closed furnace with the exact G: the estimate exact, test_pathtrace.py). Two-rooms, 384
+points, 64 bounces, 192 paths: summed variance 122 → 77 with G from a 48-path pilot (a global G: 86; the mean
+future measured on the pilot's own paths per point: 80, no better; a guess per vertex, the pilot points' mean in
+the vertex's 0.5-2 m cell and normal octant: 72-73, not kept).
+
+Stratified first directions: the first direction of a point's paths (dimensions 0, 1 at vertex 0) and its
+emitter sample (dimensions 3-5) come from ``replicates`` (G, :data:`REPLICATES`) independent randomized
+quasi-Monte Carlo sets per point (:func:`workers.kernels.path_rng.stratified_uniforms`: Owen-scrambled Sobol
+(0, 2)-nets; path j in set ``j mod G``). Every path's numbers are still uniform, so the estimate is unbiased, but
+within a set they are stratified, so the first bounce's noise drops (a square emitter seen by cosine sampling,
+32 paths: variance 2.5x lower; with emitter sampling 1.5x; test_pathtrace.py). The paths' sample variance then no
+longer measures the error (it overstates it: 8x in that test, 2.9x with emitter sampling), so the standard error
+is taken from the G independent sets: ``s² = var(set means, ddof=1) / G``, the estimate the mean of the set
+means — unbiased (test_pathtrace.py: mean s² / variance across 4000 independent estimates 1.00-1.03), with
+G − 1 = 7 degrees of freedom per point. Deeper vertices stay plain counter-based random numbers. On two-rooms the first direction is
+a small part of the noise (the sum of the variances 145 → 122 at 192 paths: 1.19x; its one-bounce part 26 → 13).
+With both, the reference stage's points on two-rooms (pilot, first pass, refinement; 10 seeds each,
+tests/bench/bench_reference_noise.py): summed variance 396 → 247, mean s² 393 → 249 (the standard errors
+unbiased), the per-point values unchanged (+0.08% ± 0.07%).
+
 Emitter sampling (next-event estimation, on by default): small bright emitters are found by few
 cosine-sampled rays, so at every vertex that continues (the shading point itself and vertices
 k < ``bounces``) one emissive triangle is also picked (pmf ∝ area × max emissive factor), a uniform point
@@ -50,8 +79,9 @@ bounce at a time: one ``intersect`` call for every live path, surface attributes
 new directions. Rays go through :class:`workers.raycast.RayCaster` (2 threads).
 
 Randomness is counter-based: the uniform numbers of path p = point·spp + sample at vertex k are
-a hash (splitmix64) of (seed, p, k, dimension), so a point's estimate depends only on the seed, the
-settings and its index in the input — never on chunking, thread count or the other points.
+a hash (splitmix64) of (seed, p, k, dimension) — the stratified first ones a hash-keyed scramble of (seed, point,
+set) — so a point's estimate depends only on the seed, the settings and its index in the input — never on
+chunking, thread count or the other points.
 
 Secondary rays start at ``y + eps·n_geo`` (the geometric normal on the side the path arrived from);
 directions are cosine-distributed about the shading normal, and a direction below the geometric
@@ -75,12 +105,15 @@ import numpy as np
 
 from workers.kernels.emitters import Emitters
 from workers.kernels.materials import double_sided_triangles
-from workers.kernels.path_rng import _cosine_sample, _uniform, cosine_directions
+from workers.kernels.path_rng import _cosine_sample, _uniform, first_cosine_directions, stratified_uniforms
 from workers.kernels.shading import direct_irradiance, surface_at_hits
 
-__all__ = ["PathTraceResult", "indirect_irradiance", "scene_eps", "DEFAULT_MAX_PATHS"]
+__all__ = ["PathTraceResult", "indirect_irradiance", "scene_eps", "DEFAULT_MAX_PATHS", "REPLICATES"]
 
 DEFAULT_MAX_PATHS = 1 << 18  # paths per wavefront chunk: bounds memory (~0.5 KB per path in flight)
+REPLICATES = 8
+"""Independent randomized nets of first directions per point (module doc, "Stratified first directions"): the
+standard error comes from the spread of their means."""
 
 
 def scene_eps(scene) -> float:
@@ -115,7 +148,8 @@ def _unit_rows(a: np.ndarray) -> np.ndarray:
 @dataclass
 class PathTraceResult:
     """``irradiance`` (N, 3) float32: E_indirect per point; ``stderr`` (N, 3) float32: the standard error
-    of each estimate (sample std / √spp); ``stats``: rays traced, timings, settings."""
+    of each estimate (the spread of its G replicates' means: ``sqrt(var(means, ddof=1) / G)``, module doc);
+    ``stats``: rays traced, timings, settings."""
 
     irradiance: np.ndarray
     stderr: np.ndarray
@@ -125,7 +159,8 @@ class PathTraceResult:
 def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0), spp: int = 64,
                         bounces: int = 4, seed: int = 0, rr_depth: int | None = None, caster=None,
                         eps: float | None = None, geo_normals=None, max_paths: int = DEFAULT_MAX_PATHS,
-                        emitter_sampling: bool = True, report=None) -> PathTraceResult:
+                        emitter_sampling: bool = True, replicates: int = REPLICATES, tail=None,
+                        report=None) -> PathTraceResult:
     """Path-traced indirect irradiance (see the module doc) at N points.
 
     Parameters
@@ -158,6 +193,15 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     emitter_sampling : bool
         Next-event estimation of emissive triangles with multiple importance sampling (see the module
         doc). Same expectation either way; far less noise where small emitters light the scene.
+    replicates : int
+        G, independent stratified sets of first directions per point (module doc); at most ``spp``. The
+        estimate is the mean of their means, its standard error their spread. 1: plain stratified paths with the
+        paths' sample standard error (an overestimate of the error under stratification).
+    tail : (N, 3) float, optional
+        Per point, the control variate of Russian roulette (module doc, "Russian roulette with a control
+        variate"): a guess of the radiance a continuing path gathers per unit throughput, linear RGB, e.g.
+        E_indirect/π of an independent pilot pass (:func:`workers.kernels.reference.tail_guess`). Any values keep
+        the estimate unbiased; good ones cut the noise Russian roulette adds. Default 0 (plain roulette).
     report : callable(fraction), optional
         Progress callback.
 
@@ -177,6 +221,8 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     spp, bounces = int(spp), int(bounces)
     if spp < 1 or bounces < 1:
         raise ValueError(f"indirect_irradiance: spp and bounces must be >= 1, got {spp}, {bounces}")
+    if int(replicates) < 1:
+        raise ValueError(f"indirect_irradiance: replicates must be >= 1, got {replicates}")
     if rr_depth is not None and int(rr_depth) < 1:
         raise ValueError(f"indirect_irradiance: rr_depth must be >= 1 or None, got {rr_depth}")
     if not (np.isfinite(pts).all() and np.isfinite(nrm).all() and np.isfinite(geo).all()):
@@ -193,18 +239,27 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     m2 = np.zeros((n, 3), np.float64)
     tri_ds = double_sided_triangles(scene) if scene.n_triangles else np.zeros(1, bool)
     emitters = Emitters(scene) if emitter_sampling else None
-    stats = {"paths": n * spp, "below_surface": 0, "backface_ends": 0, "rr_kills": 0, "vertices": 0,
+    G = min(int(replicates), spp)
+    tail_r = np.zeros((n, 3)) if tail is None else np.ascontiguousarray(tail, np.float64)
+    if tail_r.shape != (n, 3) or not np.isfinite(tail_r).all():
+        raise ValueError(f"indirect_irradiance: tail must be finite (N, 3) = ({n}, 3), got {tail_r.shape}")
+    stats = {"paths": n * spp, "replicates": G, "below_surface": 0, "backface_ends": 0, "rr_kills": 0, "vertices": 0,
              "emitters": int(emitters.tri.size) if emitters is not None else 0}
     t0 = time.perf_counter()
     per_chunk = max(1, int(max_paths) // spp)
     for s in range(0, n, per_chunk):
         e = min(n, s + per_chunk)
         acc = _trace_chunk(scene, cc, pts[s:e], nrm[s:e], geo[s:e], np.arange(s, e, dtype=np.uint64), lights, sky,
-                           spp, bounces, seed, rr_depth, eps, stats, tri_ds, emitters)  # (m, spp, 3)
+                           spp, G, bounces, seed, rr_depth, eps, stats, tri_ds, emitters, tail_r[s:e])  # (m, spp, 3)
         est = math.pi * acc
-        mean[s:e] = est.mean(axis=1)
-        if spp > 1:
-            m2[s:e] = est.var(axis=1, ddof=1)
+        if G > 1:      # sample j in replicate j mod G; the replicates are independent, their means unbiased
+            reps = np.stack([est[:, g::G].mean(axis=1) for g in range(G)], axis=1)      # (m, G, 3)
+            mean[s:e] = reps.mean(axis=1)
+            m2[s:e] = reps.var(axis=1, ddof=1) / G        # var of the mean of G means
+        else:
+            mean[s:e] = est.mean(axis=1)
+            if spp > 1:
+                m2[s:e] = est.var(axis=1, ddof=1) / spp
         if report is not None:
             report(e / n)
     seconds = time.perf_counter() - t0
@@ -212,7 +267,7 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     stats.update({"spp": spp, "bounces": bounces, "seed": int(seed), "rr_depth": rr_depth, "eps": eps,
                   "intersect_rays": cc.intersect_rays, "shadow_rays": cc.occluded_rays, "rays": rays,
                   "seconds": seconds, "rays_per_second": rays / seconds if seconds > 0 else 0.0})
-    stderr = np.sqrt(m2 / spp)
+    stderr = np.sqrt(m2)
     return PathTraceResult(irradiance=mean.astype(np.float32), stderr=stderr.astype(np.float32), stats=stats)
 
 
@@ -231,7 +286,7 @@ def _hit_frames(d, o, t, ns, ng, pos_out, ns_out, ng_out):
 
 
 @numba.njit(cache=True, nogil=True)
-def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emission, e_in, ns, ng, pos, eps,
+def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emission, e_in, ns, ng, pos, eps, tail,
                    acc, keep, new_o, new_d, new_cos, counts):
     """Add each live vertex's radiance ``thr · (emission + albedo/π · e_in)`` to its path, then continue the
     path (throughput × albedo, Russian roulette, a cosine direction about ns above the geometric surface).
@@ -254,9 +309,17 @@ def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emissi
             continue
         if rr_depth > 0 and vertex >= rr_depth:
             q = min(0.95, tmax)
+            g0, g1, g2 = tail[j, 0], tail[j, 1], tail[j, 2]
             if _uniform(seed, pid[i], vertex, 2) >= q:
                 counts[0] += 1
+                acc[j, 0] += t0 * g0         # the control variate in place of the killed tail
+                acc[j, 1] += t1 * g1
+                acc[j, 2] += t2 * g2
                 continue
+            f = 1.0 - 1.0 / q
+            acc[j, 0] += t0 * g0 * f
+            acc[j, 1] += t1 * g1 * f
+            acc[j, 2] += t2 * g2 * f
             t0 /= q
             t1 /= q
             t2 /= q
@@ -278,8 +341,8 @@ def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emissi
 
 
 
-def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, bounces, seed, rr_depth, eps, stats,
-                 tri_double_sided, emitters):
+def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, replicates, bounces, seed, rr_depth, eps,
+                 stats, tri_double_sided, emitters, tail):
     m = pts.shape[0]
     total = m * spp
     acc = np.zeros((total, 3), np.float64)
@@ -289,12 +352,16 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, boun
     g0 = geo[owner]
     lit = np.any(n0 != 0, axis=1)
     nee = emitters is not None and bool(emitters)
+    point_of, sample_of = np.repeat(point_ids, spp), np.tile(np.arange(spp), m)
     if nee:  # emitted light reaching the shading point itself: E = π · acc, so add E_nee / π
         first = np.flatnonzero(lit)
+        # its emitter sample stratified too (padded pairs 1 and 2 of the point's nets: the point on the triangle,
+        # the pick)
+        uni = np.concatenate([stratified_uniforms(seed, point_of[first], sample_of[first], spp, replicates, 2)[:, :1],
+                              stratified_uniforms(seed, point_of[first], sample_of[first], spp, replicates, 1)], axis=1)
         acc[first] += emitters.irradiance(scene, caster, pts[owner[first]], n0[first], g0[first], path_ids[first],
-                                          seed, 0, eps) / math.pi
-    dirs = cosine_directions(n0, seed, path_ids, 0)
-    cos0 = np.einsum("ij,ij->i", dirs, n0)
+                                          seed, 0, eps, uniforms=uni) / math.pi
+    dirs, cos0 = first_cosine_directions(n0, seed, point_of, sample_of, spp, replicates)   # stratified (module doc)
     ok = (np.einsum("ij,ij->i", dirs, g0) > 0) & lit
     stats["below_surface"] += int((~ok & lit).sum())
     alive = np.flatnonzero(ok)
@@ -302,6 +369,7 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, boun
     dirs = dirs[alive]
     prev_cos = cos0[alive]
     thr = np.ones((alive.size, 3), np.float64)
+    tail = np.repeat(np.ascontiguousarray(tail, np.float64), spp, axis=0)      # per path
     sky_on = bool(np.any(sky != 0))
     counts = np.zeros(2, np.int64)
     rr = 0 if rr_depth is None else int(rr_depth)
@@ -341,7 +409,7 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, boun
         new_d = np.empty((L, 3))
         new_cos = np.empty(L)
         _shade_scatter(k, k == bounces, rr, np.uint64(seed), pid, alive[idx], t, s["albedo"].astype(np.float64),
-                       emission, e_in, ns, ng, pos, float(eps), acc, keep, new_o, new_d, new_cos, counts)
+                       emission, e_in, ns, ng, pos, float(eps), tail, acc, keep, new_o, new_d, new_cos, counts)
         if k == bounces:
             break
         alive = alive[idx[keep]]

@@ -17,7 +17,8 @@ from workers.kernels import metrics as MT
 from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, scene_eps
 from workers.kernels.shading import direct_irradiance
 
-__all__ = ["refine_points", "pilot_spp", "PILOT_FRACTION", "DARK_FRACTION", "NOISE_TARGET", "REFINE_BUDGET", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
+__all__ = ["refine_points", "pilot_spp", "tail_guess", "PILOT_FRACTION", "DARK_FRACTION", "NOISE_TARGET",
+           "REFINE_BUDGET", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
 
 
 def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), caster=None, eps=None, spp: int = 64,
@@ -67,15 +68,16 @@ def exitant_radiance(gbuffer, e_direct, e_indirect) -> np.ndarray:
 
 def irradiance_at_points(scene, points, normals, geo_normals, lights=(), *, sky=(0.0, 0.0, 0.0), spp: int = 64,
                          bounces: int = 4, seed: int = 0, rr_depth: int | None = None, caster=None, eps=None,
-                         batch_points: int = 256, report=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+                         batch_points: int = 256, tail=None,
+                         report=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Direct irradiance, path-traced indirect irradiance and its standard error at N points.
 
     Parameters
     ----------
     points, normals, geo_normals : (N, 3) float
         World-space points (metres), unit shading normals and geometric normals on the lit side.
-    lights, sky, spp, bounces, seed, rr_depth, caster, eps
-        As :func:`workers.kernels.pathtrace.indirect_irradiance`.
+    lights, sky, spp, bounces, seed, rr_depth, caster, eps, tail
+        As :func:`workers.kernels.pathtrace.indirect_irradiance` (``tail``: e.g. :func:`tail_guess` of a pilot).
     batch_points : int
         Points per wavefront chunk (``batch_points × spp`` paths, at most
         :data:`workers.kernels.pathtrace.DEFAULT_MAX_PATHS`); the result does not depend on it.
@@ -104,13 +106,20 @@ def irradiance_at_points(scene, points, normals, geo_normals, lights=(), *, sky=
     stats = {"rays": 0, "seconds": 0.0, "batches": 0}
     res = indirect_irradiance(scene, points, normals, lights, sky=sky, spp=spp, bounces=bounces, seed=seed,
                               rr_depth=rr_depth, caster=caster, eps=eps, geo_normals=geo_normals,
-                              max_paths=min(batch_points * spp, DEFAULT_MAX_PATHS), report=report)
+                              max_paths=min(batch_points * spp, DEFAULT_MAX_PATHS), tail=tail, report=report)
     e_ind[:] = res.irradiance
     err[:] = res.stderr
     stats.update(rays=int(res.stats["rays"]), seconds=float(res.stats["seconds"]),
                  batches=int(math.ceil(n / batch_points)), rr_kills=int(res.stats["rr_kills"]),
                  vertices=int(res.stats["vertices"]), below_surface=int(res.stats["below_surface"]))
     return e_dir, e_ind, err, stats
+
+
+def tail_guess(e_indirect) -> np.ndarray:
+    """(N, 3) the Russian-roulette control variate of :func:`workers.kernels.pathtrace.indirect_irradiance`
+    (``tail``) from an independent estimate of the points' indirect irradiance (a pilot pass): ``E/π``, the mean
+    radiance a continuing path gathers per unit throughput where the light around it is the point's own."""
+    return np.maximum(np.asarray(e_indirect, np.float64), 0.0) / math.pi
 
 
 DARK_FRACTION = 2 * MT.LEAK_TAU

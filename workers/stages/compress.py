@@ -24,11 +24,13 @@ import time
 import numpy as np
 import pyzstd
 
+from proto.ktx2 import zstd_frame
 from workers.kernels.compress import lookup_blend, mask_lookups, texture_linear
 from workers.kernels.mask_atlas import compress_channels, sample_channel_atlas
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput, samples_per_cell
 
-ZSTD_LEVEL = 19      # small volumes (≤ a few MB): the best ratio costs well under a second
+ZSTD_LEVEL = 19      # the best ratio: level 12 stores 20% more on zdm2 (4.4 MB atlas: 499 KB at 19, 596 KB at 12)
+                    # for ~5 CPU s, paid once (the stats' sizes are the stored frames, proto.ktx2.zstd_frame)
 ERROR_POINTS = 10000
 VOLUMES = ("0123", "4567")
 
@@ -74,8 +76,9 @@ def run_compress(ctx: StageContext) -> StageOutput:
     read_err, err = lookup_error(vols, ca, place, ctx.config.seed)
     t2 = time.perf_counter()
     dense_z = sum(len(pyzstd.compress(v.tobytes(), 3)) for v in vols)          # for comparison only: level 3
-    atlas_z = len(pyzstd.compress(ca.atlas.tobytes(), ZSTD_LEVEL))
-    ind_z = len(pyzstd.compress(ca.indirection.tobytes(), ZSTD_LEVEL))
+    # the frames the artifacts store (proto.ktx2.zstd_frame keeps them: writing them below does not compress again)
+    atlas_z = len(zstd_frame(np.ascontiguousarray(ca.atlas).tobytes(), ZSTD_LEVEL))
+    ind_z = len(zstd_frame(np.ascontiguousarray(ca.indirection).tobytes(), ZSTD_LEVEL))
     ctx.report(1.0)
     stats = {
         **ca.stats,

@@ -16,9 +16,10 @@ is scored at the same points, from the same cameras.
    error (:func:`workers.kernels.reference.irradiance_at_points`): ``spp`` paths per surface point, ``check_spp``
    per check-point normal (then surface points that are dark, or noisy relative to their light, get more, up
    to ``dark_spp`` in all: :func:`workers.kernels.reference.refine_points`, chosen on an independent pilot pass of
-   :func:`~workers.kernels.reference.pilot_spp` paths a point that is then discarded, so the choice does not bias
-   the values or their standard errors), ``bounces`` vertices (default :data:`DEFAULT_BOUNCES`: the converged light the light
-   stage iterates to), Russian roulette from vertex :data:`RR_DEPTH`, in batches of :data:`BATCH_POINTS` points.
+   :func:`~workers.kernels.reference.pilot_spp` paths a point, traced first, so the choice does not bias
+   the values or their standard errors; the pilot's values are also the Russian-roulette control variate of the
+   surface points' passes, :func:`~workers.kernels.reference.tail_guess`), ``bounces`` vertices
+   (default :data:`DEFAULT_BOUNCES`: the converged light the light stage iterates to), Russian roulette from vertex :data:`RR_DEPTH`, in batches of :data:`BATCH_POINTS` points.
 5. **Previews** (needs EGL; pictures only): :func:`workers.render.previews.reference_previews` for the first
    ``previews`` review cameras; without EGL skipped with the warning ``previews_unavailable``.
 
@@ -36,7 +37,7 @@ import time
 import numpy as np
 
 from workers.kernels.pathtrace import scene_eps
-from workers.kernels.reference import irradiance_at_points, pilot_spp, refine_points
+from workers.kernels.reference import irradiance_at_points, pilot_spp, refine_points, tail_guess
 from workers.kernels.reference_layout import GBUFFER_CHANNELS, POINT_COLUMNS, point_table
 from workers.kernels.surface_points import check_point_set, surface_point_set
 from workers.raycast import caster_for_scene
@@ -98,24 +99,26 @@ def run_reference(ctx: StageContext) -> StageOutput:
     work = _Work(ctx.report, 1.02 * paths)
     work.part(0.02 * paths)(1.0)                 # cameras and sampling
 
-    def trace(points, normals, geo, spp, seed_, part):
+    def trace(points, normals, geo, spp, seed_, part, tail=None):
         t = time.perf_counter()
         out = irradiance_at_points(scene, points, normals, geo, lights, sky=sky, spp=spp, bounces=s["bounces"],
                                    seed=seed_, rr_depth=rr, caster=caster, eps=eps, batch_points=BATCH_POINTS,
-                                   report=work.part(part))
+                                   tail=tail, report=work.part(part))
         return out, time.perf_counter() - t
 
-    (e_dir, e_ind, err, pt_stats), timings["surface_points_s"] = trace(
-        sp["position"], sp["normal"], sp["geo_normal"], s["spp"], seed, n_sp * s["spp"])
+    # an independent pilot pass first: its values are the Russian-roulette control variate of the passes below, and
+    # which points get more paths is chosen on it (refine_points)
     t0 = time.perf_counter()
-    pilot = None
-    if s["dark_spp"] > s["spp"]:   # which points get more paths is chosen on an independent pilot (refine_points)
-        n_pilot = pilot_spp(s["spp"])
-        (_, p_ind, p_err, _), _ = trace(sp["position"], sp["normal"], sp["geo_normal"], n_pilot, seed + 0x30000, 0)
-        pilot = (p_ind, p_err, n_pilot)
-    timings["pilot_s"], t0 = time.perf_counter() - t0, time.perf_counter()
+    n_pilot = pilot_spp(s["spp"])
+    (_, p_ind, p_err, _), _ = trace(sp["position"], sp["normal"], sp["geo_normal"], n_pilot, seed + 0x30000, 0)
+    pilot, tail = (p_ind, p_err, n_pilot), tail_guess(p_ind)
+    timings["pilot_s"] = time.perf_counter() - t0
+    (e_dir, e_ind, err, pt_stats), timings["surface_points_s"] = trace(
+        sp["position"], sp["normal"], sp["geo_normal"], s["spp"], seed, n_sp * s["spp"], tail)
+    t0 = time.perf_counter()
     e_ind, err, paths_per_point = refine_points(
-        lambda i, n: trace(sp["position"][i], sp["normal"][i], sp["geo_normal"][i], n, seed + 0x20000 + n, 0)[0][1:3],
+        lambda i, n: trace(sp["position"][i], sp["normal"][i], sp["geo_normal"][i], n, seed + 0x20000 + n, 0,
+                           tail[i])[0][1:3],
         e_dir, e_ind, err, s["spp"], s["dark_spp"], pilot=pilot)
     refined = int((paths_per_point > s["spp"]).sum())
     timings["refine_s"] = time.perf_counter() - t0
@@ -154,7 +157,7 @@ def run_reference(ctx: StageContext) -> StageOutput:
     stats = {"enabled": True, "cameras": [camera_record(c) for c in cams], "camera_source": source,
              "sampling": sampling, "surface_points": int(n_sp), "check_points": int(P), "normals_per_check_point":
              int(D), "spp": s["spp"], "check_spp": s["check_spp"], "dark_spp": s["dark_spp"], "refined_points": refined,
-             "pilot_spp": pilot[2] if pilot else 0,
+             "pilot_spp": pilot[2] if n_sp else 0,
              "paths": int(paths_per_point.sum()),
              "preview_spp": s["preview_spp"],
              "bounces": s["bounces"], "rr_depth": rr, "previews": names, "surface": dict(sp["stats"]),
