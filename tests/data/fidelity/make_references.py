@@ -51,6 +51,29 @@ leaves it without a material (Cycles' grey 0.8), so Cycles gets a 0.5 Lambert: t
 pipeline at Kiln's albedo, not Kiln's diffuse approximation of a rough metal. No ``probes`` region there
 (``probe_boxes`` empty). Made with ``--scenes zdm2 --samples 16384 --seeds 0,1,2,3 --direct-samples 4096``
 (300 receivers; about 2 minutes of Cycles per seed on 2 cores).
+
+``cornell-mcguire`` and ``cornell-vinc3r`` are the two real Cornell boxes of ``../shared/scenes``, baked with NOTHING
+added (``config`` {}): their own lights, as a new user exports them (McGuire's CornellBox-Original: one
+KHR_lights_punctual point light and an emissive quad; Vinc3r's Blender 2.80 box: an emissive ceiling lamp, textures).
+Both are ``.gltf`` files with their buffers and images beside them: Cycles gets them as one GLB
+(:func:`workers.gltf.pack.embed_glb`, deterministic: its SHA-256 is the points' ``glb_sha256``), Kiln's checks here
+ingest that GLB and the bench the zip ``kiln bake scene.gltf`` sends (the same scene, tests/workers/gltf/test_pack.py).
+Both boxes are open at the front, where ray parity is undefined: ``inside_test`` "escape" (:meth:`ExternalScene.free`).
+A scene whose only lights are emitters (cornell-vinc3r) needs no emitter-only run: E_probe = E_indirect + E_direct
+of each seed. Light units (checked in Blender 3.4.1's importer, io_scene_gltf2/blender/imp/gltf2_blender_light.py):
+KHR_lights_punctual gives point lights in candela (lm/sr) and KHR_materials_emissive_strength emission in cd/m2, one
+photometric system, so a renderer must convert both with the same factor. The oracle's COMPAT import does
+(point W = 4 pi x cd, i.e. radiant intensity = cd, emission strength = cd/m2 as is: E = I / d2 and E = pi L, Kiln's
+units); the importer's SPEC mode divides lights by 683 lm/W but not emission, which would dim McGuire's point light
+683x against its emissive quad. The importer drops ``range`` ("TODO range"): :file:`oracle_lambert_textures.py`
+applies the spec's recommended window that Kiln applies (workers/kernels/shading.py), and keeps single-sided
+emitters dark from behind as Kiln does (checked against closed forms: a 1 cd light with range 2 at 1.5 m gave
+0.20781 W/m2 for 0.20769, a 10 cd/m2 square seen from behind 0.0006 where its double-sided twin gave 0.395).
+Made with ``--scenes cornell-mcguire --samples 8192 --seeds 0,1 --emit-seeds 1`` and ``--scenes cornell-vinc3r
+--samples 8192 --seeds 0,1`` (348 receivers each), under ``nice -n 10`` on 2 cores shared with other jobs (load
+average ~7): cornell-mcguire 392 + 403 s (seeds) + 405 s (emitters only) = 20 min, cornell-vinc3r 408 + 124 s = 9
+min (``wall_seconds`` in the references; alone on the machine a 256 spp run took 5 s and 9 s of baking, i.e. about
+160 s and 290 s per 8192 spp run).
 """
 from __future__ import annotations
 
@@ -203,6 +226,90 @@ EXTERNAL["zdm2"] = {
                  "floor_below": 3.0, "wall_height": (0.4, 2.5), "wall_flat": 0.3},
 }
 REGIONS["zdm2"] = "generated"   # see generated_regions()
+
+# The two real Cornell boxes of ../shared/scenes, baked with the default config and NOTHING added (``config`` {}): the
+# scenes' own lights, as a new user exports them. Both are .gltf files with their buffers (and images) beside them:
+# the bench ingests them the way ``kiln bake scene.gltf`` sends them (workers.gltf.pack.pack_model: a zip of the model
+# and its files); Cycles gets the same files as one GLB (workers.gltf.pack.embed_glb), whose SHA-256 is the points'
+# glb_sha256. Both boxes are open at the front (+z), so ray parity says nothing about being inside a solid: their
+# points are checked with ``inside_test`` "escape" (see ExternalScene.free).
+#
+# cornell-mcguire: McGuire's CornellBox-Original (36 triangles, all materials double-sided Lambert): the box x in
+# [-1.02, 1] (the red left wall tilts ~0.9 degree: x = -1.01 - 0.01 y / 1.99 on its upper triangle, which holds every
+# wall point below), y in [0, 1.99], z in [-1.04, 0.99], open at z = 0.99; green right wall x = 1; the short box
+# within x [-0.05, 0.7], y < 0.6, z [0, 0.75], the tall box within x [-0.71, 0.04], y < 1.2, z [-0.67, 0.09]; an
+# emissive quad (17 x (1, 0.706, 0.235) cd/m2, double-sided) at y = 1.98 under the ceiling and ONE KHR point light
+# (5 cd x (1, 0.706, 0.235), range 10) at (-0.005, 1.90, -0.03).
+EXTERNAL["cornell-mcguire"] = {
+    "source": "cornell-box-mcguire-khr-lights/CornellBox-Original.gltf",
+    "triangles": 36,
+    "config": {},
+    "min_clearance": 0.045,  # the wall-5cm points are 5 cm from their wall (float32 geometry)
+    "probe_clearance": 0.15,
+    "inside_test": "escape",
+    "probe_boxes": [(((-1.0, 0.0, -1.0), (1.0, 2.0, 1.0)), 8)],
+}
+
+
+def _mc_wall(d: float) -> list[tuple[float, float, float]]:
+    """cornell-mcguire points d from a side wall: four by the red left wall (offset along its upper triangle's
+    normal), four by the green right wall (x = 1), at (y, z) clear of the boxes."""
+    n = np.array([0.99998737, 0.00502506, 0.0])           # the left wall's upper triangle, unit normal
+    out = []
+    for y, z in [(0.6, 0.6), (1.4, 0.3), (1.6, -0.4), (1.5, 0.7)]:
+        spot = np.array([-1.01 - 0.01 * y / 1.99, y, z])
+        out.append(tuple(float(round(v, 5)) for v in spot + d * n))
+    out += [(1.0 - d, y, z) for y, z in [(0.9, -0.5), (1.5, -0.7), (1.3, 0.4), (0.4, -0.6)]]
+    return out
+
+
+REGIONS["cornell-mcguire"] = {
+    "open": [(0.0, 1.0, 0.4), (0.35, 0.95, -0.45), (-0.4, 1.5, 0.5), (0.5, 1.4, 0.3), (0.3, 1.2, 0.55),
+             (-0.3, 0.8, 0.6), (0.55, 1.0, -0.5), (-0.35, 1.55, -0.4)],
+    "wall-5cm": _mc_wall(0.05),
+    "wall-10cm": _mc_wall(0.10),
+    "wall-25cm": _mc_wall(0.25),
+    # no point of the emissive quad (5 x 5 samples) nor the point light is visible: beside and behind the boxes
+    "shadow": [(-0.81, 0.32, -0.27), (0.65, 0.14, 0.81), (-0.66, 0.27, -0.93), (-0.81, 0.81, -0.64),
+               (0.09, 0.14, 0.73), (0.8, 0.18, 0.29), (-0.75, 0.74, -0.16), (-0.89, 0.12, -0.63),
+               (-0.72, 0.49, -0.61), (-0.81, 0.15, 0.0)],
+    # 19-24 cm under the ceiling, 0.5-0.7 m beside the light
+    "ceiling-near-light": [(0.45, 1.8, 0.45), (-0.45, 1.8, 0.45), (0.45, 1.8, -0.5), (-0.5, 1.8, -0.5),
+                           (0.0, 1.75, 0.6), (0.0, 1.75, -0.65), (0.6, 1.75, 0.0), (-0.65, 1.75, 0.0)],
+}
+
+# cornell-vinc3r: Vinc3r's Blender 2.80 Cornell box (4410 triangles, single-sided materials): the box x, z in [-2, 2],
+# y in [0, 3], open at z = 2 (ceiling and back wall white 0.8, floor and a block textured with checkers, red left
+# wall x = -2, green right wall x = 2); a textured block (about x, z in [-1.39, -0.61], y < 1.6), Suzanne
+# (metallic 0.5, roughness 0.25; about x [0.72, 1.94], y < 0.78, z [-1.9, -0.82]) and a floating logo (about
+# x, z in [-0.4, 0.4], y in [1.18, 1.82]); its only light is an emissive lamp (0.75 m square, radiance 1, facing
+# down at y = 2.99, 1 cm strips on its sides) in the ceiling. No punctual light.
+EXTERNAL["cornell-vinc3r"] = {
+    "source": "cornell-box-vinc3r/cornellBox-2.80-Eevee-gltf.gltf",
+    "triangles": 4410,
+    "config": {},
+    "min_clearance": 0.045,
+    "probe_clearance": 0.15,
+    "inside_test": "escape",
+    "probe_boxes": [(((-2.0, 0.0, -2.0), (2.0, 3.0, 2.0)), 8)],
+}
+REGIONS["cornell-vinc3r"] = {
+    "open": [(1.0, 1.5, 0.8), (-1.0, 1.5, 0.8), (1.0, 1.5, -0.6), (-0.9, 2.2, 0.2), (0.0, 0.8, 1.0),
+             (0.0, 2.3, 0.9), (0.8, 2.4, -0.8), (-0.6, 1.0, 1.2)],
+    "wall-5cm": [(-1.95, y, z) for y, z in [(0.8, 0.5), (1.6, -1.0), (2.3, 0.8), (1.2, 1.3)]]
+                + [(1.95, y, z) for y, z in [(1.5, -1.3), (0.8, 0.4), (2.2, 0.0), (1.3, 1.2)]],
+    "wall-10cm": [(-1.9, y, z) for y, z in [(0.8, 0.5), (1.6, -1.0), (2.3, 0.8), (1.2, 1.3)]]
+                 + [(1.9, y, z) for y, z in [(1.5, -1.3), (0.8, 0.4), (2.2, 0.0), (1.3, 1.2)]],
+    "wall-25cm": [(-1.75, y, z) for y, z in [(0.8, 0.5), (1.6, -1.0), (2.3, 0.8), (1.2, 1.3)]]
+                 + [(1.75, y, z) for y, z in [(1.5, -1.3), (0.8, 0.4), (2.2, 0.0), (1.3, 1.2)]],
+    # no point of the lamp (6 x 6 samples) is visible: behind the block, behind Suzanne, under the logo
+    "shadow": [(-1.38, 0.13, -1.42), (1.86, 0.16, -1.46), (0.07, 0.39, 0.1), (-1.55, 0.98, -1.41),
+               (-0.2, 0.98, -0.07), (-1.79, 0.3, -1.87), (-1.78, 0.57, -1.52), (-0.03, 0.1, -0.19),
+               (-1.47, 0.13, -1.03), (1.69, 0.19, -1.81)],
+    # 25 cm under the ceiling, 0.5-1.1 m from the lamp's centre
+    "ceiling-near-light": [(0.8, 2.75, 0.8), (-0.8, 2.75, 0.8), (0.8, 2.75, -0.8), (-0.8, 2.75, -0.8),
+                           (0.0, 2.75, 0.9), (0.0, 2.75, -0.9), (0.9, 2.75, 0.0), (-0.9, 2.75, 0.0)],
+}
 CHECK_RAYS = 512  # ray directions (spherical Fibonacci) of the free-space check of a real scene's points
 UNITS_NOTE = "E in W/m^2 (glTF units: cd / m^2, lux); RGB mean per receiver; dirs = the 6 axis normals per point"
 
@@ -309,8 +416,11 @@ class ExternalScene:
 
         self.name, self.spec = name, EXTERNAL[name]
         self.path = external_path(name)
-        self.data = self.path.read_bytes()
-        self.scene = ingest_file(self.path)
+        self.data = source_bytes(name)
+        with tempfile.TemporaryDirectory() as tmp:   # a .gltf with files beside it: read as one GLB (same scene)
+            glb = Path(tmp) / "scene.glb"
+            glb.write_bytes(self.data)
+            self.scene = ingest_file(glb)
         self.tris = np.asarray(self.scene.triangles, np.float64)
         self.caster = caster_for_scene(self.scene)
         self.dirs = fibonacci_dirs(CHECK_RAYS)
@@ -321,15 +431,37 @@ class ExternalScene:
         return float(np.min(self.caster.intersect(o, self.dirs).t))
 
     def free(self, p, need: float) -> tuple[bool, str]:
+        """Whether p is in free space: at least ``need`` from every triangle (exact distance and the nearest hit of
+        CHECK_RAYS rays) and outside every solid: by ray parity, or for an open scene (``inside_test`` "escape", a
+        box open on one side, where parity is undefined) when one of the rays escapes the scene and none first hits
+        the back of a single-sided triangle."""
         d = surface_distance(self.tris, p)
         r = self.ray_clearance(p)
-        par = bool(self.caster.inside_parity(np.asarray([p], np.float64))[0])
+        if self.spec.get("inside_test") == "escape":
+            o = np.repeat(np.asarray([p], np.float64), len(self.dirs), axis=0)
+            h = self.caster.intersect(o, self.dirs)
+            ds = np.array([bool(m.get("double_sided")) for m in self.scene.materials])[np.asarray(self.scene.material)]
+            back = np.asarray(h.backface) & h.hit & ~ds[np.maximum(h.tri, 0)]
+            escapes = int((~h.hit).sum())
+            par = escapes == 0 or bool(back.any())
+            how = f"inside (no ray escapes, or one sees a single-sided back face) {par}: {escapes} rays escape"
+        else:
+            par = bool(self.caster.inside_parity(np.asarray([p], np.float64))[0])
+            how = f"inside (parity) {par}"
         ok = d >= need - 1e-6 and r >= need - 1e-6 and not par
-        return ok, f"distance {d:.4f} m, nearest of {CHECK_RAYS} rays {r:.4f} m, inside (parity) {par}"
+        return ok, f"distance {d:.4f} m, nearest of {CHECK_RAYS} rays {r:.4f} m, {how}"
 
 
 def external_path(name: str) -> Path:
     return SHARED_SCENES / EXTERNAL[name]["source"]
+
+
+def source_bytes(name: str) -> bytes:
+    """The real scene as one GLB: the file itself, or a .gltf with the files it references embedded
+    (:func:`workers.gltf.pack.embed_glb`, deterministic): what Cycles reads and what ``glb_sha256`` hashes."""
+    from workers.gltf.pack import embed_glb
+
+    return embed_glb(external_path(name))
 
 
 def _farthest(points: np.ndarray, k: int, ok=None) -> list[int]:
@@ -870,6 +1002,12 @@ def with_material(data: bytes, material: dict) -> tuple[bytes, int]:
     return _with_json(doc, data[20 + js_len:]), n
 
 
+def has_punctual(data: bytes) -> bool:
+    """Whether a node of the GLB carries a KHR_lights_punctual light."""
+    doc, _ = _glb_json(data)
+    return any("KHR_lights_punctual" in n.get("extensions", {}) for n in doc.get("nodes", []))
+
+
 def has_emitters(data: bytes) -> bool:
     doc, _ = _glb_json(data)
     return any(max(m.get("emissiveFactor", [0, 0, 0])) > 0 for m in doc.get("materials", []))
@@ -923,7 +1061,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
     external = scene in EXTERNAL
     fix = None
     if external:
-        src = external_path(scene).read_bytes()
+        src = source_bytes(scene)
         section = EXTERNAL[scene]["config"].get("scene", {})
         base = src
         if EXTERNAL[scene].get("drop_coincident"):
@@ -943,7 +1081,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
                                     "'metals': specular x roughness^2 / 2 = 0.5)"}
             print(f"  {scene}: {n} primitives without a material get {EXTERNAL[scene]['oracle_material']} for Cycles",
                   flush=True)
-        data = with_lights(base, section.get("lights", []))
+        data = with_lights(base, section["lights"]) if section.get("lights") else base
         sky = [float(x) for x in section.get("sky", [0.0, 0.0, 0.0])]
     else:
         src = data = make_scene(scene)
@@ -957,11 +1095,12 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
     pts = work / f"{scene}.{tag}points.json"
     pts.write_text(json.dumps({"points": pdoc["points"]}))
     emit = has_emitters(data)
+    punctual = has_punctual(data)
     use_sky = max(sky) > 0
     if emit and use_sky:
         raise NotImplementedError(f"{scene}: a sky and emissive surfaces together (E_probe needs the punctual "
                                   "lights' direct light alone: not implemented)")
-    if emit:
+    if emit and punctual:
         (work / f"{scene}.emit.glb").write_bytes(_strip_punctual(data))
     runs, walls, emit_runs, emit_walls, direct_runs, direct_walls = [], [], [], [], [], []
     for seed in seeds:
@@ -980,7 +1119,7 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
             direct_walls.append(wall)
             print(f"  {scene} {material} seed {seed} (sky 0, {direct_samples} spp: the lights' direct light): "
                   f"{wall:.0f} s", flush=True)
-        if emit and (emit_seeds is None or len(emit_runs) < emit_seeds):
+        if emit and punctual and (emit_seeds is None or len(emit_runs) < emit_seeds):
             out = work / f"{scene}.{tag}{material}.{seed}.emit.json"
             res, wall = run_oracle(work / f"{scene}.emit.glb", pts, out, samples=samples, seed=seed,
                                    material=material, timeout=timeout, log=work / f"{out.stem}.log", reuse=reuse)
@@ -989,7 +1128,10 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
             print(f"  {scene} {material} seed {seed} (emitters only): {wall:.0f} s", flush=True)
     d = np.array([r["E_direct_rgb"] for r in runs])      # (S, P, 6, 3)
     i = np.array([r["E_indirect_rgb"] for r in runs])
-    probe = i + (np.array([r["E_direct_rgb"] for r in emit_runs]).mean(0) if emit else 0.0)
+    if emit and not punctual:      # the emitters are the only lights: each seed's own E_direct is theirs
+        probe = i + d
+    else:
+        probe = i + (np.array([r["E_direct_rgb"] for r in emit_runs]).mean(0) if emit else 0.0)
     d0 = None
     if use_sky:
         # E_total(sky) - E_direct(sky 0): the indirect light plus the sky seen directly (Cycles: direct light)
@@ -1016,10 +1158,14 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
     if external:
         extra = {"source": EXTERNAL[scene]["source"], "config": EXTERNAL[scene]["config"],
                  "oracle_glb_sha256": hashlib.sha256(data).hexdigest(),
-                 "oracle_glb_note": "the source GLB with config.scene.lights added as KHR_lights_punctual nodes "
-                                    "(JSON chunk patched; the binary chunk kept byte for byte"
-                                    + (", new index accessors appended after it: coincident triangles dropped, "
-                                       "see oracle_scene_fix)" if fix and fix.get("dropped") else ")")
+                 "oracle_glb_note": ("the source GLB with config.scene.lights added as KHR_lights_punctual nodes "
+                                     "(JSON chunk patched; the binary chunk kept byte for byte"
+                                     + (", new index accessors appended after it: coincident triangles dropped, "
+                                        "see oracle_scene_fix)" if fix and fix.get("dropped") else ")")
+                                     if section.get("lights") else "the source as it is, nothing added")
+                                    + ("; a .gltf with its buffers and images embedded as one GLB "
+                                       "(workers.gltf.pack.embed_glb)" if external_path(scene).suffix == ".gltf"
+                                       else "")
                                     + ("; a material for primitives without one: see oracle_scene_fix"
                                        if fix and fix.get("material") else ""),
                  "oracle_scene_fix": fix}
@@ -1041,9 +1187,11 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
                      "lighting_mode": runs[0]["lighting_mode"], "material": material},
         "seeds": seeds, "wall_seconds": [round(w, 1) for w in walls],
         "bake_seconds": [r["bake_s"] for r in runs],
-        "emitter_runs": {"seeds": seeds[:len(emit_runs)], "wall_seconds": [round(w, 1) for w in emit_walls],
-                         "note": "punctual lights removed: their E_direct (mean over these seeds) is the emitters' "
-                                 "direct light, added to every seed's E_indirect"}
+        "emitter_runs": ({"seeds": seeds[:len(emit_runs)], "wall_seconds": [round(w, 1) for w in emit_walls],
+                          "note": "punctual lights removed: their E_direct (mean over these seeds) is the emitters' "
+                                  "direct light, added to every seed's E_indirect"} if punctual else
+                         {"seeds": [], "note": "no punctual light: each seed's E_direct is the emitters' direct "
+                                               "light, E_probe = E_indirect + E_direct per seed"})
         if emit else None,
         "glb_sha256": pdoc["glb_sha256"], "units": UNITS_NOTE,
         "points": pdoc["points"], "dirs": AXES, "regions": pdoc["regions"],

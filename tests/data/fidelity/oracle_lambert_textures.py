@@ -13,8 +13,20 @@ the stated model, texel by texel. Second difference: the stock replacement remov
 go dark (measured on ``cornell``: its emitter panel gave E = 0 everywhere). Every Principled BSDF that emits gets an
 Emission shader (same colour, texture and strength) added to its output first, so the Lambert that replaces it still
 emits. Materials without a metallic texture or emission are untouched (identical to the stock run);
-``--material importer`` is untouched too (it never calls the replacement).
+``--material importer`` is untouched too (it never calls the replacement). A single-sided emitter (glTF
+``doubleSided`` false; the importer sets ``use_backface_culling``, which Cycles ignores) emits from its front only,
+as glTF draws it and Kiln bakes it (workers/kernels/emitters.py): its Emission strength is multiplied by
+(1 - Backfacing).
+
+Lights (both ``--material`` modes): Blender 3.4's importer drops KHR_lights_punctual ``range`` ("TODO range"); Kiln
+applies the spec's recommended window ``W(d) = clamp(1 - (d/range)^4, 0, 1)^2`` on top of the inverse square law
+(workers/kernels/shading.py, direct_irradiance), so every point or spot light with a range gets W(ray length) as its
+Emission strength (Cycles evaluates a light's nodes at the sampled distance). Checked against closed forms with
+``--samples 256``: a 1 cd point light with range 2 m, 1.5 m above a receiver facing it, gave E_direct 0.20781 W/m2
+(closed form 0.20769); one without a range 1.0000 (1); a single-sided 0.2 m square of 10 cd/m2 1 m below a receiver
+facing its back 0.0006, its double-sided twin 0.3949 (closed form 0.3957).
 """
+import json
 import os
 import runpy
 import sys
@@ -26,9 +38,10 @@ import pb_common as pb  # noqa: E402  (the oracle imports this same module objec
 import bpy  # noqa: E402
 
 _stock_diffuse_materials = pb.diffuse_materials
+_stock_load_gltf = pb.load_gltf
 
 
-def _keep_emission(nt, p, name):
+def _keep_emission(nt, p, name, single_sided=False):
     col, strength = p.inputs["Emission"], p.inputs["Emission Strength"]
     if strength.is_linked:
         raise RuntimeError(f"material {name!r}: a linked emission strength is not handled")
@@ -40,6 +53,19 @@ def _keep_emission(nt, p, name):
     else:
         em.inputs["Color"].default_value = tuple(col.default_value)
     em.inputs["Strength"].default_value = strength.default_value
+    if single_sided:
+        # glTF: the back of a single-sided surface is not there (doubleSided false; the importer sets
+        # use_backface_culling, which Cycles ignores); Cycles emits from both sides: strength x (1 - Backfacing)
+        geo = nt.nodes.new("ShaderNodeNewGeometry")
+        front = nt.nodes.new("ShaderNodeMath")
+        front.operation = "SUBTRACT"
+        front.inputs[0].default_value = 1.0
+        nt.links.new(geo.outputs["Backfacing"], front.inputs[1])
+        mul = nt.nodes.new("ShaderNodeMath")
+        mul.operation = "MULTIPLY"
+        mul.inputs[1].default_value = strength.default_value
+        nt.links.new(front.outputs["Value"], mul.inputs[0])
+        nt.links.new(mul.outputs["Value"], em.inputs["Strength"])
     add = nt.nodes.new("ShaderNodeAddShader")
     targets = [link.to_socket for link in p.outputs["BSDF"].links]
     for link in list(p.outputs["BSDF"].links):
@@ -49,7 +75,8 @@ def _keep_emission(nt, p, name):
     nt.links.new(p.outputs["BSDF"], add.inputs[0])        # the stock code relinks this to its Lambert
     nt.links.new(em.outputs["Emission"], add.inputs[1])
     print(f"[fidelity] material {name!r}: emission kept (colour {tuple(round(v, 4) for v in col.default_value)[:3]}"
-          f"{' texture' if col.is_linked else ''}, strength {strength.default_value:g})")
+          f"{' texture' if col.is_linked else ''}, strength {strength.default_value:g}"
+          f"{', front side only (single-sided)' if single_sided else ''})")
 
 
 def _fold_metallic_textures():
@@ -58,7 +85,7 @@ def _fold_metallic_textures():
         if nt is None:
             continue
         for p in [n for n in nt.nodes if n.bl_idname == "ShaderNodeBsdfPrincipled"]:
-            _keep_emission(nt, p, mat.name)
+            _keep_emission(nt, p, mat.name, single_sided=mat.use_backface_culling)
             base, met = p.inputs["Base Color"], p.inputs["Metallic"]
             if not met.is_linked:
                 continue
@@ -83,10 +110,69 @@ def _fold_metallic_textures():
                   f"(albedo = base x (1 - metallic texel))")
 
 
+def _gltf_json(path):
+    with open(path, "rb") as f:
+        data = f.read()
+    if data[:4] == b"glTF":
+        return json.loads(data[20:20 + int.from_bytes(data[12:16], "little")])
+    return json.loads(data)
+
+
+def _range_windows():
+    """KHR_lights_punctual ``range`` on point and spot lights: the importer drops it ("TODO range" in Blender 3.4's
+    io_scene_gltf2), Kiln applies the spec's recommended window W(d) = clamp(1 - (d/range)^4, 0, 1)^2 on top of
+    the inverse square law (workers/kernels/shading.py). Give the Cycles light the same: its Emission strength
+    becomes W(Light Path ray length) (Cycles evaluates a light's nodes at the sampled distance)."""
+    args = pb.script_args()
+    if not args:
+        return
+    doc = _gltf_json(os.path.abspath(args[0]))
+    defs = ((doc.get("extensions") or {}).get("KHR_lights_punctual") or {}).get("lights", [])
+    ranges = {}
+    for d in defs:
+        if d.get("type") in ("point", "spot") and d.get("range") is not None:
+            name = d.get("name") or ("Point" if d["type"] == "point" else "Spot")   # the importer's names
+            if ranges.get(name, d["range"]) != d["range"]:
+                raise RuntimeError(f"lights named {name!r} with different ranges: not handled")
+            ranges[name] = float(d["range"])
+    for light in bpy.data.lights:
+        base = light.name.rsplit(".", 1)[0] if light.name not in ranges else light.name
+        if light.type not in ("POINT", "SPOT") or base not in ranges:
+            continue
+        r = ranges[base]
+        light.use_nodes = True
+        nt = light.node_tree
+        em = [n for n in nt.nodes if n.bl_idname == "ShaderNodeEmission"][0]
+        path = nt.nodes.new("ShaderNodeLightPath")
+        ops = []
+        for op, a, b in (("DIVIDE", None, r), ("POWER", None, 4.0), ("SUBTRACT", 1.0, None), ("POWER", None, 2.0)):
+            m = nt.nodes.new("ShaderNodeMath")
+            m.operation = op
+            m.use_clamp = op == "SUBTRACT"                   # clamp(1 - x^4, 0, 1)
+            if a is not None:
+                m.inputs[0].default_value = a
+            if b is not None:
+                m.inputs[1].default_value = b
+            ops.append(m)
+        nt.links.new(path.outputs["Ray Length"], ops[0].inputs[0])
+        nt.links.new(ops[0].outputs["Value"], ops[1].inputs[0])
+        nt.links.new(ops[1].outputs["Value"], ops[2].inputs[1])
+        nt.links.new(ops[2].outputs["Value"], ops[3].inputs[0])
+        nt.links.new(ops[3].outputs["Value"], em.inputs["Strength"])
+        print(f"[fidelity] light {light.name!r}: KHR range {r:g} m window W(d) = clamp(1 - (d/{r:g})^4, 0, 1)^2")
+
+
 def diffuse_materials():
     _fold_metallic_textures()
     _stock_diffuse_materials()
 
 
+def load_gltf(*args, **kwargs):
+    sc = _stock_load_gltf(*args, **kwargs)
+    _range_windows()
+    return sc
+
+
 pb.diffuse_materials = diffuse_materials
+pb.load_gltf = load_gltf
 runpy.run_path(ORACLE, run_name="__main__")
