@@ -62,9 +62,13 @@ def test_closed_box_sums_the_geometric_series(a):
                                              max_bounces=500, tolerance=1e-4)
     assert np.allclose(irr, e0[0] * a / (1 - a), rtol=2e-4)
     assert residual[-1] < 1e-4 <= residual[-2] and all(math.isinf(r) for r in residual[:2])
-    # the tail estimate is exact for a geometric series: δ_b·a/(1 − a) / E_b = a^b / (1 − a^b)
-    b = len(residual)
-    assert residual[-1] == pytest.approx(a ** b / (1 - a ** b), rel=1e-2)
+    # the tail estimate is exact for a geometric series: δ_b·a/(1 − a) / E_b = a^b / (1 − a^b), at every bounce
+    # from the third while the increment stands well above float32 rounding of the maps (a float32 product over
+    # the rays: ~1e-6 of E; at a = 0.8 the last increments are 2e-5 of E, and BLAS builds differ there by 4%)
+    for b, r in enumerate(residual, start=1):
+        if b >= 3 and a ** b > 1e-3:
+            assert r == pytest.approx(a ** b / (1 - a ** b), rel=1e-2), b
+    assert residual[-1] == pytest.approx(a ** len(residual) / (1 - a ** len(residual)), rel=0.1)
 
 
 def test_misses_see_the_sky_and_emission_adds_to_every_bounce():
@@ -114,7 +118,9 @@ def test_a_batch_equals_its_configurations_one_at_a_time():
                                                    max_bounces=64, tolerance=1e-4)
         assert got[c][2] == log.bounces[c] == len(change) == len(log.change[c])
         assert np.allclose(got[c][1], irr, rtol=1e-5, atol=1e-7) and np.allclose(got[c][0], rad, rtol=1e-5, atol=1e-8)
-        assert np.allclose(log.residual[c], residual, rtol=1e-4)
+        # the last residuals are small differences of float32 maps: a batch's wider product rounds otherwise
+        # (up to 3e-4 with numpy 2.4's OpenBLAS); a column mix-up would be off by O(1)
+        assert np.allclose(log.residual[c], residual, rtol=1e-3)
         assert np.all(irr[1] == 0)                                  # the OFF probe
 
 
