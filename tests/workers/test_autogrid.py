@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from tests.gltf_build import GltfBuilder, box_inward, quad
 from tests.workers.test_probes import bake_until
@@ -154,3 +155,25 @@ def test_the_default_budget_binding_far_above_the_rooms_is_a_warning(tmp_path):
     assert [w["code"] for w in s["place"].stats["warnings"]] == ["grid_coarse"]
     _, s = bake_until(tmp_path / "b", _room(tmp_path / "room", [4, 3, 4], "room"), {}, "place")
     assert not s["place"].stats["auto"]["budget_bound"] and "warnings" not in s["place"].stats
+
+
+def test_layer_phase_takes_the_first_phase_of_a_plateau_on_every_float_rounding():
+    """The score is piecewise linear in the phase: one thin wall midway gives a plateau of equal scores, which float
+    rounding alone used to split (numpy 2.4 moved two-rooms' grid 3 cm). Rounded, the first phase of the plateau
+    wins, and perturbing the planes by float noise does not move it."""
+    from workers.kernels.autogrid import layer_phase
+
+    s = 0.3
+    pos = np.array([1.0, 1.0 + s / 2, 4.0])            # two walls half a spacing apart: a plateau of phases
+    w = np.array([1.0, 1.0, 2.0])
+    phases = (np.arange(48) + 0.5) / 48 * s
+    frac = np.mod(pos[None, :] - phases[:, None], s)
+    score = (np.minimum(frac, s - frac) * w).sum(axis=1) / (w.sum() * s / 2)
+    plateau = np.flatnonzero(np.isclose(score, score.max(), rtol=0, atol=1e-9))
+    assert plateau.size > 1                              # the case in point
+    phi, sc = layer_phase(pos, w, s)
+    assert phi == pytest.approx(phases[plateau[0]]) and sc == pytest.approx(score.max())
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        jitter = pos * (1 + rng.uniform(-4e-16, 4e-16, pos.size))
+        assert layer_phase(jitter, w, s)[0] == phi
