@@ -507,12 +507,13 @@ def _image_shape(array: np.ndarray, fmt_channels: int | None, volume: bool | Non
 
 _ZSTD_MEMO: "OrderedDict[tuple[bytes, int], bytes]" = OrderedDict()
 _ZSTD_MEMO_ENTRIES = 8
+_ZSTD_MEMO_BYTES = 16 << 20   # and at most this many frame bytes: a long-lived worker holds little
 
 
 def zstd_frame(raw: bytes, level: int) -> bytes:
     """The Zstandard frame KTX2 supercompression stores for ``raw`` (level ``level``, content checksum on).
 
-    Deterministic, so the last :data:`_ZSTD_MEMO_ENTRIES` frames are kept by the BLAKE2b digest of their input and
+    Deterministic, so the last :data:`_ZSTD_MEMO_ENTRIES` frames (at most :data:`_ZSTD_MEMO_BYTES` in all) are kept by the BLAKE2b digest of their input and
     level: a stage that reports its stored sizes (``workers.stages.compress``: the mask atlas at level 19, about
     5 CPU seconds on zdm2) and then writes the same array pays for the compression once."""
     key = (hashlib.blake2b(raw, digest_size=20).digest(), int(level))
@@ -522,7 +523,7 @@ def zstd_frame(raw: bytes, level: int) -> bytes:
         return hit
     frame = pyzstd.compress(raw, {pyzstd.CParameter.compressionLevel: int(level), pyzstd.CParameter.checksumFlag: 1})
     _ZSTD_MEMO[key] = frame
-    while len(_ZSTD_MEMO) > _ZSTD_MEMO_ENTRIES:
+    while len(_ZSTD_MEMO) > _ZSTD_MEMO_ENTRIES or sum(map(len, _ZSTD_MEMO.values())) > _ZSTD_MEMO_BYTES:
         _ZSTD_MEMO.popitem(last=False)
     return frame
 

@@ -596,3 +596,13 @@ def test_zstd_frame_is_kept_and_identical_to_a_fresh_compression():
     for i in range(ktx2._ZSTD_MEMO_ENTRIES + 1):                            # bounded: the oldest frames go
         ktx2.zstd_frame(raw + bytes([i]), 1)
     assert len(ktx2._ZSTD_MEMO) == ktx2._ZSTD_MEMO_ENTRIES
+
+
+def test_zstd_frames_kept_are_bounded_in_bytes(monkeypatch):
+    from proto import ktx2
+
+    monkeypatch.setattr(ktx2, "_ZSTD_MEMO_BYTES", 1000)
+    rng = np.random.default_rng(4)
+    for _ in range(3):
+        ktx2.zstd_frame(rng.integers(0, 256, 800, dtype=np.uint8).tobytes(), 1)   # ~800 B frames, incompressible
+    assert len(ktx2._ZSTD_MEMO) == 1 and sum(map(len, ktx2._ZSTD_MEMO.values())) <= 1000
