@@ -26,6 +26,7 @@ import hashlib
 import math
 import os
 import struct
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass
 from pathlib import Path
@@ -508,6 +509,7 @@ def _image_shape(array: np.ndarray, fmt_channels: int | None, volume: bool | Non
 _ZSTD_MEMO: "OrderedDict[tuple[bytes, int], bytes]" = OrderedDict()
 _ZSTD_MEMO_ENTRIES = 8
 _ZSTD_MEMO_BYTES = 16 << 20   # and at most this many frame bytes: a long-lived worker holds little
+_ZSTD_MEMO_LOCK = threading.Lock()   # artifacts are written from a thread pool (workers.pipeline.execute_stage)
 
 
 def zstd_frame(raw: bytes, level: int) -> bytes:
@@ -517,14 +519,17 @@ def zstd_frame(raw: bytes, level: int) -> bytes:
     level: a stage that reports its stored sizes (``workers.stages.compress``: the mask atlas at level 19, about
     5 CPU seconds on zdm2) and then writes the same array pays for the compression once."""
     key = (hashlib.blake2b(raw, digest_size=20).digest(), int(level))
-    hit = _ZSTD_MEMO.get(key)
-    if hit is not None:
-        _ZSTD_MEMO.move_to_end(key)
-        return hit
+    with _ZSTD_MEMO_LOCK:
+        hit = _ZSTD_MEMO.get(key)
+        if hit is not None:
+            _ZSTD_MEMO.move_to_end(key)
+            return hit
+    # compressed outside the lock: pyzstd releases the GIL, so threads writing different artifacts overlap
     frame = pyzstd.compress(raw, {pyzstd.CParameter.compressionLevel: int(level), pyzstd.CParameter.checksumFlag: 1})
-    _ZSTD_MEMO[key] = frame
-    while len(_ZSTD_MEMO) > _ZSTD_MEMO_ENTRIES or sum(map(len, _ZSTD_MEMO.values())) > _ZSTD_MEMO_BYTES:
-        _ZSTD_MEMO.popitem(last=False)
+    with _ZSTD_MEMO_LOCK:
+        _ZSTD_MEMO[key] = frame
+        while len(_ZSTD_MEMO) > _ZSTD_MEMO_ENTRIES or sum(map(len, _ZSTD_MEMO.values())) > _ZSTD_MEMO_BYTES:
+            _ZSTD_MEMO.popitem(last=False)
     return frame
 
 

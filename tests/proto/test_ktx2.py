@@ -606,3 +606,37 @@ def test_zstd_frames_kept_are_bounded_in_bytes(monkeypatch):
     for _ in range(3):
         ktx2.zstd_frame(rng.integers(0, 256, 800, dtype=np.uint8).tobytes(), 1)   # ~800 B frames, incompressible
     assert len(ktx2._ZSTD_MEMO) == 1 and sum(map(len, ktx2._ZSTD_MEMO.values())) <= 1000
+
+
+def test_zstd_frame_is_safe_from_many_threads(monkeypatch):
+    """workers.pipeline writes a stage's artifacts from a thread pool: concurrent calls neither raise (the kept
+    frames were once trimmed while another thread added one: "OrderedDict mutated during iteration", in CI) nor
+    return a wrong frame, and the bounds still hold. The kept frames' iteration yields the GIL between items here,
+    so the interleaving CI hit once in a while happens on every run."""
+    import time
+    from collections import OrderedDict
+    from concurrent.futures import ThreadPoolExecutor
+
+    import pyzstd
+
+    from proto import ktx2
+
+    class Yielding(OrderedDict):
+        def values(self):
+            for v in super().values():
+                time.sleep(0)                                               # another thread runs here
+                yield v
+
+    monkeypatch.setattr(ktx2, "_ZSTD_MEMO", Yielding())
+    monkeypatch.setattr(ktx2, "_ZSTD_MEMO_ENTRIES", 4)
+    inputs = [bytes([i % 7]) * (200 + 37 * i) for i in range(64)]
+
+    def work(i):
+        for j in range(20):
+            raw = inputs[(i * 13 + j) % len(inputs)]
+            assert pyzstd.decompress(ktx2.zstd_frame(raw, 1)) == raw
+        return True
+
+    with ThreadPoolExecutor(8) as pool:
+        assert all(pool.map(work, range(32)))
+    assert len(ktx2._ZSTD_MEMO) <= 4
