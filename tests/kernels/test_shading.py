@@ -307,3 +307,122 @@ def test_surface_at_hits_empty_and_bad_index():
     assert s["albedo"].shape == (0, 3)
     with pytest.raises(ValueError):
         surface_at_hits(scene, np.array([4]), np.zeros(1), np.zeros(1))
+
+
+# ------------------------------------------------------------------- bent shading normals (Cycles 3.4)
+def _unit(v):
+    v = np.asarray(v, np.float64)
+    return v / np.linalg.norm(v, axis=-1, keepdims=True)
+
+
+def _tilted(deg, axis=0):
+    """Unit normal tilted by deg from +z toward +x (axis 0) or +y (axis 1)."""
+    a = math.radians(deg)
+    v = np.zeros(3)
+    v[axis], v[2] = math.sin(a), math.cos(a)
+    return v
+
+
+def test_ensure_valid_reflection_keeps_normals_whose_reflection_is_above_the_surface():
+    ng = np.tile([0.0, 0.0, 1.0], (4, 1))
+    views = _unit([[0, 0, 1], [0.9, 0, 0.1], [-0.3, 0.5, 0.8], [0.99, 0, 0.02]])
+    n, bent = shading.ensure_valid_reflection(ng, views, ng)                    # N == Ng: unchanged
+    assert not bent.any() and np.array_equal(n, ng)
+    # a bent normal whose mirror reflection of the viewer stays above the threshold: unchanged, bit for bit
+    nb = np.tile(_tilted(30), (2, 1))
+    v = _unit([[0, 0, 1], [0.5, 0, 0.5]])
+    n, bent = shading.ensure_valid_reflection(ng[:2], v, nb)
+    assert not bent.any() and np.array_equal(n, nb)
+
+
+def _reflection_height(n, i):
+    return float(np.dot(2 * np.dot(n, i) * n - i, [0, 0, 1]))
+
+
+@pytest.mark.parametrize("view_deg", [3.0, 10.0, 30.0])
+def test_ensure_valid_reflection_lifts_a_grazing_reflection_just_above_the_surface(view_deg):
+    """N tilted 50° toward +x, the viewer on the other side (toward −x) at view_deg above the plane: R = 2(N·I)N − I
+    points below the surface, so Cycles rotates N toward Ng, in the plane of N and Ng, until R·Ng equals the
+    threshold t = min(0.9 Ng·I, 0.01). The answer is checked against the smallest such rotation found by bisection."""
+    ng, nb = np.array([0.0, 0.0, 1.0]), _tilted(50)
+    b = math.radians(view_deg)
+    i = np.array([-math.cos(b), 0.0, math.sin(b)])
+    assert _reflection_height(nb, i) < 0
+    n, bent = shading.ensure_valid_reflection(ng[None], i[None], nb[None])
+    n = n[0]
+    t = min(0.9 * math.sin(b), 0.01)
+    assert bent[0] and abs(np.linalg.norm(n) - 1) < 1e-12 and abs(n[1]) < 1e-12    # unit, in the N-Ng plane
+    assert abs(_reflection_height(n, i) - t) < 1e-9                                 # just above: at the threshold
+    lo, hi = 0.0, 50.0                # tilt of N (toward +x): R·Ng decreases with the tilt for this viewer
+    for _ in range(80):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if _reflection_height(_tilted(mid), i) >= t else (lo, mid)
+    np.testing.assert_allclose(n, _tilted(lo), atol=1e-8)
+
+
+def test_bump_shadowing_term_hand_values():
+    s, n = _tilted(40), _tilted(10)                  # smooth normal, closure normal
+    w = _unit([[0, 0, 1], [-0.9, 0, 0.2], [0.6, 0, 0.8]])
+    f = shading.bump_shadowing_term(np.tile(s, (3, 1)), np.tile(n, (3, 1)), w)
+    g = np.dot(s, w[0]) / (np.dot(n, w[0]) * np.dot(s, n))          # 0 < g < 1: the smoothed cubic
+    assert 0 < g < 1 and f[0] == pytest.approx(-g ** 3 + g ** 2 + g, rel=1e-12)
+    assert f[1] == 0.0                               # below the smooth normal: black
+    assert f[2] == 1.0                               # g >= 1: full brightness
+    same = shading.bump_shadowing_term(np.tile(n, (3, 1)), np.tile(n, (3, 1)), w[[0, 2, 2]])
+    assert np.all(same == 1.0)                       # s = N': g = 1/(N'·N') >= 1
+
+
+def _sphere(m, seed):
+    w = np.random.default_rng(seed).normal(size=(m, 3))
+    return w / np.linalg.norm(w, axis=1, keepdims=True)
+
+
+@pytest.mark.parametrize("tilt", [0.0, 20.0, 54.7, 80.0])
+def test_horizon_factor_closed_form_matches_monte_carlo(tilt):
+    """h = (1/π)∫ max(0, N'·ω)[Ng·ω > 0] dω = (1 + N'·Ng)/2: a uniform-sphere Monte Carlo integral."""
+    ng, n = np.array([0.0, 0.0, 1.0]), _tilted(tilt, axis=1)
+    h = shading.horizon_factor(n[None], ng[None])[0]
+    assert h == pytest.approx(1.0 if tilt == 0 else (1 + math.cos(math.radians(tilt))) / 2, abs=1e-12)
+    w = _sphere(1 << 20, 7)
+    f = np.maximum(w @ n, 0) * (w @ ng > 0) * 4.0      # 4π/π × the uniform-sphere mean
+    assert abs(f.mean() - h) < 4 * f.std() / math.sqrt(w.shape[0]) + 1e-4
+
+
+@pytest.mark.parametrize("smooth_tilt, tilt", [(54.7, 10.0), (54.7, 40.0), (30.0, 5.0)])
+def test_horizon_factor_of_bent_normals_matches_monte_carlo(smooth_tilt, tilt):
+    """Where Cycles bent N (bent rows): h = (1/π)∫ max(0, N'·ω)[Ng·ω > 0]·S(s, N', ω) dω with S the bump shadowing
+    term: the quadrature against a uniform-sphere Monte Carlo integral; well below the unbent (1 + N'·Ng)/2."""
+    ng, s, n = np.array([0.0, 0.0, 1.0]), _tilted(smooth_tilt), _tilted(tilt)
+    h = shading.horizon_factor(n[None], ng[None], s[None], np.array([True]))[0]
+    w = _sphere(1 << 20, 11)
+    f = np.maximum(w @ n, 0) * (w @ ng > 0) * shading.bump_shadowing_term(np.tile(s, (len(w), 1)),
+                                                                           np.tile(n, (len(w), 1)), w) * 4.0
+    assert abs(f.mean() - h) < 4 * f.std() / math.sqrt(w.shape[0]) + 2e-3
+    assert h < (1 + n @ ng) / 2 - 0.03
+
+
+def test_direct_irradiance_with_bent_normals(ground):
+    """Lights below the geometric plane give 0 with geo_normals; bent rows are multiplied by the bump term; a
+    flat frame (N = Ng, nothing bent) changes nothing, bit for bit."""
+    _, caster = ground
+    pts, up = _ground_points([[0.0, 0.0], [1.0, 2.0]])
+    n = np.tile(_tilted(60)[[0, 2, 1]], (2, 1))           # tilted toward +x, about the ground's +y normal
+    below = _point([3.0, -0.5, 0.0])                       # under the ground plane, in front of N
+    e_n = direct_irradiance(pts, n, [below], None, EPS)                    # unshadowed, about N only: lit
+    assert np.all(e_n[:, 0] > 0)
+    e_g = direct_irradiance(pts, n, [below], None, EPS, geo_normals=up)     # below Ng: 0
+    assert np.all(e_g == 0)
+    above = _point([-0.6, 2.0, 0.0])
+    e0 = direct_irradiance(pts, up, [above], caster, EPS)
+    e1 = direct_irradiance(pts, up, [above], caster, EPS, geo_normals=up, smooth_normals=up, bent=np.zeros(2, bool))
+    assert np.array_equal(e0, e1)
+    s = np.tile(_tilted(60)[[0, 2, 1]], (2, 1))            # bent: N' = n10 differs from the smooth normal s
+    n10 = np.tile(_tilted(10)[[0, 2, 1]], (2, 1))
+    bent = np.array([True, False])
+    e2 = direct_irradiance(pts, n10, [above], caster, EPS, geo_normals=up, smooth_normals=s, bent=bent)
+    plain = direct_irradiance(pts, n10, [above], caster, EPS)
+    l = _unit(np.asarray(above["position"]) - pts)
+    f = shading.bump_shadowing_term(s, n10, l)
+    assert 0 < f[0] < 0.99                                 # the term matters for this light
+    np.testing.assert_allclose(e2[0], plain[0] * f[0], rtol=1e-6)
+    np.testing.assert_array_equal(e2[1], plain[1])

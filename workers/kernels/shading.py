@@ -34,7 +34,8 @@ import math
 import numba
 import numpy as np
 
-__all__ = ["srgb_to_linear", "SRGB_TO_LINEAR_LUT", "surface_at_hits", "sample_texture", "direct_irradiance"]
+__all__ = ["srgb_to_linear", "SRGB_TO_LINEAR_LUT", "surface_at_hits", "sample_texture", "direct_irradiance",
+           "ensure_valid_reflection", "bump_shadowing_term", "horizon_factor"]
 
 # Points per chunk of direct_irradiance: bounds the float64 temporaries (~60 doubles per point)
 # and the shadow-ray batch, whatever the number of points.
@@ -245,7 +246,8 @@ def _light_arrays(light):
     return color, rng
 
 
-def direct_irradiance(points, normals, lights, caster, eps: float) -> np.ndarray:
+def direct_irradiance(points, normals, lights, caster, eps: float, *, geo_normals=None, smooth_normals=None,
+                      bent=None) -> np.ndarray:
     """Irradiance from punctual lights with shadow rays (KHR_lights_punctual; DDGI-I §3.4.2).
 
     For each light and point x with unit normal n (world space):
@@ -264,6 +266,13 @@ def direct_irradiance(points, normals, lights, caster, eps: float) -> np.ndarray
     ``tfar = |p - o| - 2·eps`` (point, spot; direction ``(p - o)/|p - o|``) or ``inf`` (directional,
     direction ``-ω``). Only points with a non-zero unshadowed contribution cast rays.
 
+    Bent shading normals (Cycles 3.4, closure/bsdf.h ``bsdf_eval``; used by the path tracer's vertices and the
+    light stage's probe-ray hits): with ``geo_normals`` a light below the geometric plane (``Ng·l <= 0``) gives 0
+    (a closed surface occludes it; Cycles' shadow rays skip their own triangle, so only an open sheet would differ),
+    and rows with ``bent`` (``normals`` is N' of :func:`ensure_valid_reflection`, differing from the smooth
+    normal) are multiplied by :func:`bump_shadowing_term` (smooth normal, N', l), as Cycles' diffuse closure
+    evaluation is. Without them (the default) nothing changes.
+
     Parameters
     ----------
     points : (N, 3) float
@@ -271,6 +280,11 @@ def direct_irradiance(points, normals, lights, caster, eps: float) -> np.ndarray
     normals : (N, 3) float
         Unit normals, facing the side being lit (flip them for back-face hits on double-sided
         surfaces before calling). Zero rows get zero irradiance.
+    geo_normals : (N, 3) float, optional
+        Unit geometric normals on the lit side: lights below them give 0.
+    smooth_normals : (N, 3) float, optional; bent : (N,) bool, optional
+        The interpolated normal before :func:`ensure_valid_reflection` and where it was bent: the bump
+        shadowing term on those rows (both or neither).
     lights : list of dict
         The scene's lights (see :mod:`workers.scene`).
     caster : RayCaster or None
@@ -295,14 +309,37 @@ def direct_irradiance(points, normals, lights, caster, eps: float) -> np.ndarray
     for s in range(0, n, DIRECT_CHUNK):
         e = min(n, s + DIRECT_CHUNK)
         acc = np.zeros((e - s, 3), np.float64)
+        frame = None
+        if geo_normals is not None or bent is not None:
+            frame = (None if geo_normals is None else np.asarray(geo_normals, np.float64)[s:e],
+                     None if bent is None else np.asarray(smooth_normals, np.float64)[s:e],
+                     None if bent is None else np.asarray(bent, bool)[s:e])
         for light in lights:
-            _add_light(acc, pts[s:e], nrm[s:e], light, caster, eps)
+            _add_light(acc, pts[s:e], nrm[s:e], light, caster, eps, frame)
         out[s:e] = acc
     return out
 
 
-def _add_light(acc, x, n, light, caster, eps) -> None:
-    """acc += E of one light at points x (chunk), with shadows."""
+def _bent_scale(scale, lit, l, n, frame):
+    """``scale`` (of the rows ``lit``) × [Ng·l > 0] × the bump shadowing term on bent rows (``frame`` = (Ng, smooth
+    normal, bent) of the chunk, entries None when absent); l (3,) or (len(lit), 3)."""
+    if frame is None:
+        return scale
+    ng, sm, bent = frame
+    ll = np.broadcast_to(l, (lit.size, 3))
+    if ng is not None:          # (a degenerate triangle's zero Ng tests nothing)
+        g = ng[lit]
+        scale = np.where((np.einsum("ij,ij->i", g, ll) > 0) | ~np.any(g != 0, axis=1), scale, 0.0)
+    if bent is not None:
+        b = np.flatnonzero(bent[lit])
+        if b.size:
+            scale = scale.copy()
+            scale[b] *= bump_shadowing_term(sm[lit[b]], n[lit[b]], ll[b])
+    return scale
+
+
+def _add_light(acc, x, n, light, caster, eps, frame=None) -> None:
+    """acc += E of one light at points x (chunk), with shadows; ``frame``: bent normals (:func:`_bent_scale`)."""
     kind = light["type"]
     color, rng = _light_arrays(light)
     if not np.any(color > 0):
@@ -314,7 +351,7 @@ def _add_light(acc, x, n, light, caster, eps) -> None:
         lit = np.flatnonzero(scale > 0)
         if lit.size == 0:
             return
-        scale = scale[lit]
+        scale = _bent_scale(scale[lit], lit, l, n, frame)
         if caster is not None:
             o = x[lit] + eps * n[lit]
             d = np.broadcast_to(l, o.shape)
@@ -350,7 +387,7 @@ def _add_light(acc, x, n, light, caster, eps) -> None:
     lit = np.flatnonzero(ok)
     if lit.size == 0:
         return
-    scale = scale[lit]
+    scale = _bent_scale(scale[lit], lit, l[lit], n, frame)
     if caster is not None:
         o = x[lit] + eps * n[lit]
         ray = p - o
@@ -363,3 +400,183 @@ def _add_light(acc, x, n, light, caster, eps) -> None:
             )
             scale[trace[blocked]] = 0.0
     acc[lit] += scale[:, None] * color
+
+
+# ------------------------------------------------------------------- bent shading normals (Cycles 3.4)
+@numba.njit(cache=True, nogil=True)
+def _valid_reflection(gx, gy, gz, ix, iy, iz, nx, ny, nz):  # pragma: no cover - compiled
+    """Cycles 3.4's ``ensure_valid_reflection(Ng, I, N)`` (intern/cycles/kernel/closure/bsdf_util.h), float64.
+
+    ``(x, y, z, bent)``: N unchanged (``bent`` False) when the mirror reflection ``R = 2(N·I)N − I`` of the viewer
+    direction I is at least ``t = min(0.9·Ng·I, 0.01)`` above the geometric plane; else N rotated toward Ng, in the
+    plane of N and Ng, just enough that the reflection is at ``t`` (``bent`` True). With ``X = unit(N − (N·Ng)Ng)``,
+    ``Ix = I·X``, ``Iz = I·Ng``, ``a = Ix² + Iz²``, ``b = √(Ix²(a − t²))``, ``c = Iz·t + a`` the candidates are
+    ``N'z² = (c ± b)/(2a)``, ``N'x = √(1 − N'z²)``; a candidate with ``N'z²`` outside (1e-5, 1 + 1e-5] is dropped,
+    of two the one whose reflection ``2(N'·I)N'z − Iz`` is >= 1e-5 (both: the shallower); none: Ng. Ng, I, N unit;
+    Ng and N on the side of I (Ng·I > 0), as Cycles' shader setup leaves them."""
+    ni = nx * ix + ny * iy + nz * iz
+    rx, ry, rz = 2.0 * ni * nx - ix, 2.0 * ni * ny - iy, 2.0 * ni * nz - iz
+    gi = gx * ix + gy * iy + gz * iz
+    thr = min(0.9 * gi, 0.01)
+    if gx * rx + gy * ry + gz * rz >= thr:
+        return nx, ny, nz, False
+    ng = nx * gx + ny * gy + nz * gz
+    xx, xy, xz = nx - ng * gx, ny - ng * gy, nz - ng * gz
+    xl = math.sqrt(xx * xx + xy * xy + xz * xz)
+    if not xl > 0.0:           # N = ±Ng: Cycles' normalize would give NaN; its fallback
+        return gx, gy, gz, True
+    xx, xy, xz = xx / xl, xy / xl, xz / xl
+    i_x = ix * xx + iy * xy + iz * xz
+    i_z = gi
+    ix2, iz2 = i_x * i_x, i_z * i_z
+    a = ix2 + iz2
+    b = math.sqrt(max(ix2 * (a - thr * thr), 0.0))
+    c = i_z * thr + a
+    fac = 0.5 / a
+    n1z2, n2z2 = fac * (b + c), fac * (-b + c)
+    valid1 = (n1z2 > 1e-5) and (n1z2 <= 1.0 + 1e-5)
+    valid2 = (n2z2 > 1e-5) and (n2z2 <= 1.0 + 1e-5)
+    if valid1 and valid2:
+        n1x, n1z = math.sqrt(max(1.0 - n1z2, 0.0)), math.sqrt(max(n1z2, 0.0))
+        n2x, n2z = math.sqrt(max(1.0 - n2z2, 0.0)), math.sqrt(max(n2z2, 0.0))
+        r1 = 2.0 * (n1x * i_x + n1z * i_z) * n1z - i_z
+        r2 = 2.0 * (n2x * i_x + n2z * i_z) * n2z - i_z
+        v1, v2 = r1 >= 1e-5, r2 >= 1e-5
+        if v1 and v2:
+            first = r1 < r2
+        else:
+            first = r1 > r2
+        px, pz = (n1x, n1z) if first else (n2x, n2z)
+    elif valid1 or valid2:
+        z2 = n1z2 if valid1 else n2z2
+        px, pz = math.sqrt(max(1.0 - z2, 0.0)), math.sqrt(max(z2, 0.0))
+    else:
+        return gx, gy, gz, True
+    return px * xx + pz * gx, px * xy + pz * gy, px * xz + pz * gz, True
+
+
+@numba.njit(cache=True, nogil=True)
+def _bump_shadowing(sx, sy, sz, nx, ny, nz, wx, wy, wz):  # pragma: no cover - compiled
+    """Cycles 3.4's ``bump_shadowing_term(sd->N, sc->N, ω)`` (intern/cycles/kernel/closure/bsdf.h; Chiang, Li and
+    Burley 2019, "Taming the Shadow Terminator"): s the smooth (interpolated) normal, n the closure's normal N', ω the
+    light / sampled direction. ``g = (s'·ω) / ((n·ω)(s'·n))`` with s' = s, negated when n·ω < 0; 1 for g >= 1, 0 for
+    g < 0 (ω below the smooth normal), else ``−g³ + g² + g``. 0/0 reads 0 (Cycles' safe_divide)."""
+    cni = nx * wx + ny * wy + nz * wz
+    if cni < 0.0:
+        sx, sy, sz = -sx, -sy, -sz
+    den = cni * (sx * nx + sy * ny + sz * nz)
+    g = (sx * wx + sy * wy + sz * wz) / den if den != 0.0 else 0.0
+    if g >= 1.0:
+        return 1.0
+    if g < 0.0:
+        return 0.0
+    g2 = g * g
+    return -g2 * g + g2 + g
+
+
+@numba.njit(cache=True, nogil=True)
+def _valid_reflection_kernel(g, i, n, out, bent):  # pragma: no cover - compiled
+    for k in range(g.shape[0]):
+        x, y, z, b = _valid_reflection(g[k, 0], g[k, 1], g[k, 2], i[k, 0], i[k, 1], i[k, 2], n[k, 0], n[k, 1], n[k, 2])
+        out[k, 0], out[k, 1], out[k, 2] = x, y, z
+        bent[k] = b
+
+
+def ensure_valid_reflection(geo_normals, views, normals) -> tuple[np.ndarray, np.ndarray]:
+    """Cycles 3.4's shading-normal correction (:func:`_valid_reflection`) of N rows: ``(N' (N, 3) float64,
+    bent (N,) bool)``; ``N' == normals`` exactly where not bent.
+
+    geo_normals : (N, 3) unit geometric normals Ng, on the viewer's side (Ng·I > 0); views : (N, 3) unit directions
+    toward the viewer I (minus the arriving ray's direction); normals : (N, 3) unit shading normals N (on Ng's side:
+    flipped with Ng, as Cycles flips both for a back face). Cycles applies it to every BSDF closure's normal
+    (svm_node_closure_bsdf: ``N = ensure_valid_reflection(sd->Ng, sd->I, N)``)."""
+    g = np.ascontiguousarray(geo_normals, np.float64)
+    i = np.ascontiguousarray(views, np.float64)
+    n = np.ascontiguousarray(normals, np.float64)
+    out = np.empty_like(n)
+    bent = np.zeros(n.shape[0], np.bool_)
+    _valid_reflection_kernel(g, i, n, out, bent)
+    return out, bent
+
+
+def bump_shadowing_term(smooth_normals, normals, dirs) -> np.ndarray:
+    """(N,) float64: :func:`_bump_shadowing` per row (smooth normal s, closure normal N', direction ω; all (N, 3)).
+    Cycles 3.4 multiplies a diffuse closure's evaluation and sample by it where its N' differs from the smooth
+    normal, i.e. where :func:`ensure_valid_reflection` bent it (closure/bsdf.h ``bsdf_eval``, ``bsdf_sample``)."""
+    s = np.asarray(smooth_normals, np.float64)
+    n = np.asarray(normals, np.float64)
+    w = np.asarray(dirs, np.float64)
+    cni = np.einsum("ij,ij->i", n, w)
+    s = np.where((cni < 0)[:, None], -s, s)
+    den = cni * np.einsum("ij,ij->i", s, n)
+    num = np.einsum("ij,ij->i", s, w)
+    g = np.divide(num, den, out=np.zeros_like(den), where=den != 0)
+    return np.where(g >= 1.0, 1.0, np.where(g < 0.0, 0.0, -g ** 3 + g ** 2 + g))
+
+
+HORIZON_FLAT = 1.0 - 1e-6
+"""N'·Ng above this reads as flat: horizon factor exactly 1 (its true value differs by < 5e-7), so flat-shaded
+scenes bake bit-identically."""
+
+HORIZON_QUADRATURE = (24, 48)
+"""(radial, angular) midpoint cells of the cosine-lobe quadrature of a bent hit's horizon factor."""
+
+
+@numba.njit(cache=True, nogil=True)
+def _horizon_kernel(n, g, s, bent, nr, nphi, out):  # pragma: no cover - compiled
+    for k in range(n.shape[0]):
+        nx, ny, nz = n[k, 0], n[k, 1], n[k, 2]
+        c = nx * g[k, 0] + ny * g[k, 1] + nz * g[k, 2]
+        if g[k, 0] == 0.0 and g[k, 1] == 0.0 and g[k, 2] == 0.0:     # degenerate triangle: no plane
+            out[k] = 1.0
+            continue
+        if not bent[k]:
+            out[k] = 1.0 if c > HORIZON_FLAT else 0.5 * (1.0 + c)
+            continue
+        # the cosine lobe about N' (Malley: uniform disc (r, φ) lifted), midpoint cells of equal probability
+        sg = 1.0 if nz >= 0.0 else -1.0
+        aa = -1.0 / (sg + nz)
+        bb = nx * ny * aa
+        t1x, t1y, t1z = 1.0 + sg * nx * nx * aa, sg * bb, -sg * nx
+        t2x, t2y, t2z = bb, sg + ny * ny * aa, -ny
+        acc = 0.0
+        for a in range(nr):
+            u1 = (a + 0.5) / nr
+            r = math.sqrt(u1)
+            zc = math.sqrt(1.0 - u1)
+            for b in range(nphi):
+                phi = 2.0 * math.pi * (b + 0.5) / nphi
+                x, y = r * math.cos(phi), r * math.sin(phi)
+                wx = x * t1x + y * t2x + zc * nx
+                wy = x * t1y + y * t2y + zc * ny
+                wz = x * t1z + y * t2z + zc * nz
+                if wx * g[k, 0] + wy * g[k, 1] + wz * g[k, 2] <= 0.0:
+                    continue
+                acc += _bump_shadowing(s[k, 0], s[k, 1], s[k, 2], nx, ny, nz, wx, wy, wz)
+        out[k] = acc / (nr * nphi)
+
+
+def horizon_factor(normals, geo_normals, smooth_normals=None, bent=None) -> np.ndarray:
+    """(N,) float64: the fraction of uniform incident radiance a Lambertian surface with closure normal N' keeps when
+    directions below its geometric plane (normal Ng) are lost: ``h = (1/π) ∫ max(0, N'·ω) [Ng·ω > 0] dω``.
+
+    Derivation (not bent; H = the hemisphere Ng·ω > 0): write ``max(0, x) = (x + |x|)/2``, so
+    ``π h = ½ ∫_H N'·ω dω + ½ ∫_H |N'·ω| dω``. The first integral is ``N'·∫_H ω dω = π N'·Ng`` (the hemisphere's
+    vector irradiance is π Ng). In the second, ω → −ω maps H onto the other hemisphere and keeps |N'·ω|, so it is
+    half of the whole sphere's ``∫ |N'·ω| dω = 2π``: π. Hence ``h = (1 + N'·Ng)/2`` (1 when N' = Ng, 1/2 when N'
+    lies in the plane) — the sky view factor of a tilted surface.
+
+    ``bent`` rows (Cycles applied :func:`ensure_valid_reflection`, so it also multiplies by
+    :func:`bump_shadowing_term` with the smooth normal s): ``h = (1/π) ∫ max(0, N'·ω) [Ng·ω > 0] S(s, N', ω) dω``,
+    which has no closed form here: a midpoint quadrature over the cosine lobe (:data:`HORIZON_QUADRATURE`
+    equal-probability cells, ~0.2% accurate). ``N'·Ng >`` :data:`HORIZON_FLAT` reads 1 (flat).
+
+    normals, geo_normals, smooth_normals : (N, 3) unit (N', Ng on the lit side, s); bent : (N,) bool or None (none).
+    """
+    n = np.ascontiguousarray(normals, np.float64)
+    g = np.ascontiguousarray(geo_normals, np.float64)
+    s = n if smooth_normals is None else np.ascontiguousarray(smooth_normals, np.float64)
+    b = np.zeros(n.shape[0], np.bool_) if bent is None else np.ascontiguousarray(bent, np.bool_)
+    out = np.empty(n.shape[0])
+    _horizon_kernel(n, g, s, b, HORIZON_QUADRATURE[0], HORIZON_QUADRATURE[1], out)
+    return out
