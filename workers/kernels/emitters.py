@@ -18,18 +18,20 @@ import numpy as np
 
 from workers.kernels.materials import double_sided_triangles
 from workers.kernels.path_rng import _uniform
-from workers.kernels.shading import surface_at_hits
+from workers.kernels.shading import _bump_shadowing, surface_at_hits
 
 __all__ = ["Emitters"]
 
 
 @numba.njit(cache=True, nogil=True)
 def _nee_kernel(pos, ns, pid, seed, vertex, uni, cdf, em_tri, tris, ngeo, dsided, tri_pmf, area,
-                out_tri, out_u, out_v, out_dir, out_dist, out_w):
+                out_tri, out_u, out_v, out_dir, out_dist, out_w, bent_mode, ng, sm, bent):
     """Pick an emissive triangle (pmf ∝ area × max emissive factor) and a uniform point on it per shading
     point; out_w = cos θ · w_light / p_light (solid-angle pdf, power heuristic against the cosine pdf),
     0 when the point is behind the shading point or sees the back of a single-sided emitter. The uniforms:
-    ``uni`` (L, 3) when it has L rows (the pick, the point's two), else dimensions 3, 4, 5 of (seed, pid, vertex)."""
+    ``uni`` (L, 3) when it has L rows (the pick, the point's two), else dimensions 3, 4, 5 of (seed, pid, vertex).
+    ``bent_mode`` (path vertices, Cycles 3.4's bent normals): also 0 below the geometric plane ``ng``, and × the
+    bump shadowing term (smooth normal ``sm``, ns = N', direction) on ``bent`` rows."""
     n_em = em_tri.shape[0]
     given = uni.shape[0] == pos.shape[0]
     for i in range(pos.shape[0]):
@@ -63,6 +65,15 @@ def _nee_kernel(pos, ns, pid, seed, vertex, uni, cdf, em_tri, tris, ngeo, dsided
         cos_s = dx * ns[i, 0] + dy * ns[i, 1] + dz * ns[i, 2]
         if cos_s <= 0.0:
             continue
+        bump = 1.0
+        if bent_mode:
+            gdot = dx * ng[i, 0] + dy * ng[i, 1] + dz * ng[i, 2]
+            if gdot <= 0.0 and (ng[i, 0] != 0.0 or ng[i, 1] != 0.0 or ng[i, 2] != 0.0):
+                continue
+            if bent[i]:
+                bump = _bump_shadowing(sm[i, 0], sm[i, 1], sm[i, 2], ns[i, 0], ns[i, 1], ns[i, 2], dx, dy, dz)
+                if not bump > 0.0:
+                    continue
         cos_e = -(dx * ngeo[t, 0] + dy * ngeo[t, 1] + dz * ngeo[t, 2])
         if cos_e <= 0.0:
             if not dsided[t]:
@@ -76,7 +87,7 @@ def _nee_kernel(pos, ns, pid, seed, vertex, uni, cdf, em_tri, tris, ngeo, dsided
         out_dir[i, 1] = dy
         out_dir[i, 2] = dz
         out_dist[i] = dist
-        out_w[i] = cos_s * p_l / (p_l * p_l + p_b * p_b)  # cos · w_l / p_l, w_l = p_l² / (p_l² + p_b²)
+        out_w[i] = bump * cos_s * p_l / (p_l * p_l + p_b * p_b)  # cos · w_l / p_l, w_l = p_l² / (p_l² + p_b²)
 
 
 class Emitters:
@@ -124,10 +135,16 @@ class Emitters:
             w[e] = p_b * p_b / (p_b * p_b + p_l * p_l)
         return w
 
-    def irradiance(self, scene, caster, pos, ns, ng, pid, seed, vertex, eps, uniforms=None) -> np.ndarray:
+    def irradiance(self, scene, caster, pos, ns, ng, pid, seed, vertex, eps, uniforms=None, smooth=None,
+                   bent=None) -> np.ndarray:
         """(L, 3) MIS-weighted one-sample estimate of the emitted irradiance arriving at the points. ``uniforms``
         (L, 3) in [0, 1): the emitter pick and the point on it (e.g. stratified); default: the counter-based
-        dimensions 3, 4, 5 of (seed, pid, vertex) (:mod:`workers.kernels.path_rng`)."""
+        dimensions 3, 4, 5 of (seed, pid, vertex) (:mod:`workers.kernels.path_rng`). ``smooth`` (L, 3), ``bent``
+        (L,) bool: a path vertex with Cycles' bent normals (ns = N' of
+        :func:`workers.kernels.shading.ensure_valid_reflection`, smooth the interpolated normal): samples below
+        the geometric plane ``ng`` give 0, bent rows × :func:`workers.kernels.shading.bump_shadowing_term`
+        (Cycles 3.4 ``bsdf_eval``); the cosine pdf of the MIS weight stays ``max(0, N'·ω)/π``, the pdf the
+        vertex samples with. Without them (the shading point itself) neither applies."""
         L = pos.shape[0]
         out = np.zeros((L, 3))
         if L == 0:
@@ -143,7 +160,9 @@ class Emitters:
             raise ValueError(f"Emitters.irradiance: uniforms must be ({L}, 3), got {uni.shape}")
         _nee_kernel(np.ascontiguousarray(pos), np.ascontiguousarray(ns), pid, np.uint64(seed), int(vertex), uni,
                     self.cdf, self.tri, self.tris, self.ngeo, self.double_sided, self.tri_pmf, self.area, tri, u, v, d,
-                    dist, w)
+                    dist, w, bent is not None, np.ascontiguousarray(ng, np.float64),
+                    np.ascontiguousarray(ns if smooth is None else smooth, np.float64),
+                    np.zeros(L, np.bool_) if bent is None else np.ascontiguousarray(bent, np.bool_))
         ok = np.flatnonzero((w > 0) & (dist > 2 * eps))
         if ok.size == 0:
             return out

@@ -106,7 +106,7 @@ import numpy as np
 from workers.kernels.emitters import Emitters
 from workers.kernels.materials import double_sided_triangles
 from workers.kernels.path_rng import _cosine_sample, _uniform, first_cosine_directions, stratified_uniforms
-from workers.kernels.shading import direct_irradiance, surface_at_hits
+from workers.kernels.shading import _bump_shadowing, _valid_reflection, direct_irradiance, surface_at_hits
 
 __all__ = ["PathTraceResult", "indirect_irradiance", "scene_eps", "DEFAULT_MAX_PATHS", "REPLICATES"]
 
@@ -244,6 +244,7 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
     if tail_r.shape != (n, 3) or not np.isfinite(tail_r).all():
         raise ValueError(f"indirect_irradiance: tail must be finite (N, 3) = ({n}, 3), got {tail_r.shape}")
     stats = {"paths": n * spp, "replicates": G, "below_surface": 0, "backface_ends": 0, "rr_kills": 0, "vertices": 0,
+             "bent_vertices": 0, "bump_zero": 0,
              "emitters": int(emitters.tri.size) if emitters is not None else 0}
     t0 = time.perf_counter()
     per_chunk = max(1, int(max_paths) // spp)
@@ -272,26 +273,33 @@ def indirect_irradiance(scene, points, normals, lights=(), *, sky=(0.0, 0.0, 0.0
 
 
 @numba.njit(cache=True, nogil=True)
-def _hit_frames(d, o, t, ns, ng, pos_out, ns_out, ng_out):
-    """Hit points ``o + t d`` and the shading / geometric normals flipped to face the arriving ray."""
+def _hit_frames(d, o, t, ns, ng, pos_out, ns_out, ng_out, sm_out, bent_out):
+    """Hit points ``o + t d``; the geometric and the interpolated normal both flipped when the geometric one faces
+    away from the arriving ray (Cycles' shader setup: ``sm_out``, ``ng_out``); the closure normal
+    ``ns_out = N'`` of Cycles' ``ensure_valid_reflection(Ng, I = −d, N)`` (:func:`shading._valid_reflection`) and
+    ``bent_out`` where it differs from the interpolated one."""
     for i in range(d.shape[0]):
-        sn = ns[i, 0] * d[i, 0] + ns[i, 1] * d[i, 1] + ns[i, 2] * d[i, 2]
         sg = ng[i, 0] * d[i, 0] + ng[i, 1] * d[i, 1] + ng[i, 2] * d[i, 2]
-        fs = -1.0 if sn > 0.0 else 1.0
         fg = -1.0 if sg > 0.0 else 1.0
         for c in range(3):
             pos_out[i, c] = o[i, c] + t[i] * d[i, c]
-            ns_out[i, c] = fs * ns[i, c]
+            sm_out[i, c] = fg * ns[i, c]
             ng_out[i, c] = fg * ng[i, c]
+        x, y, z, b = _valid_reflection(ng_out[i, 0], ng_out[i, 1], ng_out[i, 2], -d[i, 0], -d[i, 1], -d[i, 2],
+                                       sm_out[i, 0], sm_out[i, 1], sm_out[i, 2])
+        ns_out[i, 0], ns_out[i, 1], ns_out[i, 2] = x, y, z
+        bent_out[i] = b
 
 
 @numba.njit(cache=True, nogil=True)
-def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emission, e_in, ns, ng, pos, eps, tail,
-                   acc, keep, new_o, new_d, new_cos, counts):
+def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emission, e_in, ns, ng, sm, bent, pos, eps,
+                   tail, acc, keep, new_o, new_d, new_cos, counts):
     """Add each live vertex's radiance ``thr · (emission + albedo/π · e_in)`` to its path, then continue the
-    path (throughput × albedo, Russian roulette, a cosine direction about ns above the geometric surface).
+    path (throughput × albedo, Russian roulette, a cosine direction about ns = N' above the geometric surface,
+    throughput × the bump shadowing term of (sm, N', direction) where ``bent``: Cycles 3.4's diffuse bsdf_sample).
 
-    counts[0] += Russian-roulette kills, counts[1] += directions below the geometric surface.
+    counts[0] += Russian-roulette kills, counts[1] += directions below the geometric surface, counts[2] += bent
+    vertices' directions below the smooth normal (bump term 0).
     """
     inv_pi = 1.0 / math.pi
     for i in range(pid.shape[0]):
@@ -331,6 +339,14 @@ def _shade_scatter(vertex, last, rr_depth, seed, pid, owner, thr, albedo, emissi
         if dx * ng[i, 0] + dy * ng[i, 1] + dz * ng[i, 2] <= 0.0:
             counts[1] += 1
             continue
+        if bent[i]:
+            f = _bump_shadowing(sm[i, 0], sm[i, 1], sm[i, 2], ns[i, 0], ns[i, 1], ns[i, 2], dx, dy, dz)
+            if not f > 0.0:
+                counts[2] += 1
+                continue
+            thr[i, 0] *= f
+            thr[i, 1] *= f
+            thr[i, 2] *= f
         keep[i] = True
         new_d[i, 0] = dx
         new_d[i, 1] = dy
@@ -371,7 +387,7 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, repl
     thr = np.ones((alive.size, 3), np.float64)
     tail = np.repeat(np.ascontiguousarray(tail, np.float64), spp, axis=0)      # per path
     sky_on = bool(np.any(sky != 0))
-    counts = np.zeros(2, np.int64)
+    counts = np.zeros(3, np.int64)
     rr = 0 if rr_depth is None else int(rr_depth)
     for k in range(1, bounces + 1):
         if alive.size == 0:
@@ -392,24 +408,29 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, repl
         pos = np.empty((L, 3))
         ns = np.empty((L, 3))
         ng = np.empty((L, 3))
+        sm = np.empty((L, 3))
+        bent = np.empty(L, np.bool_)
         d = np.ascontiguousarray(dirs[idx])
         t_hit = h.t[idx].astype(np.float64)
         _hit_frames(d, origins[idx], t_hit, s["normal"].astype(np.float64), s["geo_normal"].astype(np.float64),
-                    pos, ns, ng)
+                    pos, ns, ng, sm, bent)
+        stats["bent_vertices"] += int(bent.sum())
         emission = s["emission"].astype(np.float64)
         pid = path_ids[alive[idx]]
         if nee:
             emission *= emitters.bsdf_weights(tri, t_hit, d, prev_cos[idx])[:, None]
-        e_in = direct_irradiance(pos, ns, lights, caster, eps).astype(np.float64) if lights else np.zeros((L, 3))
+        e_in = (direct_irradiance(pos, ns, lights, caster, eps, geo_normals=ng, smooth_normals=sm, bent=bent)
+                .astype(np.float64) if lights else np.zeros((L, 3)))
         if nee and k < bounces:
-            e_in += emitters.irradiance(scene, caster, pos, ns, ng, pid, seed, k, eps)
+            e_in += emitters.irradiance(scene, caster, pos, ns, ng, pid, seed, k, eps, smooth=sm, bent=bent)
         t = np.ascontiguousarray(thr[idx])
         keep = np.empty(L, np.bool_)
         new_o = np.empty((L, 3))
         new_d = np.empty((L, 3))
         new_cos = np.empty(L)
         _shade_scatter(k, k == bounces, rr, np.uint64(seed), pid, alive[idx], t, s["albedo"].astype(np.float64),
-                       emission, e_in, ns, ng, pos, float(eps), tail, acc, keep, new_o, new_d, new_cos, counts)
+                       emission, e_in, ns, ng, sm, bent, pos, float(eps), tail, acc, keep, new_o, new_d, new_cos,
+                       counts)
         if k == bounces:
             break
         alive = alive[idx[keep]]
@@ -419,6 +440,7 @@ def _trace_chunk(scene, caster, pts, nrm, geo, point_ids, lights, sky, spp, repl
         thr = t[keep]
     stats["rr_kills"] += int(counts[0])
     stats["below_surface"] += int(counts[1])
+    stats["bump_zero"] += int(counts[2])
     return acc.reshape(m, spp, 3)
 
 
