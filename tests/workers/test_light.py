@@ -183,3 +183,65 @@ def test_stored_formats_of_trace_and_light(tmp_path, scene_files, scene_name):
     assert li["irradiance"].dtype == np.float32 and li["irradiance"].shape[-1] == 3
     from proto.ktx2 import pack_e5b9g9r9, unpack_e5b9g9r9
     assert np.array_equal(unpack_e5b9g9r9(pack_e5b9g9r9(li["irradiance"])), li["irradiance"])
+
+
+@pytest.mark.parametrize("lean", [54.7, 0.0])
+def test_bent_normals_shade_probe_hits_like_cycles(tmp_path, lean):
+    """A floor (albedo a, geometric normal +y) whose vertex normals all lean 54.7° toward +x (a cube corner's averaged
+    normal), lit by a sun S lux 20° above the horizon on the side of the lean, no sky, probes above it. Cycles shades a
+    floor point seen from a probe with N' = ensure_valid_reflection(Ng, I, N) (I toward the probe), max(0, N'·l) and the
+    bump shadowing term where N' was bent, so a probe's irradiance toward the floor (texel direction q, lower
+    hemisphere) is E(q) = ∫ max(0, q·d) a/π S f(−d) dd, f(I) = max(0, N'(I)·l)·S(I): a quadrature with the kernels'
+    functions. Shading with the raw N (the old light stage: max(0, N·l)) reads 14% high; the floor sees nothing else,
+    so with one bounce (E_indirect 0) the test is E_direct's: 0.9996 of the quadrature (1024 rays). Converged
+    bounces read 3.3% higher with the lean (not without): the probes above the floor gather E_indirect about the
+    tilted N', a lobe that dips below the floor's plane and sees the lit floor itself, which the horizon factor
+    (exact for uniform radiance) only partly removes."""
+    from tests.gltf_build import GltfBuilder
+    from workers.kernels.octahedral import oct_texel_directions
+    from workers.kernels.path_rng import _cosine_dir
+    from workers.kernels.shading import bump_shadowing_term, ensure_valid_reflection
+
+    a, S, R, tilt = 0.5, 3.0, 200.0, math.radians(lean)
+    b = GltfBuilder()
+    mat = b.material(pbrMetallicRoughness={"baseColorFactor": [a, a, a, 1.0], "metallicFactor": 0.0})
+    nb = np.array([math.sin(tilt), math.cos(tilt), 0.0])
+    b.mesh([[-R, 0, -R], [-R, 0, R], [R, 0, R], [R, 0, -R]], [[0, 1, 2], [0, 2, 3]], normals=np.tile(nb, (4, 1)),
+           material=mat)
+    path = tmp_path / "bent-floor.glb"
+    path.write_bytes(b.glb())
+    e = math.radians(20)
+    l = np.array([math.cos(e), math.sin(e), 0.0])
+    cfg = {"place": {"counts": [2, 2, 2], "box": {"min": [-1, 1, -1], "max": [1, 2, 1]}},
+           "trace": {"rays_per_probe": 1024}, "light": {"bounces": 1},
+           "scene": {"lights": [{"type": "directional", "direction": (-l).tolist(), "intensity": S}]}}
+    _, s = bake_until(tmp_path, path, cfg, "light")
+    st = s["light"].stats
+    t = s["light"]["irradiance"].shape[0] // 2      # a tile with its border
+    maps = unpack_atlas(s["light"]["irradiance"], [2, 2, 2], t)[:, 1:-1, 1:-1, :3].mean(axis=-1)   # (P, n, n)
+    n = t - 2
+    q = oct_texel_directions(n).reshape(n, n, 3)
+    down = q[..., 1] < -0.8
+    got = maps[:, down].mean(axis=0)             # the same floor under every probe: average them
+
+    def floor_radiance(d):                        # toward the probe, along the arriving direction d (d_y < 0)
+        m = len(d)
+        ng = np.tile([0.0, 1.0, 0.0], (m, 1))
+        n_c, bent = ensure_valid_reflection(ng, -d, np.tile(nb, (m, 1)))
+        ll = np.tile(l, (m, 1))
+        f = np.maximum(n_c @ l, 0) * np.where(bent, bump_shadowing_term(np.tile(nb, (m, 1)), n_c, ll), 1.0)
+        return a / math.pi * S * f
+
+    u = (np.arange(48) + 0.5) / 48
+    want, old = [], []
+    for qq in q[down]:
+        d = np.array([_cosine_dir(qq[0], qq[1], qq[2], x, y)[:3] for x in u for y in u])
+        hit = d[:, 1] < 0
+        want.append(math.pi * np.sum(floor_radiance(d[hit])) / len(d))
+        old.append(math.pi * hit.sum() * a / math.pi * S * max(nb @ l, 0) / len(d))
+    want, old = np.array(want), np.array(old)
+    np.testing.assert_allclose(got, want, rtol=0.02)
+    if lean:
+        assert st["bent_hits"] > 0 and old.mean() > 1.1 * want.mean()
+    else:
+        assert st["bent_hits"] == 0 and np.allclose(old, want)

@@ -138,7 +138,7 @@ class BounceLog:
 def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct: np.ndarray, dirs: np.ndarray,
               states: np.ndarray, n: int, gather, retire, *, emission: np.ndarray | None = None, sky=None,
               bounces: int | None, max_bounces: int, tolerance: float, report=None,
-              correction: np.ndarray | None = None) -> BounceLog:
+              correction: np.ndarray | None = None, indirect_scale: np.ndarray | None = None) -> BounceLog:
     """Sum the bounce series of B lighting configurations (module doc) over the same cached probe-ray hits.
 
     Parameters
@@ -172,6 +172,10 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         Added to every bounce's maps: light the cached rays do not carry (the point lights' hot spots sampled
         from the light, :func:`workers.kernels.light_spots.spot_correction`); the radiance handed to ``retire``
         does not hold it.
+    indirect_scale : (H,) float32 or None
+        Multiplies E_indirect at each hit (the light stage's horizon factor of bent shading normals,
+        :func:`workers.kernels.shading.horizon_factor`): ``L = emission + albedo/π · (E_direct + h·E_indirect)``.
+        None: 1.
     """
     P, R = miss.shape
     B, H = e_direct.shape[0], index.size
@@ -180,7 +184,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     base = (alb[:, None, :] * e_direct.transpose(1, 0, 2)).reshape(H, 3 * B)  # albedo/π · E_direct
     if emission is not None:
         base = np.tile(emission, (1, B)) + base                               # + emission
-    rho = np.tile(alb, (1, B))
+    rho = np.tile(alb if indirect_scale is None else alb * np.asarray(indirect_scale, np.float32)[:, None], (1, B))
     # radiance ray-major, (R·P, 3B): row r·P + p is probe p's ray r (the octahedral sums read it without a copy)
     radiance = np.zeros((R * P, 3 * B), np.float32)
     rows = (index % R) * P + index // R
@@ -241,7 +245,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
 
 
 def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emission=None, sky=None,
-                  bounces: int | None, max_bounces: int, tolerance: float, report=None, correction=None):
+                  bounces: int | None, max_bounces: int, tolerance: float, report=None, correction=None,
+                  indirect_scale=None):
     """:func:`integrate` for one configuration: ``e_direct`` (H, 3). Returns ``(irradiance (P, n+2, n+2, 3),
     radiance (P, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float)."""
     out = {}
@@ -251,5 +256,5 @@ def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emi
 
     log = integrate(index, miss, albedo, e_direct[None], dirs, states, n, gather, retire, emission=emission,
                     sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report,
-                    correction=correction)
+                    correction=correction, indirect_scale=indirect_scale)
     return out["maps"], out["radiance"], log.change[0], log.residual[0]

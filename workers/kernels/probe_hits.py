@@ -20,7 +20,7 @@ import numpy as np
 from numba import njit
 
 from workers.kernels.ddgi import cage_probes, cage_rays
-from workers.kernels.shading import surface_at_hits
+from workers.kernels.shading import ensure_valid_reflection, surface_at_hits
 
 __all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "VISIBILITY_CHUNK", "HIT_CHUNK"]
 
@@ -36,8 +36,12 @@ class HitSurfaces:
     """The shading inputs of the front-face probe-ray hits, computed once per geometry.
 
     ``index`` (H,) int64 flat ray indices (into P·R) of the front-face hits; ``position`` (world space,
-    metres), ``normal`` (unit, facing the probe), ``view`` (unit, toward the probe), ``albedo`` (linear
-    RGB), ``emission`` (linear RGB radiance) : (H, 3) float32; ``miss`` (P, R) bool; P probes, R rays each.
+    metres), ``normal`` (unit, facing the probe: the closure normal N' Cycles would shade with for a viewer at the
+    probe, :func:`hit_surfaces`), ``view`` (unit, toward the probe), ``albedo`` (linear RGB), ``emission`` (linear
+    RGB radiance) : (H, 3) float32; ``miss`` (P, R) bool; P probes, R rays each. ``geo_normal`` (H, 3) float32:
+    the unit geometric normal on the probe's side; ``smooth_normal`` (H, 3) float32: the interpolated vertex normal
+    flipped with it; ``bent`` (H,) bool: N' != smooth normal (Cycles bent it). The light stage drops these three
+    once E_direct and the horizon factors are made.
     """
 
     index: np.ndarray
@@ -49,6 +53,9 @@ class HitSurfaces:
     miss: np.ndarray
     P: int
     R: int
+    geo_normal: np.ndarray | None = None
+    smooth_normal: np.ndarray | None = None
+    bent: np.ndarray | None = None
 
 
 def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> HitSurfaces:
@@ -67,19 +74,32 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
 
     Back-face hits (a single-sided surface seen from behind: radiance 0, DDGI-P §4.1) and misses are not
     in ``index``. The hits are returned in spatial order (a coarse 3D grid), which changes no result.
+
+    Normals as Cycles 3.4 shades a hit seen by a viewer at the probe: the geometric and the interpolated normal are
+    flipped together when the geometric one faces away from the ray (shader setup), and the closure normal is
+    ``N' = ensure_valid_reflection(Ng, view, N)`` (:func:`workers.kernels.shading.ensure_valid_reflection`): N
+    rotated toward Ng where the probe's mirror reflection about N would go below the surface (interpolated normals
+    bent at a cube's corners). Where N' = N (every flat-shaded surface) ``normal`` is the interpolated normal
+    exactly, as before.
     """
     P, R = tri.shape
     flat = hits.reshape(-1, hits.shape[-1])               # (P·R, 4): t, u, v, backface
     index = np.flatnonzero((tri >= 0) & ~(hits[..., 3] > 0.5))
     d = np.asarray(dirs)[index % R]                       # ray index·R + r: direction r (no (P·R, 3) tile)
     H = index.size
-    pos, n, alb, emi = (np.empty((H, 3), np.float32) for _ in range(4))
+    pos, n, alb, emi, geo, smooth = (np.empty((H, 3), np.float32) for _ in range(6))
+    bent = np.zeros(H, bool)
     for a in range(0, H, HIT_CHUNK):                      # bounded float64 temporaries (12M hits: ~2 GB at once)
         b = min(H, a + HIT_CHUNK)
         uv = flat[index[a:b], 1:3]
         s = surface_at_hits(scene, tri.ravel()[index[a:b]], uv[:, 0], uv[:, 1])
         nn = s["normal"].astype(np.float32)
-        n[a:b] = np.where((np.einsum("ij,ij->i", nn, d[a:b]) > 0)[:, None], -nn, nn)   # the side the ray arrived on
+        gg = s["geo_normal"].astype(np.float32)
+        flip = (np.einsum("ij,ij->i", gg, d[a:b]) > 0)[:, None]                  # the side the ray arrived on
+        smooth[a:b] = np.where(flip, -nn, nn)
+        geo[a:b] = np.where(flip, -gg, gg)
+        nb, bent[a:b] = ensure_valid_reflection(geo[a:b], -d[a:b], smooth[a:b])   # Cycles' closure normal N'
+        n[a:b] = nb
         pos[a:b], alb[a:b], emi[a:b] = s["position"], s["albedo"], s["emission"]
     # visit hits in spatial order (a coarse 3D grid): the probe sampler then reads neighbouring probes
     # from cache (about 1.6x faster than ray order); the order does not change any result
@@ -96,8 +116,9 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     n = n[order]
     alb = alb[order]
     emi = emi[order]
+    geo, smooth, bent = geo[order], smooth[order], bent[order]
     return HitSurfaces(index=index, position=pos, normal=n, view=view, albedo=alb, emission=emi, miss=tri < 0, P=P,
-                       R=R)
+                       R=R, geo_normal=geo, smooth_normal=smooth, bent=bent)
 
 
 @njit(cache=True, nogil=True)

@@ -43,7 +43,7 @@ from workers.kernels.materials import albedo_warnings, double_sided_triangles
 from workers.kernels.probe_hits import hit_surfaces, probe_visibility
 from workers.kernels.octahedral import oct_texel_directions
 from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project
-from workers.kernels.shading import direct_irradiance
+from workers.kernels.shading import direct_irradiance, horizon_factor
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageOutput
 
@@ -76,8 +76,15 @@ def run_light(ctx: StageContext) -> StageOutput:
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"])
     eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
     caster = caster_for_scene(scene)
-    per_light = [direct_irradiance(surf.position, surf.normal, [lt], caster, eps) for lt in lit["lights"]]
+    # bent shading normals, as Cycles shades a hit for a viewer at the probe (module doc): E_direct about N' with
+    # lights below the geometric plane rejected and the bump term on bent hits; E_indirect x the horizon factor
+    frame = dict(geo_normals=surf.geo_normal, smooth_normals=surf.smooth_normal, bent=surf.bent)
+    per_light = [direct_irradiance(surf.position, surf.normal, [lt], caster, eps, **frame) for lt in lit["lights"]]
     e_direct = sum(per_light[1:], per_light[0]) if per_light else np.zeros_like(surf.position)
+    horizon = horizon_factor(surf.normal, surf.geo_normal, surf.smooth_normal, surf.bent).astype(np.float32)
+    n_bent, n_horizon = int(surf.bent.sum()), int((horizon < 1).sum())
+    horizon = None if n_horizon == 0 else horizon          # flat shading: 1 everywhere, bit-identical to no factor
+    surf.geo_normal = surf.smooth_normal = surf.bent = frame = None
     t_direct = time.perf_counter() - t0
     t0 = time.perf_counter()
     visible, vis_rays = probe_visibility(surf, grid, positions, states, caster, sec.self_shadow_bias)
@@ -98,7 +105,8 @@ def run_light(ctx: StageContext) -> StageOutput:
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
-        tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps)
+        tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps,
+        indirect_scale=horizon)
     t_bounces = time.perf_counter() - t1
     sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
@@ -118,7 +126,8 @@ def run_light(ctx: StageContext) -> StageOutput:
         "residual": (residuals[-1] if math.isfinite(residuals[-1]) else None) if residuals else 0.0,
         "converged": bool(residuals) and residuals[-1] < sec.tolerance,
         "off_dilated": dilated,
-        "front_hits": int(surf.index.size), "shadow_rays": int(surf.index.size) * len(lit["lights"]),
+        "front_hits": int(surf.index.size), "bent_hits": n_bent, "horizon_hits": n_horizon,
+        "horizon_mean": float(horizon.mean()) if horizon is not None else 1.0, "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces, "weights_seconds": t_weights,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
         "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
