@@ -83,10 +83,26 @@ a hash (splitmix64) of (seed, p, k, dimension) — the stratified first ones a h
 set) — so a point's estimate depends only on the seed, the settings and its index in the input — never on
 chunking, thread count or the other points.
 
-Secondary rays start at ``y + eps·n_geo`` (the geometric normal on the side the path arrived from);
-directions are cosine-distributed about the shading normal, and a direction below the geometric
-surface (possible where interpolated normals bend away) ends the path with 0 (counted in
-``stats["below_surface"]``).
+Secondary rays start at ``y + eps·n_geo`` (the geometric normal on the side the path arrived from).
+Shading normals at path vertices k >= 1 follow Blender Cycles 3.4 (the fidelity oracle), which matters where
+interpolated normals bend away from the geometric one (a cube's corner-averaged normals: up to 54.7°):
+
+- the geometric normal Ng and the interpolated N are flipped together when Ng faces away from the arriving ray
+  (Cycles' shader setup; each flipped by its own sign, N could end up below the surface);
+- the closure normal is ``N' = ensure_valid_reflection(Ng, I, N)`` with I = −(arriving direction)
+  (:func:`workers.kernels.shading.ensure_valid_reflection`; Cycles' svm_node_closure_bsdf does it for every BSDF):
+  N rotated toward Ng just enough that the mirror reflection of I stays above the surface;
+- the next direction is cosine-distributed about N'; one below the geometric surface ends the path with 0
+  (``stats["below_surface"]``; Cycles' bsdf_diffuse_sample gives it pdf and eval 0);
+- where N' differs from N (``stats["bent_vertices"]``), the throughput of the sampled direction and the vertex's
+  direct light (punctual lights and emitter NEE) are multiplied by Cycles' bump shadowing term of (N, N', ω)
+  (:func:`workers.kernels.shading.bump_shadowing_term`, Chiang et al. 2019; 0 below the smooth N:
+  ``stats["bump_zero"]`` ends those paths); direct light is ``max(0, N'·l)`` and 0 for lights below Ng.
+
+Vertex 0 (the query point: a free-space receiver, a G-buffer pixel, a texel) has no arriving ray: its normals are
+used as given (cosine about ``normals``, rejection below ``geo_normals``, no bump term). On the real Cornell box
+with such normals (cornell-vinc3r) this took Kiln's path tracer from 0.80-0.997 of Cycles to 0.999-1.018 (module
+tests: a bent floor under a sky and under a sun against the Cycles model).
 
 Modules: this one (the estimator and its wavefront loop), :mod:`workers.kernels.path_rng` (random numbers,
 cosine directions), :mod:`workers.kernels.emitters` (next-event estimation), :mod:`workers.kernels.reference`

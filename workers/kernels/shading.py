@@ -24,6 +24,14 @@ Conventions
   W/m²-like units consistent with the light intensities; a Lambertian surface then reflects
   radiance ``albedo/π · E``.
 
+Bent shading normals (interpolated normals that lean away from the geometric one): Kiln shades path vertices and
+probe-ray hits as Blender Cycles 3.4 does (intern/cycles/kernel/svm/closure.h, closure/bsdf_util.h,
+closure/bsdf.h): the closure normal ``N' = ensure_valid_reflection(Ng, I, N)`` (:func:`ensure_valid_reflection`),
+lights below the geometric plane give 0, and where N' differs from N the diffuse evaluation is multiplied by
+the bump shadowing term (:func:`bump_shadowing_term`); :func:`horizon_factor` is the part of uniform incident light
+such a surface keeps (used for the light stage's probe-interpolated E_indirect). :func:`direct_irradiance` applies
+the frame when given ``geo_normals`` / ``smooth_normals`` / ``bent``; without them it is unchanged.
+
 Consumers: stages/light (ray shading), stages/evaluate (reference path tracer), stages/prt
 (direct light at measurement points). Inverse: none.
 """

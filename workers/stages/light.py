@@ -7,6 +7,17 @@ An adapter: it reads the trace, relocate, place and ingest outputs and calls the
 few % through thin walls) and the bounce integrator :func:`workers.kernels.bounce.integrate_one` (radiance
 ``emission + albedo/π · (E_direct + E_indirect)`` at front-face hits, the sky at misses, 0 at back faces;
 DDGI-I eq 1 with α = 0 per bounce; E_indirect by the DDGI sampler, :class:`workers.kernels.gather.SamplerGather`).
+Bent shading normals: each hit is shaded as Cycles 3.4 would for a viewer at the probe
+(:func:`workers.kernels.probe_hits.hit_surfaces`): closure normal ``N' = ensure_valid_reflection(Ng, view, N)``;
+E_direct about N' with lights below the geometric plane rejected and, where N' was bent, Cycles' bump shadowing
+term; E_indirect gathered about N' and multiplied by the horizon factor h (:func:`workers.kernels.shading.
+horizon_factor`: ``(1 + N'·Ng)/2``, the part of a cosine lobe about N' above the geometric plane under uniform
+radiance; on bent hits a quadrature that includes the bump term), since the probes' irradiance holds light from
+behind the surface that the surface itself cannot see. Flat-shaded hits (N'·Ng > 1 − 1e-6) get h = 1 exactly and
+bake bit-identically (stats ``bent_hits``, ``horizon_hits``, ``horizon_mean``). h assumes uniform radiance: where the
+tilted lobe dips below the plane into bright geometry the probes still see, E_indirect stays somewhat high (a bent
+floor under a sun: 3%, tests/workers/test_light.py). The point lights' hot spots (below) are shaded about the
+interpolated normal, as before.
 The hot spots a point / spot light makes on a surface next to it (direct irradiance above 32x the light's median at
 the hits) are sampled from the light (:mod:`workers.kernels.light_spots`): the rays carry the bounded part, virtual
 point lights the excess, added to every bounce's maps and to the SH (stats ``spot_lights``, ``spot_rays``).
