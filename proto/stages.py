@@ -51,8 +51,8 @@ STAGES: tuple[StageDef, ...] = (
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
     # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance and SH volumes RGBA16F,
     # probe_sh a KTX2 table (issue 17); 6: irradiance E5B9G9R9_UFLOAT_PACK32 without the tile borders,
-    # probe_sh a half-float table
-    StageDef("light", 6, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # probe_sh a half-float table; 7: bent shading normals shaded as Cycles 3.4 does (workers/kernels/shading.py)
+    StageDef("light", 7, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)
@@ -68,8 +68,8 @@ STAGES: tuple[StageDef, ...] = (
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones; 3: which points are
     # refined is chosen on an independent pilot pass (the choice on the first pass biased values and errors low);
     # 4: stratified first directions with replicate standard errors, the pilot's Russian-roulette control variate
-    # (workers/kernels/pathtrace.py)
-    StageDef("reference", 4, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
+    # (workers/kernels/pathtrace.py); 5: path vertices with bent shading normals shaded as Cycles 3.4 does
+    StageDef("reference", 5, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
     # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by
