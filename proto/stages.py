@@ -41,8 +41,9 @@ REFERENCE_FIELDS = ("enabled", "cameras", "width", "height", "fov_y", "spp", "ch
 STAGES: tuple[StageDef, ...] = (
     # 2: stats["warnings"] (unlit_scene, light_outside_scene); 3: the `scene` artifact (GLB)
     StageDef("ingest", 3, ("scene",), (), timeout=600),
-    # 7: stats["warnings"] grid_coarse (the default budget binds the automatic grid far above what the rooms ask)
-    StageDef("place", 7, ("place", "seed"), ("ingest",), timeout=600),
+    # 7: stats["warnings"] grid_coarse (the default budget binds the automatic grid far above what the rooms ask);
+    # 8: the automatic spacing room scale / 8 (was / 6; workers/kernels/autogrid.py ROOM_DIVISIONS)
+    StageDef("place", 8, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
     # 3: depth_moments' far texels clamped to the probe's reach (workers/kernels/depth_moments.py clamp_far), which

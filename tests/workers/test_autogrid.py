@@ -134,7 +134,7 @@ def test_the_budget_counts_the_whole_box_and_the_record_says_what_free_space_wou
 
 def test_the_default_budget_binding_far_above_the_rooms_is_a_warning(tmp_path):
     """Right by default: where the default budget (24,000) holds the automatic grid far coarser than the rooms ask
-    (truck-town, a 2 km town: 25 m where 1.85 m is wanted), the bake says so (``grid_coarse``,
+    (truck-town, a 2 km town: 25 m where 1.39 m is wanted), the bake says so (``grid_coarse``,
     workers/stages/place.py) with what to do. A budget the user chose, or a grid within COARSE_FACTOR of what the
     rooms ask (zdm2 2.2x, sealed-box 2.8x, whose light is right: bench_fidelity), gets no warning."""
     from tests.conftest import shared_path

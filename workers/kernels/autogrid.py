@@ -18,8 +18,10 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    near points, grown by one lattice step — the building and its surroundings, not its ground slab; an open
    scene's box is the scene bounds.
 3. **Spacing**: the room scale ``ℓ`` = the median over enclosed points of the mean free distance of their rays
-   (a 4 x 3 x 4 m room gives about 1.5 m); spacing = ``ℓ / ROOM_DIVISIONS`` (default 6: about 0.25 m in such a
-   room), never finer than ``min_spacing``, and coarser where the probe budget requires:
+   (a 4 x 3 x 4 m room gives about 1.5 m); spacing = ``ℓ / ROOM_DIVISIONS`` (8: about 0.19 m in such a
+   room; 6 left the shadow pockets of a real Cornell box 1.12x Cycles and the dark room 5 cm behind two-rooms-vc's
+   shared wall 1.10x, 8 gives 0.96-1.095 and 1.05 at about 2.2x the probes, 10 gives 0.98-1.06 and 1.02 at 3.6x
+   and about 3x the bake time: tests/bench/bench_fidelity.py), never finer than ``min_spacing``, and coarser where the probe budget requires:
    ``s ≥ (V / budget)^(1/3)`` for the box volume V (a uniform grid: the budget binds on large levels — the
    manifest says so). V is the whole box, solid included, on purpose: ``place.budget`` is the most probes the
    grid holds (the presets' and the server's cost estimates rest on it), and a probe in a solid costs memory in
@@ -65,8 +67,8 @@ NEAR = 0.6
 INSIDE_BACKFACES = 0.25
 """A point is inside a solid when more than this fraction of its rays hit back faces (DDGI-P §5's test)."""
 
-ROOM_DIVISIONS = 6.0
-"""Probes per room scale: spacing = median mean-free-distance / ROOM_DIVISIONS."""
+ROOM_DIVISIONS = 8.0
+"""Probes per room scale: spacing = median mean-free-distance / ROOM_DIVISIONS (module doc, step 3: why 8)."""
 
 DEFAULT_BUDGET = 24_000
 """Probes of a default grid (the 60 s default-bake target on 2 cores for a 60k-triangle interior)."""

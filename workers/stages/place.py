@@ -34,11 +34,13 @@ def auto_layout(ctx: StageContext, bounds: np.ndarray) -> tuple[np.ndarray, np.n
     return choose_grid(box, fs, budget=section.budget)
 
 
-COARSE_FACTOR = 4.0
+COARSE_FACTOR = 16.0 / 3.0
 """The automatic grid warns (``grid_coarse``) when the default budget holds its spacing above this many times what
-the scene's free space asks for. truck-town (a 2 km town) is 13.6x; zdm2 (2.2x) and sealed-box (2.8x, its light
-within 1% of Cycles in bench_fidelity) are not flagged: the wanted spacing (room scale / 6) is a target with margin,
-and the masks keep thin walls tight at any spacing; what a far coarser grid loses is the light's detail."""
+the scene's free space asks for: 4x the room scale / 6 (the wanted spacing before it became room scale / 8, with
+more margin; the factor keeps the warning where it was). truck-town (a 2 km town) is 18x; zdm2 (3.0x) and
+sealed-box (3.8x, its light within 1% of Cycles in bench_fidelity) are not flagged: the wanted spacing is a target
+with margin, and the masks keep thin walls tight at any spacing; what a far coarser grid loses is the light's
+detail."""
 
 
 def coarse_grid_warning(auto: dict, budget: int) -> dict | None:

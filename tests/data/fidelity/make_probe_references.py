@@ -14,9 +14,10 @@ light stage's stored values are meant to be right at the probes a default bake a
 3. runs the oracle at them exactly as ``make_references.py`` does (``--bounces 64 --material lambert``, sky 0, one
    run per seed) and writes ``default-probes/<scene>.lambert.cycles.json``.
 
-Made on 2026-12-03 with 4096 spp x 2 seeds (``--samples 4096``; the grid's phase is now chosen the same on every
-numpy build, ``workers.kernels.autogrid.layer_phase``): 87 s (two-rooms) and 39 s (two-rooms-vc) of Blender wall
-time on this 2-core machine (96 receivers a run). The first set (2026-12-02, 8192 spp x 2 seeds, 464 s and 474 s on
+Made on 2026-12-03 with 4096 spp x 2 seeds (``--samples 4096``) for the default grid [38, 15, 20] of room scale / 8
+(``workers.kernels.autogrid.ROOM_DIVISIONS``): 97 s (two-rooms) and 84 s (two-rooms-vc) of Blender wall time on this
+2-core machine, loaded (96 receivers a run). The set before (grid [28, 12, 15], room scale / 6): 87 s and 39 s; the
+grid's phase is chosen the same on every numpy build (``workers.kernels.autogrid.layer_phase``). The first set (2026-12-02, 8192 spp x 2 seeds, 464 s and 474 s on
 a loaded machine) had a seed spread of the dark region's mean of 1.0% / 0.5%.
 
 ``tests/bench/bench_fidelity.py`` compares the default bake's stored probe values (octahedral map and L2 SH) there
