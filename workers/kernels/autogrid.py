@@ -29,7 +29,7 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    fraction of planning points in the box outside solids, recorded as ``free_fraction``) was measured on
    zdm2-sauerbraten (``f`` = 0.47): 1.63 m instead of 2.19 m, but 44,850 probes instead of 20,387 (12,057 OFF)
    and 1.9x the bake's CPU time (99 s instead of 52 s, tests/bench/bench_offprobes.py ``--full``), still 1.65x
-   the 0.98 m its rooms ask — no uniform grid meets that within the budget. The record gives the spacing the free
+   the 0.98 m its rooms asked at room scale / 6 (0.74 m at / 8) — no uniform grid meets that within the budget. The record gives the spacing the free
    volume would allow (``spacing_free_volume``, 1.52 m on zdm2) and its probe count (51,168), both before the layer
    fit of step 4 (which stretches the spacing by up to 12% and drops layers over the budget: the bake above).
    Adaptive density (finer near geometry, as Unity's Adaptive Probe Volumes) is not built: every consumer (the
