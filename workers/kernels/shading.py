@@ -507,19 +507,22 @@ def ensure_valid_reflection(geo_normals, views, normals) -> tuple[np.ndarray, np
     return out, bent
 
 
+@numba.njit(cache=True, nogil=True)
+def _bump_shadowing_kernel(s, n, w, out):  # pragma: no cover - compiled
+    for k in range(s.shape[0]):
+        out[k] = _bump_shadowing(s[k, 0], s[k, 1], s[k, 2], n[k, 0], n[k, 1], n[k, 2], w[k, 0], w[k, 1], w[k, 2])
+
+
 def bump_shadowing_term(smooth_normals, normals, dirs) -> np.ndarray:
     """(N,) float64: :func:`_bump_shadowing` per row (smooth normal s, closure normal N', direction ω; all (N, 3)).
     Cycles 3.4 multiplies a diffuse closure's evaluation and sample by it where its N' differs from the smooth
     normal, i.e. where :func:`ensure_valid_reflection` bent it (closure/bsdf.h ``bsdf_eval``, ``bsdf_sample``)."""
-    s = np.asarray(smooth_normals, np.float64)
-    n = np.asarray(normals, np.float64)
-    w = np.asarray(dirs, np.float64)
-    cni = np.einsum("ij,ij->i", n, w)
-    s = np.where((cni < 0)[:, None], -s, s)
-    den = cni * np.einsum("ij,ij->i", s, n)
-    num = np.einsum("ij,ij->i", s, w)
-    g = np.divide(num, den, out=np.zeros_like(den), where=den != 0)
-    return np.where(g >= 1.0, 1.0, np.where(g < 0.0, 0.0, -g ** 3 + g ** 2 + g))
+    s = np.ascontiguousarray(smooth_normals, np.float64)
+    n = np.ascontiguousarray(normals, np.float64)
+    w = np.ascontiguousarray(np.broadcast_to(np.asarray(dirs, np.float64), n.shape))
+    out = np.empty(n.shape[0])
+    _bump_shadowing_kernel(s, n, w, out)
+    return out
 
 
 HORIZON_FLAT = 1.0 - 1e-6
