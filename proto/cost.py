@@ -455,7 +455,8 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         seconds = EVAL_STAGE_SECONDS + pts * modes * EVAL_SECONDS_PER_POINT_MODE + px * modes * (
             draws * EVAL_SECONDS_PER_PIXEL_PASS / 2 + (EVAL_FLIP_SECONDS_PER_PIXEL if ev.flip else 0))
         add("evaluate", seconds, LIB_EVAL + scene_mem + px * EVAL_MEM_PER_PIXEL + pts * modes * EVAL_MEM_PER_POINT_MODE + F * 9,
-            px * 4 * (2 * modes + 2) + pts * modes * 24)
+            px * 4 * (2 * modes + 2) + pts * modes * 24,
+            internal=ev.surface_points * modes * 12)          # eval_points: float32 RGB per point and mode
     else:
         add("reference", 0.0, LIB_SMALL, 0, rays=False, long=False)
         add("evaluate", 0.0, LIB_SMALL, 0, rays=False, long=False)

@@ -74,8 +74,9 @@ STAGES: tuple[StageDef, ...] = (
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
     # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by
-    # the delta method (the bootstrap understated them)
-    StageDef("evaluate", 4, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+    # the delta method (the bootstrap understated them); 5: the eval_points artifact (each mode at the points: GET
+    # /v1/compare's paired standard errors)
+    StageDef("evaluate", 5, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
              ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
               "reference"), timeout=7200),
 )

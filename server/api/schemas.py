@@ -389,6 +389,16 @@ class MetricDelta(_Out):
     b: float
     delta: float | None = Field(..., description="b - a (null: past a double)")
     ratio: float | None = Field(..., description="b / a; null when a is 0")
+    delta_stderr: float | None = Field(None, description="standard error of the delta, paired: both bakes scored "
+                                       "against one reference (its noise shared); null: not paired, use "
+                                       "sqrt(stderr_a² + stderr_b²)")
+
+
+class Pairing(_Out):
+    paired: bool = Field(..., description="both bakes were scored against the same cached reference")
+    reason: str
+    points: int = Field(..., description="surface points the paired standard errors are computed on")
+    check_points: int
 
 
 class Comparison(_Out):
@@ -397,5 +407,6 @@ class Comparison(_Out):
     a: BakeRef
     b: BakeRef
     metrics: dict[str, MetricDelta]
+    paired: Pairing
     only_a: list[str]
     only_b: list[str]

@@ -174,3 +174,44 @@ def test_noise_dof_is_the_path_tracers():
     from workers.kernels.pathtrace import REPLICATES
 
     assert PM.NOISE_DOF == REPLICATES - 1
+
+
+def test_paired_delta_stderr_matches_the_spread_of_deltas_against_one_reference():
+    """Two accurate bakes (4% and 5% off the truth, independently) scored against the same noisy reference (10%
+    noise), drawn 150 times: the paired standard error of each metric's delta B − A matches the spread of the deltas
+    across the references (within 25%; measured 0.84-0.92), while ``sqrt(seA² + seB²)`` — the dashboard's estimate
+    before, which counts the shared noise twice and in full — reads 1.7-1.8x the spread of the rmse deltas and 2000x
+    that of mean_ratio's (whose reference noise cancels in the delta). The same test twice: a delta of exactly 0 ± 0."""
+    rng = np.random.default_rng(5)
+    n, G, draws = 2000, PM.NOISE_DOF + 1, 150
+    truth = rng.gamma(2.0, 1.0, (n, 1)) * np.array([1.0, 0.9, 0.8])
+    ta = truth * rng.normal(1.0, 0.04, (n, 1))
+    tb = truth * rng.normal(1.0, 0.05, (n, 1))
+    sigma = 0.1 * truth
+    d, a, e = rng.uniform(0, 3, (n, 3)), np.full((n, 3), 0.5), np.zeros((n, 3))
+    k = MT.exposure_for(PM.radiance(d, truth, a, e).reshape(-1, 1, 3))
+    names = ("rmse", "indirect_relative_rmse", "mean_ratio", "indirect_excess")
+    deltas, paired, quad = ({m: [] for m in names} for _ in range(3))
+    for i in range(draws):
+        sets = truth[:, None] + sigma[:, None] * np.sqrt(G) * rng.standard_normal((n, G, 1))
+        ref, s = sets.mean(axis=1), np.sqrt(sets.var(axis=1, ddof=1) / G)
+        ma = PM.metrics_with_stderr(ta, ref, s, d, a, e, exposure=k, replicas=32, seed=i)
+        mb = PM.metrics_with_stderr(tb, ref, s, d, a, e, exposure=k, replicas=32, seed=i)
+        p = PM.paired_delta_stderr(ta, tb, ref, s, d, a, e, exposure=k, replicas=32, seed=i)
+        for m in names:
+            deltas[m].append(mb[m] - ma[m])
+            paired[m].append(p[m])
+            quad[m].append(np.hypot(ma[f"{m}_stderr"], mb[f"{m}_stderr"]))
+    spread = {m: np.std(deltas[m], ddof=1) for m in names}
+    for m in names:
+        assert 0.75 < np.mean(paired[m]) / spread[m] < 1.25, (m, np.mean(paired[m]), spread[m])
+    for m in ("rmse", "indirect_relative_rmse"):            # measured 1.79 and 1.66 of the spread
+        assert np.mean(quad[m]) > 1.5 * spread[m], (m, np.mean(quad[m]), spread[m])
+    assert np.mean(quad["mean_ratio"]) > 100 * spread["mean_ratio"]         # measured 2000: the shared noise cancels
+    same = PM.paired_delta_stderr(ta, ta, ref, s, d, a, e, exposure=k, replicas=32)
+    assert all(same[m] == 0.0 for m in PM.METRICS), same
+
+
+def test_paired_delta_stderr_without_points():
+    z = np.zeros((0, 3))
+    assert PM.paired_delta_stderr(z, z, z, z, z, z, z) == {m: None for m in PM.METRICS}

@@ -11,6 +11,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from persist.catalog import Catalog
+from persist.store import Store
 from server.api import errors
 from server.api.routes import compare
 from server.config import Settings
@@ -37,6 +38,7 @@ def client(tmp_path):
     errors.install(app)
     app.state.settings = Settings(data=tmp_path, api_keys=KEYS)
     app.state.catalog = Catalog(tmp_path / "kiln.db")
+    app.state.store = Store(tmp_path / "store")
     app.include_router(compare.router)
     with TestClient(app) as c:
         yield c
@@ -53,7 +55,9 @@ def test_compare_deltas_and_errors(client):
     assert body["a"]["id"] == a and body["b"]["id"] == b
     m = body["metrics"]
     assert m["mask.rmse"]["delta"] == pytest.approx(-0.01) and m["mask.rmse"]["ratio"] == pytest.approx(0.8)
-    assert m["mask.pass_ms"] == {"a": 2.0, "b": 3.0, "delta": 1.0, "ratio": 1.5}
+    assert m["mask.pass_ms"] == {"a": 2.0, "b": 3.0, "delta": 1.0, "ratio": 1.5, "delta_stderr": None}
+    # hand-made bakes have no reference stage on record: no paired standard errors, and the reason why
+    assert body["paired"]["paired"] is False and "reference" in body["paired"]["reason"]
     assert m["leaking.rmse"]["delta"] == 0
     assert m["stage_seconds.ingest"]["delta"] == pytest.approx(2.0)     # catalog metrics too
     assert body["only_a"] == ["leaking.leak"] and body["only_b"] == ["ddgi.rmse"]

@@ -1,7 +1,8 @@
 """The dashboard compares like with like, in a real browser against a real `kiln serve`: a scene's thresholds
 stored through the dashboard (PUT /v1/scenes/{id}/thresholds) and checked per bake by the server, a chart per
 evaluate metric with a point per bake and the threshold's line, and for two bakes an A/B slider over the same
-camera's previews (canvas pixels read back), their difference image and the quality deltas with standard errors.
+camera's previews (canvas pixels read back), their difference image and the quality deltas with standard errors
+(paired: both bakes share the cached reference).
 Two tiny evaluated bakes of one scene that differ in their probe grid."""
 from __future__ import annotations
 
@@ -122,12 +123,24 @@ def test_thresholds_charts_ab_slider_difference_and_deltas(page, kiln_server, tw
     assert gain in (1, 2, 4, 8, 16) and f"× {gain}" in page.inner_text("#ab-diff-scale")
     assert int(page.get_attribute("#ab-diff", "data-max")) * gain <= 255 or gain == 1
 
-    # the deltas: values with standard errors and which is better
+    # the deltas: values with standard errors and which is better; both bakes were scored against one cached
+    # reference (same scene, lighting, evaluate settings), so the server pairs their standard errors
+    cmp = kiln_server.api(f"/v1/compare?a={a['id']}&b={b['id']}")
+    assert cmp["paired"]["paired"] is True and cmp["paired"]["points"] > 0, cmp["paired"]
+    for key in (METRIC, "mask_normalized.mean_ratio", "leaking.rmse"):
+        d = cmp["metrics"][key]
+        quad = (a["metrics"][f"{key}_stderr"] ** 2 + b["metrics"][f"{key}_stderr"] ** 2) ** 0.5
+        # the shared noise counted once: measured 0.18-0.31 of sqrt(seA² + seB²) here
+        assert d["delta_stderr"] is not None and 0 <= d["delta_stderr"] < quad, (key, d, quad)
+    page.wait_for_selector('#delta-table[data-paired="true"]', timeout=30000)
     rows = page.locator("#delta-table tbody tr")
     assert rows.count() >= 2
     row = page.locator(f'#delta-table tr[data-metric="{METRIC}"]')
+    assert row.get_attribute("data-paired") == "true"
     cells = row.locator("td").all_inner_texts()
     assert "±" in cells[1] and "±" in cells[3], cells
+    se_shown = float(cells[3].split("±")[1].strip().rstrip(" *"))
+    assert se_shown == pytest.approx(cmp["metrics"][METRIC]["delta_stderr"], rel=0.05, abs=1e-4), (cells, cmp)
     better = "b" if vb < va else "a"
     assert row.get_attribute("data-better") == better and f"{better.upper()} better" in cells[4], cells
     page.locator("#compare").screenshot(path=str(shots / "dashboard-ab.png"))

@@ -38,6 +38,14 @@ describe('which bake is better', () => {
     expect(rows['mask.mean_ratio']).toMatchObject({ better: 'b', significant: true });
     expect(rows['mask.leak']).toMatchObject({ better: 'a', se: null, significant: null });
   });
+  it('paired standard errors (one shared reference) replace the combined ones where given', () => {
+    const a = { metrics: { 'mask.rmse': 0.2, 'mask.rmse_stderr': 0.03, 'mask.leak': 0.1, 'mask.leak_stderr': 0.01 } };
+    const b = { metrics: { 'mask.rmse': 0.1, 'mask.rmse_stderr': 0.04, 'mask.leak': 0.2, 'mask.leak_stderr': 0.01 } };
+    const rows = Object.fromEntries(metricDeltas(a, b, { 'mask.rmse': 0.01, 'mask.leak': null }).map((r) => [r.key, r]));
+    expect(rows['mask.rmse']).toMatchObject({ se: 0.01, paired: true, significant: true });  // 0.1 > 2 * 0.01
+    expect(rows['mask.leak'].paired).toBe(false);                                           // null: combined
+    expect(rows['mask.leak'].se).toBeCloseTo(Math.sqrt(2) * 0.01);
+  });
 });
 
 describe('chart scales', () => {

@@ -69,6 +69,22 @@ of the variance near 0). ``indirect_relative_rmse`` adds the noise of its denomi
 uses the tone-mapped errors and the delta-method noise of "Noise bias". In the simulation the reported errors
 read 0.85-1.14 of the spread (test_point_metrics.py: 0.94 and 0.89, the bootstrap 0.69 and 0.65).
 
+Paired deltas
+-------------
+Two bakes of one scene and lighting are scored against the same cached reference, so the difference of their
+metrics carries the reference's noise once, correlated, not twice independently (:func:`paired_delta_stderr`, the
+standard errors of ``GET /v1/compare``'s deltas). For the debiased ``rmse`` the noise terms that do not depend on
+the test (``|u z|²`` and the subtracted ``|û|²``) are the same in both and cancel exactly in
+``Δmse = mse_b − mse_a``, which is linear in the noise: per point ``−2 z (u·(C_b − C_a))`` (tone-mapped, ``u`` the
+delta-method noise of "Noise bias", over N·3 values), so ``Var(Δmse) = 4 Σ_i (u_i·(C_b,i − C_a,i))² / (3N)²`` —
+exact for one noise draw per point, and free of the reference's noise (``C_b − C_a`` holds no reference). Then
+``Δrmse = Δmse / (rmse_a + rmse_b)`` (an identity); the noise of the denominator, shared by both roots, adds the
+term of a ratio (:func:`_paired_root_delta_stderr`; it matters where the delta is large against its error: in the
+simulation of test_point_metrics.py, without it the irradiance rmse delta's error read 0.68 of its spread). ``indirect_relative_rmse`` the same in irradiance (``s_i`` and ``T_b − T_a``), its common
+denominator's noise added in quadrature. ``leak``, ``indirect_excess`` and ``mean_ratio``: the bootstrap of
+"Standard errors", paired (both tests against the same replicas and dark set). Two bakes that read the same have a
+delta of 0 ± 0.
+
 Regions (:func:`region_ratios`): for named groups of check points, the ratio of the group's mean luminance to
 the reference's, with its bootstrap standard error the same way.
 
@@ -83,8 +99,8 @@ import numpy as np
 
 from workers.kernels import metrics as MT
 
-__all__ = ["point_metrics", "metrics_with_stderr", "region_ratios", "radiance", "point_summary", "check_point_report",
-           "METRICS", "REPLICAS"]
+__all__ = ["point_metrics", "metrics_with_stderr", "paired_delta_stderr", "region_ratios", "radiance", "point_summary",
+           "check_point_report", "METRICS", "REPLICAS"]
 
 METRICS = ("rmse", "indirect_relative_rmse", "leak", "indirect_excess", "mean_ratio")
 REPLICAS = 128
@@ -183,12 +199,16 @@ def _debiased_rmse_stderr(diff, noise, mse: float, dof: int = NOISE_DOF, channel
     ``mean_i sum_c diff² / channels − mean noise²`` (``channels`` = C for a mean over the channels, 1 for a sum).
     Per point ``Var(|d − u z|²) = 4 (d·u)² + 2|u|⁴`` plus the noise of the subtracted ``|û|²`` (``2|u|⁴/ν``);
     estimated without bias from the noisy ``d̂ = d − u z₀`` and ``û`` (ν = ``dof`` degrees of freedom, Gaussian):
-    ``4 (d̂·û)² − 2 (ν − 1)/(ν + 2) |û|⁴``. Then the delta method through the square root, blended to the fourth
+    ``4 (d̂·û)² − 2 (ν − 1)/(ν + 2) |û|⁴``, summed, and never below the noise's own part ``2 |u|⁴ (1 + 1/ν)``
+    (a sum that can fall below 0 where the noise dominates: a standard error of 0 there would be false). Then the delta method through the square root, blended to the fourth
     root of the variance where the rmse is near 0: ``sqrt(V) / (r + sqrt(r² + sqrt(V)))``."""
     d, u = np.asarray(diff, np.float64), np.asarray(noise, np.float64)
     n = len(d)
-    per = 4.0 * np.sum(d * u, axis=1) ** 2 - 2.0 * (dof - 1) / (dof + 2) * np.sum(u * u, axis=1) ** 2
-    v = max(float(per.sum()) / (n * n * channels * channels), 0.0)
+    u4 = np.sum(u * u, axis=1) ** 2
+    per = 4.0 * np.sum(d * u, axis=1) ** 2 - 2.0 * (dof - 1) / (dof + 2) * u4
+    # at least the noise's own part, 2|u|⁴(1 + 1/ν) (unbiased: E|û|⁴ = |u|⁴(ν + 2)/ν): the unbiased sum can fall
+    # below it, even below 0, where the noise dominates the error
+    v = max(float(per.sum()), 2.0 * (dof + 1) / (dof + 2) * float(u4.sum())) / (n * n * channels * channels)
     r = math.sqrt(max(mse, 0.0))
     return math.sqrt(v) / (r + math.sqrt(r * r + math.sqrt(v))) if v > 0 else 0.0
 
@@ -233,6 +253,92 @@ def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas:
         sd_den = math.sqrt(float(np.sum(np.sum(np.divide(r, norm, out=np.zeros_like(r), where=norm > 0) * s,
                                                axis=-1) ** 2))) / len(r)
         out["indirect_relative_rmse_stderr"] = math.hypot(sd_num / den, out["indirect_relative_rmse"] * sd_den / den)
+    return out
+
+
+def _paired_root_delta_stderr(diff_a, diff_b, noise, ra: float, rb: float, channels: int = 1,
+                              dof: int = NOISE_DOF) -> float:
+    """Standard error of ``rb − ra``, the difference of two debiased roots ``r = sqrt(max(mse, 0))`` of errors
+    against ONE noisy reference (module doc, "Paired deltas").
+
+    ``diff_a``, ``diff_b`` (N, C): each test's errors against the noisy reference; ``noise`` (N, C): the reference's
+    standard error per channel (one draw per point for all channels); ``channels`` as in
+    :func:`_debiased_rmse_stderr`. ``rb − ra = Δmse / g`` with ``g = ra + rb``; per point the noise of
+    ``Δmse − Δ·g`` is ``−2z(u·Δd − Δw) − Δk|u|²(z² − 1)`` (``w = u·(d_a/2ra + d_b/2rb)``, ``k = 1/2ra + 1/2rb``),
+    whose variance ``4(u·Δd − Δw)² + 2Δ²k²|u|⁴(1 + 1/ν)`` is estimated without bias from the noisy ``d̂``, ``û``
+    as in :func:`_debiased_rmse_stderr`; its root ``sd`` divided by ``(g + sqrt(g² + 4 sd)) / 2`` (``g`` where
+    ``g² ≫ sd``; ``sqrt(sd)``, the scale of a root of a quantity ±sd, as both roots approach 0).
+    Where a root is clamped at 0, its slope is undefined: the delta of the mse alone, ``4 Σ(u·Δd)²``."""
+    da, db, u = (np.asarray(x, np.float64) for x in (diff_a, diff_b, noise))
+    n = len(u)
+    lin = np.sum(u * (db - da), axis=1)                                   # u·Δd, free of the reference's noise
+    u4 = np.sum(u * u, axis=1) ** 2
+    g = ra + rb
+    if ra > 0 and rb > 0:
+        delta, k = rb - ra, 0.5 / ra + 0.5 / rb
+        w = np.sum(u * (da / (2 * ra) + db / (2 * rb)), axis=1)
+        per = 4.0 * (lin - delta * w) ** 2 - 2.0 * (dof - 1) / (dof + 2) * delta * delta * k * k * u4
+        floor = 2.0 * (dof + 1) / (dof + 2) * delta * delta * k * k * float(u4.sum())   # as _debiased_rmse_stderr
+    else:
+        per, floor = 4.0 * lin ** 2, 0.0
+    v = max(float(per.sum()), floor) / (n * n * channels * channels)
+    if v <= 0:
+        return 0.0
+    sd = math.sqrt(v)
+    return sd / (0.5 * (g + math.sqrt(g * g + 4.0 * sd)))
+
+
+def paired_delta_stderr(test_a, test_b, ref, err, e_direct, albedo, emission, *, replicas: int = REPLICAS,
+                        seed: int = 0, exposure: float | None = None, cache: dict | None = None) -> dict:
+    """Standard errors of ``metric(test_b) − metric(test_a)`` for two tests scored against ONE reference
+    (module doc, "Paired deltas"): ``{metric: stderr}`` for :data:`METRICS` (None where a metric is undefined).
+
+    ``test_a``, ``test_b``, ``ref``, ``err``, ``e_direct``, ``albedo``, ``emission``: (N, 3) as in
+    :func:`metrics_with_stderr`, linear RGB, lux; ``exposure`` default: from the reference's points (the same as
+    the bakes' own metrics). Two bakes of one scene and lighting share the cached reference, so its noise is
+    common to both metrics and largely cancels in their difference; ``sqrt(seA² + seB²)`` counts it twice, and in
+    full, however close the two bakes are. ``cache``: a dict kept across calls with the same reference, seed and
+    exposure (the modes of two bakes): the noise terms and the replicas are computed once."""
+    r, s = np.asarray(ref, np.float64), np.asarray(err, np.float64)
+    if len(r) == 0:
+        return {k: None for k in METRICS}
+    d, a, e = (np.asarray(x, np.float64) for x in (e_direct, albedo, emission))
+    ta, tb = np.asarray(test_a, np.float64), np.asarray(test_b, np.float64)
+    if exposure is None:
+        exposure = MT.exposure_for(_img(radiance(d, r, a, e)))
+    cache = {} if cache is None else cache
+    if "noise" not in cache:
+        cache["noise"] = _noise_variance(r, s, d, a, e, exposure)
+        cache["replicas"] = _prepare(_replicas(r, s, replicas, seed), d, a, e, exposure)
+    noise, reps, n = cache["noise"], cache["replicas"], len(r)
+    # the bootstrap, paired: both tests against the same replicas (and the same dark set of the leak)
+    yr = MT.luminance(r)
+    dark = yr <= MT.LEAK_TAU * yr.mean()
+    ba = _metrics_batch(ta, reps, d, a, e, exposure, dark, noise)
+    bb = _metrics_batch(tb, reps, d, a, e, exposure, dark, noise)
+    out = {}
+    for k in METRICS:
+        diff = bb[k] - ba[k]
+        diff = diff[np.isfinite(diff)]
+        out[k] = float(np.std(diff, ddof=1)) if diff.size > 1 else None
+    # the two debiased rmse: Δmse is linear in the noise, Var exact for one draw per point (module doc)
+    v_irr, v_tm = noise
+    lr = MT.tonemap(radiance(d, r, a, e), exposure).astype(np.float64)
+    la = MT.tonemap(radiance(d, ta, a, e), exposure).astype(np.float64)
+    lb = MT.tonemap(radiance(d, tb, a, e), exposure).astype(np.float64)
+    root = [math.sqrt(max(float(np.mean((x - lr) ** 2) - v_tm.mean()), 0.0)) for x in (la, lb)]
+    out["rmse"] = _paired_root_delta_stderr(la - lr, lb - lr, np.sqrt(v_tm), *root, channels=3)
+    den = float(np.mean(np.linalg.norm(r, axis=-1)))
+    if den > 0:
+        root = [math.sqrt(max(float(np.mean(np.sum((x - r) ** 2, axis=-1)) - v_irr.mean()), 0.0)) for x in (ta, tb)]
+        norm = np.linalg.norm(r, axis=-1, keepdims=True)
+        sd_den = math.sqrt(float(np.sum(np.sum(np.divide(r, norm, out=np.zeros_like(r), where=norm > 0) * s,
+                                               axis=-1) ** 2))) / n
+        delta = (root[1] - root[0]) / den
+        out["indirect_relative_rmse"] = math.hypot(_paired_root_delta_stderr(ta - r, tb - r, s, *root) / den,
+                                                   delta * sd_den / den)
+    else:
+        out["indirect_relative_rmse"] = None
     return out
 
 

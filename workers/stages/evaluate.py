@@ -15,13 +15,18 @@ and the bake's data: ``ingest`` (lights), ``place`` (grid), ``relocate``, ``trac
 
 Artifacts: ``check_points`` (json; with ``evaluate.points``: points, normals, reference_direct,
 reference_indirect, reference_stderr ([point][normal] RGB), modes {mode: [point][normal] RGB}, regions),
-``eval_metrics`` (json), ``eval_cameras`` (json), and with previews ``eval_<cam>_<mode>`` (PNG, ``<mode>`` also
+``eval_metrics`` (json), ``eval_cameras`` (json), ``eval_points`` (npy (N, 3 x modes) float32, internal: each
+mode's indirect irradiance at the reference's surface points, modes in ``meta.modes`` order; what
+``GET /v1/compare`` pairs with another bake of the same reference:
+:func:`workers.kernels.point_metrics.paired_delta_stderr`), and with previews ``eval_<cam>_<mode>`` (PNG, ``<mode>`` also
 ``reference``), ``eval_<cam>_<mode>_error`` heatmaps, ``eval_contact``. Stats: ``metrics`` (flat, for the catalog,
 compare and ``kiln bake --fail-on``), ``cameras``, ``points``, ``check_points``, ``modes``.
 """
 from __future__ import annotations
 
 import time
+
+import numpy as np
 
 from proto.models import EvaluateSection
 from workers.kernels import point_metrics as PM
@@ -120,7 +125,13 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
         flip=settings["flip"], report=lambda f: ctx.report(0.6 + 0.35 * f))
     arts = [Artifact(n, data, format=fmt, description=d, meta=meta) for n, data, fmt, d, meta in pictures]
     t_previews, cameras = time.perf_counter() - t0, rstats.get("cameras") or []
-    if check is not None:                                      # ---- artifacts and stats
+    if len(pts["position"]):                                   # ---- artifacts and stats
+        arts.append(Artifact("eval_points", np.ascontiguousarray(
+            np.concatenate([recon[m] for m in modes], axis=1).astype(np.float32)), format="npy",
+            meta={"internal": True, "modes": modes}, description="each mode's indirect irradiance at the reference's "
+            "surface points ((N, 3 x modes) float32, RGB lux, modes in meta order): GET /v1/compare's paired standard "
+            "errors"))
+    if check is not None:
         arts.append(Artifact("check_points", jsonable(check), format="json", meta={"modes": modes, "points": len(
             check["points"])}, description="reference and every mode's indirect irradiance at the check points "
                                            "([point][normal] RGB)"))

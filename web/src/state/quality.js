@@ -36,10 +36,13 @@ export const QUALITY_METRICS = ['rmse', 'flip', 'leak', 'mean_ratio', 'indirect_
 
 /**
  * The evaluate metrics of two bakes (flat `bake.metrics`), B − A with standard errors: rows
- * {key, a, b, seA, seB, delta, se, better, significant} for every quality metric both have, sorted; `se` is
- * sqrt(seA² + seB²) (null where a bake lacks its `_stderr`), `significant` |delta| > 2·se (null without se).
+ * {key, a, b, seA, seB, delta, se, paired, better, significant} for every quality metric both have, sorted.
+ * `pairedSe` ({key: stderr}, GET /v1/compare's `delta_stderr`): the delta's standard error when both bakes were
+ * scored against the same reference, whose noise they share (`paired` true); otherwise `se` is
+ * sqrt(seA² + seB²) (null where a bake lacks its `_stderr`), which counts that noise twice. `significant`
+ * |delta| > 2·se (null without se).
  */
-export function metricDeltas(a, b) {
+export function metricDeltas(a, b, pairedSe = null) {
   const ma = a?.metrics || {}, mb = b?.metrics || {};
   const num = (v) => (typeof v === 'number' && Number.isFinite(v) ? v : null);
   const keys = Object.keys(ma).filter((k) => !k.endsWith('_stderr') && QUALITY_METRICS.includes(k.split('.').pop())
@@ -47,10 +50,12 @@ export function metricDeltas(a, b) {
   return keys.map((key) => {
     const x = ma[key], y = mb[key];
     const seA = num(ma[`${key}_stderr`]), seB = num(mb[`${key}_stderr`]);
-    const se = seA != null && seB != null ? Math.sqrt(seA * seA + seB * seB) : null;
+    const ps = num(pairedSe?.[key]);
+    const se = ps != null ? ps : seA != null && seB != null ? Math.sqrt(seA * seA + seB * seB) : null;
     const delta = y - x;
     const better = betterOf(key, x, y);
-    return { key, a: x, b: y, seA, seB, delta, se, better, significant: se == null ? null : Math.abs(delta) > 2 * se };
+    return { key, a: x, b: y, seA, seB, delta, se, paired: ps != null, better,
+      significant: se == null ? null : Math.abs(delta) > 2 * se };
   });
 }
 

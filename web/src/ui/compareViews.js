@@ -61,9 +61,15 @@ export function metricChart(key, bakes, gates, results, { width = 260, height = 
   return svg;
 }
 
-/** Quality metrics B − A with standard errors, and which is better (table#delta-table). */
-export function deltaTable(a, b) {
-  const rows = metricDeltas(a, b);
+/**
+ * Quality metrics B − A with standard errors, and which is better (table#delta-table). `paired`: GET /v1/compare's
+ * response, whose `delta_stderr` (same reference: paired) replaces sqrt(stderr A² + stderr B²) where present.
+ */
+export function deltaTable(a, b, paired = null) {
+  const se = paired?.paired?.paired
+    ? Object.fromEntries(Object.entries(paired.metrics || {}).map(([k, v]) => [k, v.delta_stderr]))
+    : null;
+  const rows = metricDeltas(a, b, se);
   if (!rows.length) return h('p.muted#delta-table-none', 'No evaluate metrics in both bakes.');
   const pm = (v, se) => (se == null ? fmtNum(v) : `${fmtNum(v)} ± ${fmtNum(se)}`);
   const word = (r) => {
@@ -71,12 +77,16 @@ export function deltaTable(a, b) {
     const arrow = betterWay(r.key) === 'one' ? '→1' : '↓';
     return `${r.better.toUpperCase()} better ${arrow}${r.significant === false ? ' (within 2σ)' : ''}`;
   };
-  return h('table.data#delta-table',
+  const pairedAny = rows.some((r) => r.paired);
+  const title = pairedAny
+    ? 'B − A ± its standard error, paired: both bakes were scored against the same reference, whose noise cancels in the delta (* : not paired, sqrt(stderr A² + stderr B²))'
+    : 'B − A ± sqrt(stderr A² + stderr B²)';
+  return h('table.data#delta-table', { dataset: { paired: String(pairedAny) } },
     h('thead', h('tr', h('th', 'metric'), h('th.num', `A ${shortId(a.id)}`), h('th.num', `B ${shortId(b.id)}`),
-      h('th.num', { title: 'B − A ± sqrt(stderr A² + stderr B²)' }, 'B − A ± stderr'), h('th', { title: 'lower is better; mean_ratio: closer to 1' }, 'better'))),
-    h('tbody', rows.map((r) => h('tr', { dataset: { metric: r.key, better: r.better, significant: String(r.significant) } },
+      h('th.num', { title }, pairedAny ? 'B − A ± stderr (paired)' : 'B − A ± stderr'), h('th', { title: 'lower is better; mean_ratio: closer to 1' }, 'better'))),
+    h('tbody', rows.map((r) => h('tr', { dataset: { metric: r.key, better: r.better, significant: String(r.significant), paired: String(r.paired) } },
       h('td', r.key), h('td.num', pm(r.a, r.seA)), h('td.num', pm(r.b, r.seB)),
-      h('td.num.delta', `${r.delta > 0 ? '+' : ''}${pm(r.delta, r.se)}`),
+      h('td.num.delta', `${r.delta > 0 ? '+' : ''}${pm(r.delta, r.se)}${pairedAny && !r.paired && r.se != null ? ' *' : ''}`),
       h('td.better', { dataset: { better: r.better } }, word(r))))));
 }
 

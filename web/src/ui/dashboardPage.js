@@ -281,6 +281,14 @@ export function createDashboardPage(app) {
       x.status === 'succeeded' ? h('a.button.small', { href: `#/viewer/${x.id}` }, 'view') : null);
     const rows = compareBakes(a, b);
     const cfg = configDelta(a.config, b.config);
+    // the deltas at once with independent standard errors, then paired ones from GET /v1/compare (same reference)
+    const deltaHolder = h('div#delta-holder', deltaTable(a, b));
+    const token = compareToken;
+    api.request(`/v1/compare?a=${encodeURIComponent(a.id)}&b=${encodeURIComponent(b.id)}`).then((cmp) => {
+      if (token !== compareToken || !cmp?.paired?.paired) return;
+      clear(deltaHolder);
+      deltaHolder.append(deltaTable(a, b, cmp));
+    }).catch(() => { /* not evaluated yet (409) or gone: the independent errors stay */ });
     compare.append(h('h2', 'Compare'),
       h('div.compare-cards', card(a), card(b)),
       h('h3', 'Values (B − A)'),
@@ -290,7 +298,7 @@ export function createDashboardPage(app) {
           h('td.num', { className: r.delta > 0 ? 'num up' : r.delta < 0 ? 'num down' : 'num' }, r.delta == null ? '–' : `${r.delta > 0 ? '+' : ''}${fmt(r.delta)}`),
           h('td.num', r.relative == null ? '–' : `${r.relative > 0 ? '+' : ''}${(r.relative * 100).toFixed(1)}%`))))),
       h('h3', 'Quality B − A (standard errors from the evaluate stage)'),
-      deltaTable(a, b),
+      deltaHolder,
       h('h3', 'A/B on the same camera'),
       abView(a, b, comparePreviews(a, b), (id, name) => loadBitmap(id, name)),
       h('h3', 'Previews (evaluate stage; error heatmaps 0 … 0.25)'),
