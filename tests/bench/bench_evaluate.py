@@ -20,7 +20,8 @@ process, every stage timed, then re-baked in the same store with another probe c
 budget halved below the probes the first bake used). Prints evaluate's share (reference + evaluate stages) of
 each bake's wall time against the targets (first bake <= 25%, re-bake <= 5%), whether the re-bake reused the
 reference, whether both bakes had the same cameras and direct-mode point metrics, and the largest relative
-standard errors. `--cycles-spp N`: also the reference at the check points of tests/data/fidelity/two-rooms-vc
+standard errors, and the deltas re-bake − first bake with GET /v1/compare's paired standard errors (the bakes share
+the reference) next to the combined sqrt(se1² + se2²). `--cycles-spp N`: also the reference at the check points of tests/data/fidelity/two-rooms-vc
 (N paths each) against Blender Cycles, per region. `--evaluate JSON`: overrides of the evaluate section.
 """
 from __future__ import annotations
@@ -121,15 +122,34 @@ def table(name: str, m: dict) -> list[str]:
 
 # ------------------------------------------------------------------------------------------ cost (issue 13)
 def _bake_timed(store, sid, c, report=None) -> tuple[dict, dict, dict]:
-    """Every stage of a bake in this process: ({stage: seconds}, {stage: cached}, {stage: record})."""
+    """Every stage of a bake in this process: ({stage: seconds}, {stage: cached}, {stage: record}); each record
+    with its ``cache_key``."""
     secs, cached, recs = {}, {}, {}
-    for st, _ in plan(sid, c):
+    for st, key in plan(sid, c):
         t0 = time.perf_counter()
         rec, cached[st.name] = pipeline.execute_stage(store, sid, c, st.name,
                                                       report or (lambda f: None))
         secs[st.name] = time.perf_counter() - t0
-        recs[st.name] = rec
+        recs[st.name] = {**rec, "cache_key": key}
     return secs, cached, recs
+
+
+def _paired(store, r1: dict, r2: dict, m1: dict, m2: dict) -> dict:
+    """The deltas re-bake − first bake of the quality metrics with GET /v1/compare's paired standard errors
+    (server/api/routes/compare.py ``paired_stderr``: both bakes share the cached reference) against the combined
+    ``sqrt(se1² + se2²)`` the dashboard showed before."""
+    from server.api.routes.compare import paired_stderr
+
+    def bake(recs):
+        return {"stages": [{"name": n, "cache_key": r["cache_key"], "status": "succeeded"} for n, r in recs.items()]}
+
+    se, info = paired_stderr(store, bake(r1), bake(r2))
+    rows = {}
+    for k, v in sorted(se.items()):
+        if k in m1 and k in m2 and f"{k}_stderr" in m1 and f"{k}_stderr" in m2:
+            quad = float(np.hypot(m1[f"{k}_stderr"], m2[f"{k}_stderr"]))
+            rows[k] = {"delta": m2[k] - m1[k], "paired_stderr": v, "combined_stderr": quad}
+    return {"info": info, "rows": rows}
 
 
 def _point_keys(m: dict, prefix: str) -> dict:
@@ -169,6 +189,7 @@ def cost(name: str, path: Path, extra: dict, work: Path, evaluate: dict) -> dict
             "evaluate_timings": {"first": ev1.get("timings"), "rebake": ev2.get("timings")},
             "same_cameras": ev1["cameras"] == ev2["cameras"],
             "same_direct_metrics": _point_keys(m1, "direct.") == _point_keys(m2, "direct."),
+            "paired": _paired(store, r1, r2, m1, m2),
             "relative_stderr": {k: v for k, v in sorted(rel.items()) if k.split(".")[-1] in
                                 ("rmse", "leak", "mean_ratio", "indirect_relative_rmse")},
             "metrics": {k: v for k, v in m1.items() if not k.endswith("_stderr")}}
@@ -235,6 +256,16 @@ def main_cost(args) -> None:
                      f"reference {r['reference']}")
         worst = max(r["relative_stderr"].items(), key=lambda kv: kv[1], default=None)
         lines.append(f"  largest relative standard error: {worst}")
+        pr = r["paired"]
+        lines.append(f"  re-bake − first bake, paired: {pr['info']['paired']} ({pr['info']['reason']})")
+        lines.append(f"    {'metric':<40} {'delta':>10} {'paired se':>10} {'combined':>10} {'comb/pair':>9} {'z paired':>8}")
+        for k, v in pr["rows"].items():
+            if k.split(".")[0] in ("direct",) or ".region." in k:
+                continue
+            ratio = v["combined_stderr"] / v["paired_stderr"] if v["paired_stderr"] else float("inf")
+            z = v["delta"] / v["paired_stderr"] if v["paired_stderr"] else float("nan")
+            lines.append(f"    {k:<40} {v['delta']:>10.5f} {v['paired_stderr']:>10.5f} {v['combined_stderr']:>10.5f} "
+                         f"{ratio:>9.1f} {z:>8.1f}")
     if "cycles" in res:
         cy = res["cycles"]
         lines.append(f"== reference vs Cycles at the check points of two-rooms-vc ({cy['spp']} spp, {cy['seconds']:.1f} s)")
