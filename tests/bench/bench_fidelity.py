@@ -107,6 +107,7 @@ from workers.kernels.octahedral import bilinear_sample  # noqa: E402
 from workers.kernels.pathtrace import indirect_irradiance  # noqa: E402
 from workers.kernels.sh import sh_irradiance  # noqa: E402
 from workers.procedural import make_scene  # noqa: E402
+from workers.procedural_interiors import INTERIOR_SCENES, make_interior  # noqa: E402
 
 DATA = ROOT / "tests" / "data" / "fidelity"
 MODES = ("leaking", "visibility_weighted", "ddgi", "mask", "mask_normalized")
@@ -133,7 +134,12 @@ def source_of(pdoc: dict) -> Path | None:
 def scene_bytes(name: str, pdoc: dict) -> bytes:
     """The scene as one GLB (what the points' ``glb_sha256`` hashes): a real .gltf with its files embedded."""
     src = source_of(pdoc)
-    return embed_glb(src) if src else make_scene(name)
+    return embed_glb(src) if src else procedural_bytes(name)
+
+
+def procedural_bytes(name: str) -> bytes:
+    """A procedural scene's GLB (a held-out interior of workers/procedural_interiors.py or workers.procedural's)."""
+    return make_interior(name) if name in INTERIOR_SCENES else make_scene(name)
 
 
 def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None, source: Path | None = None):
@@ -145,7 +151,7 @@ def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = No
             glb = work / f"{name}.zip"
     else:
         glb = work / f"{name}.glb"
-        glb.write_bytes(make_scene(name))
+        glb.write_bytes(procedural_bytes(name))
     store = Store(store_dir or (work / "store"))
     t0 = time.perf_counter()
     scene = ingest_file(glb)
