@@ -94,11 +94,12 @@ far side in its own footprint already: there the offset read still wins. Between
 INSIDE a wall thinner than two samples (a receiver facing it a few cm away) reads its don't-care samples, filled from
 both sides: half the wall's far side, a share the point "sees" between the bounds; the blend took that far side in
 (rooms-unequal of tests/data/fidelity, 5 cm from a 2 cm wall at 2.8 cm samples: normalized mask GI 1.6 of Cycles,
-5x on the normal facing the wall; sun-window, 5 cm from an 8 cm wall at 4.2 cm samples: 1.22). Only ``a'`` enters
+5x on the normal facing the wall; sun-window, 5 cm from an 8 cm wall at 4.2 cm samples: 1.23). Only ``a'`` enters
 the blend: a cluster the point does not see at all is never taken from the offset read, one it sees from 0.1 up is
-taken as before (so on a surface and in the cases above nothing changes); both now read 1.06 and 1.01, equal to
+taken as before (every region and mode of bench_fidelity's two-rooms, two-rooms-vc, sealed-box, cornell, furnace,
+cornell-mcguire and cornell-vinc3r is unchanged, to the last digit); both now read 1.06 and 1.02, equal to
 visibility-weighted GI (MD §3.2). Plain (unnormalized) mask GI reads the own side's clusters there at their
-in-wall weight (< 1): 0.74 and 0.85 of Cycles (1.05 and 0.98 before, where the leak made up for it).
+in-wall weight (< 1): 0.74 and 0.86 of Cycles (1.05 and 0.99 before, where the leak made up for it).
 
 Consumers: stages/compress; the viewer's mask shader (proto/glsl) via the meta of the artifacts.
 """
