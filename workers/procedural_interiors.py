@@ -1,8 +1,9 @@
 """Held-out procedural interiors for the fidelity benchmark: scenes the default config was never tuned on.
 
 Issue 12 ("right by default") asks for light within 0.9-1.1 of Cycles on scenes Kiln has never seen. The scenes of
-:mod:`workers.procedural` are the ones the defaults were measured on; these four differ from them the way a user's
-interior would (room sizes, wall thickness, a sun through a window, a corridor), and are used ONLY by
+:mod:`workers.procedural` are the ones the defaults were measured on; these five differ from them the way a user's
+interior would (room sizes, wall thickness, a zero-thickness wall, a sun through a window, a corridor), and are used
+ONLY by
 tests/bench/bench_fidelity.py and tests/data/fidelity/make_references.py (check points and Cycles references in
 tests/data/fidelity/<scene>.*). They are kept out of :data:`workers.procedural.SCENES` / ``ALL_SCENES``, which the
 unit tests iterate. Same conventions as :mod:`workers.procedural` (metres, +Y up, watertight grid solids from
@@ -27,13 +28,20 @@ directional lights in lux). Materials: walls and ceilings white-ish 0.8, floors 
     5 cm (the space inside the L, x < 6.45, z > 1.55, is outside the building: empty, unlit). One 10 cd point light
     at (0.75, 2.2, 0.75) at the far end of leg 1: leg 2 beyond the corner gets no direct light.
 
+``plane-wall`` (two rooms divided by a zero-thickness wall: one double-sided plane, as many modelled interiors are)
+    One closed box, interior [0, 8] x [0, 2.8] x [0, 4], 10 cm shell; a divider plane x = 4.5 (material "divider",
+    white 0.8, doubleSided) from floor to ceiling with a door opening z in [2.8, 3.7], y < 2.0: room A (lit)
+    x < 4.5, room B (dark) x > 4.5. One 25 cd point light at (2.0, 2.4, 1.5) in A.
+
 ``thick-wall`` (two rooms with a 40 cm wall between them)
     Room A (lit) [0, 4] x [0, 3] x [0, 4]; room B (dark) [4.4, 8.4] x [0, 3] x [0, 4]; wall x in [4, 4.4] with a
     door through it z in [2.6, 3.5], y < 2.0. Outer shell 10 cm. One 20 cd point light at (1.2, 2.4, 1.2) in A.
 """
 from __future__ import annotations
 
-from workers.procedural_glb import EPS, Box3, Light, Material, SceneSpec, encode_glb, solid_mesh
+import numpy as np
+
+from workers.procedural_glb import EPS, Box3, Light, Material, SceneSpec, encode_glb, quads_to_primitive, solid_mesh
 
 __all__ = ["INTERIOR_SCENES", "CONFIGS", "make_interior"]
 
@@ -44,6 +52,8 @@ INTERIOR_SCENES: dict[str, str] = {
                   "3.5 x 3 x 4 m room; building on a ground slab",
     "corridor-l": "L-shaped corridor 1.5 m wide, 2.5 m high, legs 8 m; a 10 cd point light at one end",
     "thick-wall": "two 4 x 3 x 4 m rooms, 40 cm wall with a door through it, 20 cd point light in one",
+    "plane-wall": "two rooms (4.5 and 3.5 x 2.8 x 4 m) divided by one double-sided plane with a door, 25 cd point "
+                  "light in one",
 }
 
 # Bake-config additions of each scene (the bench bakes the default config plus this; the Cycles reference gets the
@@ -128,8 +138,23 @@ def _thick_wall() -> SceneSpec:
                      lights=[Light("room-a", "point", 20.0, position=(1.2, 2.4, 1.2))], bake_box=_bounds(ops))
 
 
+def _plane_wall() -> SceneSpec:
+    t, x = 0.10, 4.5
+    ops = [(True, ((-t, -t, -t), (8.0 + t, 2.8 + t, 4.0 + t))), (False, ((0.0, 0.0, 0.0), (8.0, 2.8, 4.0)))]
+
+    def quad(y0, y1, z0, z1):   # in the plane x, counter-clockwise seen from -x (double-sided: either way)
+        return np.array([[x, y0, z0], [x, y0, z1], [x, y1, z1], [x, y1, z0]], np.float64)
+
+    divider = [quad(0.0, 2.8, 0.0, 2.8), quad(0.0, 2.8, 3.7, 4.0), quad(2.0, 2.8, 2.8, 3.7)]
+    name, prims = solid_mesh("shell", ops, _floor_or_wall)
+    return SceneSpec(name="plane-wall",
+                     materials=[*_materials(), Material("divider", _WALL, double_sided=True)],
+                     meshes=[(name, prims), ("divider", {"divider": quads_to_primitive(divider)})],
+                     lights=[Light("room-a", "point", 25.0, position=(2.0, 2.4, 1.5))], bake_box=_bounds(ops))
+
+
 _BUILDERS = {"rooms-unequal": _rooms_unequal, "sun-window": _sun_window, "corridor-l": _corridor_l,
-             "thick-wall": _thick_wall}
+             "thick-wall": _thick_wall, "plane-wall": _plane_wall}
 
 
 def make_interior(name: str) -> bytes:

@@ -60,11 +60,11 @@ with a points file in tests/data/fidelity (:data:`DEFAULT_SCENES`). Per scene:
    absolute mean instead (``=<value>``). The JSON (``--json``) also holds per-channel ratios and per-receiver
    relative RMS errors.
 
-``rooms-unequal``, ``sun-window``, ``corridor-l`` and ``thick-wall`` are held-out interiors
+``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall`` and ``plane-wall`` are held-out interiors
 (:mod:`workers.procedural_interiors`, kept out of ``workers.procedural``'s scene lists): scenes the default config was
 never tuned on, as issue 12's filer will measure (a lit room beside a smaller dark one through a 2 cm wall; a sunlit
 room with a window and sky on a ground slab beside a closed room; an L-shaped corridor lit at one end; a 40 cm wall
-with a door through it). Baked like the procedural scenes, plus the points file's ``config`` (sun-window's sky).
+with a door through it; two rooms divided by one double-sided plane). Baked like the procedural scenes, plus the points file's ``config`` (sun-window's sky).
 
 ``furnace`` has no Cycles reference but a closed form (``furnace.closed-form.reference.json``, made by
 ``tests/data/fidelity/make_closed_form.py``): the default config with a uniform sky of radiance 1, where every receiver

@@ -23,7 +23,7 @@ def _ingest(name: str):
 
 
 def test_kept_out_of_the_procedural_scene_lists():
-    assert set(INTERIOR_SCENES) == {"rooms-unequal", "sun-window", "corridor-l", "thick-wall"}
+    assert set(INTERIOR_SCENES) == {"rooms-unequal", "sun-window", "corridor-l", "thick-wall", "plane-wall"}
     assert not set(INTERIOR_SCENES) & set(ALL_SCENES)
     assert set(CONFIGS) <= set(INTERIOR_SCENES)
     with pytest.raises(ValueError, match="unknown interior"):
@@ -35,7 +35,9 @@ def test_closed_deterministic_and_lit(name):
     assert make_interior(name) == make_interior(name)
     sc = _ingest(name)
     assert not sc.warnings
-    tris = np.round(np.asarray(sc.triangles, np.float64), 6)
+    double = np.array([bool(m.get("double_sided")) for m in sc.materials])[np.asarray(sc.material)]
+    assert double.any() == (name == "plane-wall")          # plane-wall's divider: one double-sided plane
+    tris = np.round(np.asarray(sc.triangles, np.float64)[~double], 6)
     edges = Counter((tuple(t[a]), tuple(t[b])) for t in tris for a, b in ((0, 1), (1, 2), (2, 0)))
     # watertight and consistently oriented: every directed edge once, its reverse once
     assert all(n == 1 and edges.get((b, a)) == 1 for (a, b), n in edges.items())
@@ -44,7 +46,7 @@ def test_closed_deterministic_and_lit(name):
 
 # a point in each room, the light's room first: the rooms are joined only through their door
 ROOMS = {"rooms-unequal": [(3.0, 1.5, 2.5), (7.5, 1.3, 1.5)], "thick-wall": [(2.0, 1.5, 2.0), (6.4, 1.5, 2.0)],
-         "sun-window": [(2.5, 1.5, 2.0), (6.8, 1.5, 2.0)]}
+         "sun-window": [(2.5, 1.5, 2.0), (6.8, 1.5, 2.0)], "plane-wall": [(2.0, 1.5, 2.0), (6.3, 1.4, 2.0)]}
 
 
 @pytest.mark.parametrize("name", sorted(ROOMS))

@@ -28,12 +28,13 @@ lights of its entry added):
    of E_indirect; per receiver: RMS of the relative half-difference).
 
 Sky 0 for the procedural scenes: they carry their own lights, and a probe then holds exactly E_probe. The held-out
-interiors of :mod:`workers.procedural_interiors` (``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall``;
+interiors of :mod:`workers.procedural_interiors` (``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall``,
+``plane-wall``, whose divider is a double-sided plane, left out of the parity test: :func:`triangles`;
 :data:`REGIONS` below) are procedural scenes too; ``sun-window`` also has a sky (its ``CONFIGS`` entry, in the points
 file's and the reference's ``config``), handled as a real scene's sky (E_probe = E_total(sky) - E_direct(sky 0)).
 Made with ``--samples 4096 --seeds 0,1`` (corridor-l and sun-window ``--seeds 0,1,2,3``, the first two reused),
 under ``nice -n 10`` on 2 cores shared with other benchmarks: thick-wall 288 s, rooms-unequal 161 s, corridor-l
-93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s (``wall_seconds`` in the references).
+93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s, plane-wall 152 s (``wall_seconds`` in the references).
 
 Real scenes (:data:`EXTERNAL`, e.g. ``living-room``: ``godot-living-room/living_room.glb``, which has no lights of its
 own) are baked by the bench with the default config plus the entry's ``config`` (``scene.lights`` and ``scene.sky``).
@@ -358,6 +359,16 @@ REGIONS["corridor-l"] = {
     "around-10cm": [(6.6, y, z) for y, z in _CL_YZ],
     "around-25cm": [(6.75, y, z) for y, z in _CL_YZ],
 }
+_PW_YZ = [(0.6, 0.8), (2.0, 0.8), (0.6, 1.8), (2.0, 1.8)]      # plane-wall: divider x = 4.5, door z in [2.8, 3.7]
+REGIONS["plane-wall"] = {
+    "dark-5cm": [(4.55, y, z) for y, z in _PW_YZ],
+    "dark-10cm": [(4.6, y, z) for y, z in _PW_YZ],
+    "dark-25cm": [(4.75, y, z) for y, z in _PW_YZ],
+    "dark-middle": [(6.3, 1.4, 2.0), (7.0, 0.8, 1.0), (5.5, 2.0, 3.0), (7.3, 1.2, 3.3)],
+    "lit-5cm": [(4.45, y, z) for y, z in _PW_YZ],
+    "lit-10cm": [(4.4, y, z) for y, z in _PW_YZ],
+    "lit": [(2.0, 1.2, 2.5), (1.0, 1.0, 1.0), (3.5, 2.0, 3.2), (3.0, 0.6, 0.8)],
+}
 REGIONS["thick-wall"] = {
     "dark-5cm": [(4.45, y, z) for y, z in _TW_YZ],
     "dark-10cm": [(4.5, y, z) for y, z in _TW_YZ],
@@ -380,8 +391,10 @@ def _glb_json(data: bytes) -> tuple[dict, bytes]:
     return doc, data[off + 8:off + 8 + n]
 
 
-def triangles(data: bytes) -> np.ndarray:
-    """(T, 3, 3) float64 world-space triangles of a procedural GLB (identity node transforms)."""
+def triangles(data: bytes, solid_only: bool = False) -> np.ndarray:
+    """(T, 3, 3) float64 world-space triangles of a procedural GLB (identity node transforms); ``solid_only``: without
+    the primitives of double-sided materials (plane-wall's divider, a surface without an inside: the parity test of
+    :func:`inside` reads closed solids only)."""
     doc, blob = _glb_json(data)
     out = []
 
@@ -393,6 +406,8 @@ def triangles(data: bytes) -> np.ndarray:
 
     for mesh in doc["meshes"]:
         for p in mesh["primitives"]:
+            if solid_only and doc["materials"][p["material"]].get("doubleSided"):
+                continue
             pos = acc(p["attributes"]["POSITION"], np.float32, 3).astype(np.float64)
             idx = acc(p["indices"], np.uint32, 1).reshape(-1, 3)
             out.append(pos[idx])
@@ -673,7 +688,10 @@ def probe_grid(tris: np.ndarray):
     return counts, lo, spacing
 
 
-def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None) -> list[list[float]]:
+def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None,
+                 solid: np.ndarray | None = None) -> list[list[float]]:
+    """``solid``: the triangles of the parity test (default ``tris``; see :func:`triangles`)."""
+    solid = tris if solid is None else solid
     counts, origin, spacing = probe_grid(tris)
     need = EXTERNAL[scene]["probe_clearance"] if ext else PROBE_CLEARANCE.get(scene, 0.15)
     boxes = EXTERNAL[scene]["probe_boxes"] if ext else [(None, PROBES_PER_SCENE)]
@@ -690,7 +708,7 @@ def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None)
                     if ext is not None:
                         if ext.free(p, need)[0]:
                             free.append(p)
-                    elif clearance(tris, p) >= need and not inside(tris, p):
+                    elif clearance(tris, p) >= need and not inside(solid, p):
                         free.append(p)
         if free:
             pick = np.unique(np.linspace(0, len(free) - 1, min(n, len(free))).round().astype(int))
@@ -702,11 +720,12 @@ def points_doc(scene: str) -> dict:
     ext = ExternalScene(scene) if scene in EXTERNAL else None
     data = ext.data if ext else procedural_bytes(scene)
     tris = ext.tris if ext else triangles(data)
+    solid = tris if ext else triangles(data, solid_only=True)
     pts: list[list[float]] = []
     regions: dict[str, list[int]] = {}
     checks = []
     regions_in = generated_regions(ext) if REGIONS[scene] == "generated" else REGIONS[scene]
-    probes = probe_points(scene, tris, ext)
+    probes = probe_points(scene, tris, ext, solid)
     for region, plist in {**regions_in, **({"probes": probes} if probes else {})}.items():
         regions[region] = []
         for p in plist:
@@ -719,7 +738,7 @@ def points_doc(scene: str) -> dict:
                 checks.append(round(min(surface_distance(tris, p), ext.ray_clearance(p)), 4))
             else:
                 c = clearance(tris, np.asarray(p))
-                if c < MIN_CLEARANCE or inside(tris, p):
+                if c < MIN_CLEARANCE or inside(solid, p):
                     raise ValueError(f"{scene} {region} point {p} is not in free space (clearance {c:.3f} m)")
             regions[region].append(len(pts))
             pts.append(p)
