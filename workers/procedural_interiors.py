@@ -3,9 +3,8 @@
 Issue 12 ("right by default") asks for light within 0.9-1.1 of Cycles on scenes Kiln has never seen. The scenes of
 :mod:`workers.procedural` are the ones the defaults were measured on; these five differ from them the way a user's
 interior would (room sizes, wall thickness, a zero-thickness wall, a sun through a window, a corridor), and are used
-ONLY by
-tests/bench/bench_fidelity.py and tests/data/fidelity/make_references.py (check points and Cycles references in
-tests/data/fidelity/<scene>.*). They are kept out of :data:`workers.procedural.SCENES` / ``ALL_SCENES``, which the
+ONLY by tests/bench/bench_fidelity.py and tests/data/fidelity/make_references.py (check points and Cycles references
+in tests/data/fidelity/<scene>.*). They are kept out of :data:`workers.procedural.SCENES` / ``ALL_SCENES``, which the
 unit tests iterate. Same conventions as :mod:`workers.procedural` (metres, +Y up, watertight grid solids from
 :func:`workers.procedural_glb.grid_solid`, identity mesh transforms, KHR_lights_punctual: point lights in candela,
 directional lights in lux). Materials: walls and ceilings white-ish 0.8, floors a wood-like (0.45, 0.33, 0.22).
