@@ -61,7 +61,9 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "trace", "visibility"), timeout=3600),
     StageDef("masks", 2, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
              ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
-    StageDef("compress", 2, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
+    # compress 3: the mask lookup's blend takes from the offset read only the clusters the point sees
+    # (compress.lookup_blend; its lookup_error stat)
+    StageDef("compress", 3, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     # prt 2: the npy tables as KTX2 tables, the SH basis volumes RGBA16F (proto/bundle.md 5.3); 3: lights near
     # surfaces in the scenario, the L1 norm, cross-validated ridge (issue 14, artifact 5)
     StageDef("prt", 3, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
@@ -74,9 +76,10 @@ STAGES: tuple[StageDef, ...] = (
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
     # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by
-    # the delta method (the bootstrap understated them); 5: the eval_points artifact (each mode at the points: GET
-    # /v1/compare's paired standard errors)
-    StageDef("evaluate", 5, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+    # the delta method (the bootstrap understated them); 5: the mask modes' lookup blend takes from the offset read
+    # only the clusters the point sees (compress.lookup_blend, gi_mask.glsl); 6: the eval_points artifact (each mode
+    # at the points: GET /v1/compare's paired standard errors)
+    StageDef("evaluate", 6, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
              ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
               "reference"), timeout=7200),
 )

@@ -123,6 +123,7 @@ class Material:
     roughness: float = 1.0
     base_color_png: bytes | None = None          # baseColorTexture (sRGB PNG), read with TEXCOORD_0
     metallic_roughness_png: bytes | None = None  # metallicRoughnessTexture (linear PNG: G rough, B metal)
+    double_sided: bool = False                   # glTF doubleSided (written only when true)
 
 
 @dataclass
@@ -214,6 +215,8 @@ def encode_glb(spec: SceneSpec) -> bytes:
                                      "metallicFactor": float(m.metallic), "roughnessFactor": float(m.roughness)},
             "emissiveFactor": [float(x) for x in m.emissive],
         }
+        if m.double_sided:
+            mat["doubleSided"] = True
         if m.base_color_png is not None:
             mat["pbrMetallicRoughness"]["baseColorTexture"] = texture(m.base_color_png)
         if m.metallic_roughness_png is not None:

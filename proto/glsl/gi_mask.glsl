@@ -88,10 +88,11 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
   vec3 cell = clamp(floor(g), vec3(0.0), cells - 1.0);
   vec3 lo = cell * uMaskS, hi = cell * uMaskS + uMaskS - 1.0;
   // both sides (compress.mask_lookups, lookup_blend): the read moved uMaskOffset samples along n + v (a) and the read
-  // at p itself (b); seen = sum(a * min(b / uMaskSeen, 1)) / sum(a) over the lookup's channels (the share of a's
-  // clusters that p sees too); m = mix(b, a, s), s rising from 0 at seen uMaskBlend.x to 1 at uMaskBlend.y
+  // at p itself (b); a' = a * min(b / uMaskSeen, 1) (the clusters of a that p sees too), seen = sum(a') / sum(a)
+  // over the lookup's channels; m = mix(b, a', s), s rising from 0 at seen uMaskBlend.x to 1 at uMaskBlend.y
   // (compress.lookup_blend): a surface's offset read holds its own side's clusters, which its footprint holds too
-  // (a); an offset that crossed a surface reads what p does not see (b)
+  // (a'); an offset that crossed a surface reads what p does not see (b); one that ends inside a thin wall reads
+  // its don't-care samples, half the far side, which a' drops
   // t1 biased along n + v, the idea of DDGI-P eq 2
   vec3 t1 = clamp((g + live * (uMaskOffset / uMaskS) * (n + giViewDir)) * uMaskS - 0.5, lo, hi);
   vec3 t0 = clamp(g * uMaskS - 0.5, lo, hi);
@@ -123,10 +124,11 @@ void giMasks(vec3 p, vec3 n, out vec4 m0, out vec4 m1) {
     vec4 e = vec4(equal(ivec4(k & 3), ivec4(0, 1, 2, 3)));
     if (k < 4) { a0 += r.x * e; b0 += r.y * e; } else { a1 += r.x * e; b1 += r.y * e; }
   }
-  float seen = dot(a0, min(b0 / uMaskSeen, vec4(1.0))) + dot(a1, min(b1 / uMaskSeen, vec4(1.0)));
+  vec4 v0 = a0 * min(b0 / uMaskSeen, vec4(1.0)), v1 = a1 * min(b1 / uMaskSeen, vec4(1.0));   // a'
+  float seen = dot(v0 + v1, vec4(1.0));
   float s = clamp((seen / max(dot(a0 + a1, vec4(1.0)), 1e-6) - uMaskBlend.x) / (uMaskBlend.y - uMaskBlend.x), 0.0, 1.0);
-  m0 = mix(b0, a0, s);
-  m1 = mix(b1, a1, s);
+  m0 = mix(b0, v0, s);
+  m1 = mix(b1, v1, s);
 }
 
 // m_k E_k(n) of cluster k (L1: slots 3k, 3k+1, 3k+2 of uClusterSh, 3 fetches; L2 below: 7). Called in non-uniform control flow

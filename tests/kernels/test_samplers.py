@@ -344,6 +344,22 @@ def test_mask_lookup_offset_still_lifts_a_surface_off_its_wall():
     np.testing.assert_allclose(SM.mask_values(masks, p, n, g, 1.0, views=n)[0, :2], [1.0, 0.0], atol=1e-9)
 
 
+def test_mask_lookup_offset_ending_inside_a_thin_wall_takes_nothing_from_its_far_side():
+    """A receiver facing a wall thinner than two samples, one and a half samples in front of it: the offset
+    (2 samples along n + v) ends in the wall's don't-care samples, filled half and half from both sides. The point
+    sees part of that read (its own cluster) but not the far side's cluster, which the lookup no longer takes in
+    (it took 0.5 x the offset read's far half before: tests/data/fidelity rooms-unequal, 5 cm from a 2 cm wall,
+    normalized mask GI 1.6 of Cycles; now 1.06)."""
+    masks, g = _wall_masks((0.5, 0.5))
+    p, n = np.array([[0.3125, 0.5, 0.5]]), np.array([[1.0, 0.0, 0.0]])   # 1.5 samples in front of x = 0.5
+    at_point = SM.mask_values(masks, p, n, g, 0.0)[0, :2]
+    offset_only = SM.mask_values(masks, p + 0.25 * n, n, g, 0.0)[0, :2]
+    np.testing.assert_allclose(at_point, [1.0, 0.0], atol=2e-3)
+    np.testing.assert_allclose(offset_only, [0.5, 0.5], atol=3e-3)         # inside the wall: both sides
+    got = SM.mask_values(masks, p, n, g, 1.0, views=n)[0, :2]
+    assert got[1] == 0.0 and got[0] > 0.4                                   # no far side; own cluster kept
+
+
 def test_lookup_blend_is_linear_between_the_overlap_bounds():
     from workers.kernels.compress import MASK_OVERLAP, MASK_PRESENT, lookup_blend
 
@@ -352,10 +368,12 @@ def test_lookup_blend_is_linear_between_the_overlap_bounds():
     seen = np.array([lo, (lo + hi) / 2, hi])              # share of a's clusters the point sees
     b = np.stack([np.full(3, 1.0), 2 * seen - 1, np.zeros(3)], axis=1)
     b[:, 1] = (2 * seen - 1) * MASK_PRESENT                # cluster 1 seen at that fraction of MASK_PRESENT
+    a_seen = a * np.minimum(b / MASK_PRESENT, 1.0)         # only the clusters the point sees come from a
     got = lookup_blend([a, b])
     np.testing.assert_allclose(got[0], b[0])
-    np.testing.assert_allclose(got[1], (a[1] + b[1]) / 2)
-    np.testing.assert_allclose(got[2], a[2])
+    np.testing.assert_allclose(got[1], (a_seen[1] + b[1]) / 2)
+    np.testing.assert_allclose(got[2], a_seen[2])
+    assert got[2, 1] == 0.0                                # cluster 1, not seen at the point, is not taken from a
     np.testing.assert_array_equal(lookup_blend([b]), b)
     # a cluster seen at MASK_PRESENT or more counts fully: a thin-walled room's corner keeps the offset read
     far = np.array([[0.0, 1.0]])

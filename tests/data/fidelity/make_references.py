@@ -27,7 +27,14 @@ lights of its entry added):
    seeds, wall time per run, and the spread between seeds (per region: relative difference of the region means
    of E_indirect; per receiver: RMS of the relative half-difference).
 
-Sky 0 for the procedural scenes: they carry their own lights, and a probe then holds exactly E_probe.
+Sky 0 for the procedural scenes: they carry their own lights, and a probe then holds exactly E_probe. The held-out
+interiors of :mod:`workers.procedural_interiors` (``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall``,
+``plane-wall``, whose divider is a double-sided plane, left out of the parity test: :func:`triangles`;
+:data:`REGIONS` below) are procedural scenes too; ``sun-window`` also has a sky (its ``CONFIGS`` entry, in the points
+file's and the reference's ``config``), handled as a real scene's sky (E_probe = E_total(sky) - E_direct(sky 0)).
+Made with ``--samples 4096 --seeds 0,1`` (corridor-l and sun-window ``--seeds 0,1,2,3``, the first two reused),
+under ``nice -n 10`` on 2 cores shared with other benchmarks: thick-wall 288 s, rooms-unequal 161 s, corridor-l
+93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s, plane-wall 152 s + 364 s (seeds 0-3; ``wall_seconds`` in the references).
 
 Real scenes (:data:`EXTERNAL`, e.g. ``living-room``: ``godot-living-room/living_room.glb``, which has no lights of its
 own) are baked by the bench with the default config plus the entry's ``config`` (``scene.lights`` and ``scene.sky``).
@@ -96,6 +103,7 @@ ROOT = HERE.parents[2]
 sys.path.insert(0, str(ROOT))
 
 from workers.procedural import ALL_SCENES, make_scene  # noqa: E402
+from workers.procedural_interiors import CONFIGS as INTERIOR_CONFIGS, INTERIOR_SCENES, make_interior  # noqa: E402
 
 SHARED_SCENES = Path(os.environ.get("KILN_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
 
@@ -310,6 +318,66 @@ REGIONS["cornell-vinc3r"] = {
     "ceiling-near-light": [(0.8, 2.75, 0.8), (-0.8, 2.75, 0.8), (0.8, 2.75, -0.8), (-0.8, 2.75, -0.8),
                            (0.0, 2.75, 0.9), (0.0, 2.75, -0.9), (0.9, 2.75, 0.0), (-0.9, 2.75, 0.0)],
 }
+# The held-out interiors of workers/procedural_interiors.py (scenes the default config was never tuned on; see its
+# module doc for the coordinates). Regions as two-rooms': the dark side 5 / 10 / 25 cm from the wall it shares with
+# the lit room (behind the wall, about 1 m from the door's edge), the dark room's middle, the lit room, and per scene
+# what makes it different (the sun patch and the window, the corridor's corner and the leg around it, the door
+# through the thick wall).
+_RU_YZ = [(0.6, 2.0), (1.9, 2.0), (0.6, 2.6), (1.9, 2.6)]      # rooms-unequal: door z in [0.3, 1.1]
+_SW_YZ = [(0.6, 0.8), (2.2, 0.8), (0.6, 1.6), (2.2, 1.6)]      # sun-window: door z in [2.7, 3.6]
+_TW_YZ = [(0.6, 0.6), (2.2, 0.6), (0.6, 1.6), (2.2, 1.6)]      # thick-wall: door z in [2.6, 3.5]
+_CL_YZ = [(0.6, 3.0), (1.9, 3.0), (0.6, 5.0), (1.9, 5.0)]      # corridor-l: leg 2's inner wall x = 6.5, z > 1.5
+REGIONS["rooms-unequal"] = {
+    "dark-5cm": [(6.07, y, z) for y, z in _RU_YZ],
+    "dark-10cm": [(6.12, y, z) for y, z in _RU_YZ],
+    "dark-25cm": [(6.27, y, z) for y, z in _RU_YZ],
+    "dark-middle": [(7.5, 1.3, 1.5), (7.0, 0.8, 2.3), (8.3, 2.0, 0.8), (8.0, 1.0, 2.5)],
+    "lit-10cm": [(5.9, y, z) for y, z in _RU_YZ],
+    "lit": [(3.0, 1.2, 2.5), (1.0, 1.0, 1.0), (4.5, 2.0, 4.0), (2.5, 0.6, 4.2), (5.0, 1.5, 1.0)],
+}
+REGIONS["sun-window"] = {
+    "dark-5cm": [(5.13, y, z) for y, z in _SW_YZ],
+    "dark-10cm": [(5.18, y, z) for y, z in _SW_YZ],
+    "dark-25cm": [(5.33, y, z) for y, z in _SW_YZ],
+    "dark-middle": [(6.8, 1.5, 2.0), (7.5, 0.8, 1.0), (6.3, 2.2, 3.0), (8.0, 1.2, 3.2)],
+    "lit-10cm": [(4.9, y, z) for y, z in _SW_YZ],
+    "lit": [(2.5, 1.5, 2.0), (1.0, 1.0, 0.5), (3.5, 2.5, 3.5), (4.0, 0.5, 1.0)],
+    # in the sun's beam (direct sun: not in E_probe, which is the indirect light plus the sky seen directly)
+    "sunlit": [(1.3, 0.3, 2.4), (1.0, 0.6, 2.0), (1.6, 0.15, 3.0)],
+    # 25 cm inside the window opening
+    "window": [(0.25, 1.5, 2.0), (0.25, 1.2, 1.4), (0.25, 1.9, 2.6)],
+}
+REGIONS["corridor-l"] = {
+    "lit": [(1.5, 1.2, 0.75), (2.5, 0.6, 0.4), (3.5, 1.8, 1.1), (0.4, 0.5, 1.2)],
+    # 10 cm from leg 1's thin outer wall z = 1.5 (the outside, unlit, behind it)
+    "lit-10cm": [(x, y, 1.4) for x in (2.0, 4.0) for y in (0.6, 1.9)],
+    "leg1-far": [(5.0, 1.2, 0.75), (4.5, 0.5, 0.3), (5.5, 2.0, 1.2)],
+    "corner": [(7.25, 1.25, 0.75), (7.0, 0.5, 0.4), (7.6, 2.0, 1.1), (6.9, 1.8, 0.5)],
+    # leg 2 beyond the corner (no direct light); the wall regions in front of its inner wall x = 6.5
+    "around": [(7.25, 1.25, 3.5), (7.25, 0.6, 5.0), (7.0, 1.8, 6.5), (7.5, 1.0, 7.5)],
+    "around-5cm": [(6.55, y, z) for y, z in _CL_YZ],
+    "around-10cm": [(6.6, y, z) for y, z in _CL_YZ],
+    "around-25cm": [(6.75, y, z) for y, z in _CL_YZ],
+}
+_PW_YZ = [(0.6, 0.8), (2.0, 0.8), (0.6, 1.8), (2.0, 1.8)]      # plane-wall: divider x = 4.5, door z in [2.8, 3.7]
+REGIONS["plane-wall"] = {
+    "dark-5cm": [(4.55, y, z) for y, z in _PW_YZ],
+    "dark-10cm": [(4.6, y, z) for y, z in _PW_YZ],
+    "dark-25cm": [(4.75, y, z) for y, z in _PW_YZ],
+    "dark-middle": [(6.3, 1.4, 2.0), (7.0, 0.8, 1.0), (5.5, 2.0, 3.0), (7.3, 1.2, 3.3)],
+    "lit-5cm": [(4.45, y, z) for y, z in _PW_YZ],
+    "lit-10cm": [(4.4, y, z) for y, z in _PW_YZ],
+    "lit": [(2.0, 1.2, 2.5), (1.0, 1.0, 1.0), (3.5, 2.0, 3.2), (3.0, 0.6, 0.8)],
+}
+REGIONS["thick-wall"] = {
+    "dark-5cm": [(4.45, y, z) for y, z in _TW_YZ],
+    "dark-10cm": [(4.5, y, z) for y, z in _TW_YZ],
+    "dark-25cm": [(4.65, y, z) for y, z in _TW_YZ],
+    "dark-middle": [(6.4, 1.5, 2.0), (6.0, 0.8, 1.0), (7.0, 2.2, 3.0), (5.5, 1.0, 3.2)],
+    "lit-10cm": [(3.9, y, z) for y, z in _TW_YZ],
+    "lit": [(2.5, 1.2, 2.5), (1.0, 1.0, 3.0), (3.0, 2.0, 1.0), (2.0, 0.6, 2.0)],
+    "door": [(4.2, 1.0, 3.05), (4.2, 1.6, 2.9)],   # in the passage through the wall
+}
 CHECK_RAYS = 512  # ray directions (spherical Fibonacci) of the free-space check of a real scene's points
 UNITS_NOTE = "E in W/m^2 (glTF units: cd / m^2, lux); RGB mean per receiver; dirs = the 6 axis normals per point"
 
@@ -323,8 +391,10 @@ def _glb_json(data: bytes) -> tuple[dict, bytes]:
     return doc, data[off + 8:off + 8 + n]
 
 
-def triangles(data: bytes) -> np.ndarray:
-    """(T, 3, 3) float64 world-space triangles of a procedural GLB (identity node transforms)."""
+def triangles(data: bytes, solid_only: bool = False) -> np.ndarray:
+    """(T, 3, 3) float64 world-space triangles of a procedural GLB (identity node transforms); ``solid_only``: without
+    the primitives of double-sided materials (plane-wall's divider, a surface without an inside: the parity test of
+    :func:`inside` reads closed solids only)."""
     doc, blob = _glb_json(data)
     out = []
 
@@ -336,6 +406,8 @@ def triangles(data: bytes) -> np.ndarray:
 
     for mesh in doc["meshes"]:
         for p in mesh["primitives"]:
+            if solid_only and doc["materials"][p["material"]].get("doubleSided"):
+                continue
             pos = acc(p["attributes"]["POSITION"], np.float32, 3).astype(np.float64)
             idx = acc(p["indices"], np.uint32, 1).reshape(-1, 3)
             out.append(pos[idx])
@@ -450,6 +522,12 @@ class ExternalScene:
             how = f"inside (parity) {par}"
         ok = d >= need - 1e-6 and r >= need - 1e-6 and not par
         return ok, f"distance {d:.4f} m, nearest of {CHECK_RAYS} rays {r:.4f} m, {how}"
+
+
+def procedural_bytes(name: str) -> bytes:
+    """A procedural scene's GLB: :func:`workers.procedural.make_scene` or, for a held-out interior,
+    :func:`workers.procedural_interiors.make_interior`."""
+    return make_interior(name) if name in INTERIOR_SCENES else make_scene(name)
 
 
 def external_path(name: str) -> Path:
@@ -610,7 +688,10 @@ def probe_grid(tris: np.ndarray):
     return counts, lo, spacing
 
 
-def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None) -> list[list[float]]:
+def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None,
+                 solid: np.ndarray | None = None) -> list[list[float]]:
+    """``solid``: the triangles of the parity test (default ``tris``; see :func:`triangles`)."""
+    solid = tris if solid is None else solid
     counts, origin, spacing = probe_grid(tris)
     need = EXTERNAL[scene]["probe_clearance"] if ext else PROBE_CLEARANCE.get(scene, 0.15)
     boxes = EXTERNAL[scene]["probe_boxes"] if ext else [(None, PROBES_PER_SCENE)]
@@ -627,7 +708,7 @@ def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None)
                     if ext is not None:
                         if ext.free(p, need)[0]:
                             free.append(p)
-                    elif clearance(tris, p) >= need and not inside(tris, p):
+                    elif clearance(tris, p) >= need and not inside(solid, p):
                         free.append(p)
         if free:
             pick = np.unique(np.linspace(0, len(free) - 1, min(n, len(free))).round().astype(int))
@@ -637,13 +718,14 @@ def probe_points(scene: str, tris: np.ndarray, ext: ExternalScene | None = None)
 
 def points_doc(scene: str) -> dict:
     ext = ExternalScene(scene) if scene in EXTERNAL else None
-    data = ext.data if ext else make_scene(scene)
+    data = ext.data if ext else procedural_bytes(scene)
     tris = ext.tris if ext else triangles(data)
+    solid = tris if ext else triangles(data, solid_only=True)
     pts: list[list[float]] = []
     regions: dict[str, list[int]] = {}
     checks = []
     regions_in = generated_regions(ext) if REGIONS[scene] == "generated" else REGIONS[scene]
-    probes = probe_points(scene, tris, ext)
+    probes = probe_points(scene, tris, ext, solid)
     for region, plist in {**regions_in, **({"probes": probes} if probes else {})}.items():
         regions[region] = []
         for p in plist:
@@ -656,7 +738,7 @@ def points_doc(scene: str) -> dict:
                 checks.append(round(min(surface_distance(tris, p), ext.ray_clearance(p)), 4))
             else:
                 c = clearance(tris, np.asarray(p))
-                if c < MIN_CLEARANCE or inside(tris, p):
+                if c < MIN_CLEARANCE or inside(solid, p):
                     raise ValueError(f"{scene} {region} point {p} is not in free space (clearance {c:.3f} m)")
             regions[region].append(len(pts))
             pts.append(p)
@@ -666,6 +748,8 @@ def points_doc(scene: str) -> dict:
                           "note": "the grid of place.counts = [8, 8, 8] over the scene bounds; "
                                   "'probes' are un-relocated positions of it"},
            "glb_sha256": hashlib.sha256(data).hexdigest()}
+    if scene in INTERIOR_CONFIGS:
+        doc["config"] = INTERIOR_CONFIGS[scene]
     if ext:
         doc["source"] = EXTERNAL[scene]["source"]
         doc["source_note"] = ("a real scene, read from ../shared/scenes/<source> (never copied into the project); "
@@ -1084,13 +1168,14 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
         data = with_lights(base, section["lights"]) if section.get("lights") else base
         sky = [float(x) for x in section.get("sky", [0.0, 0.0, 0.0])]
     else:
-        src = data = make_scene(scene)
-        sky = [0.0, 0.0, 0.0]
+        src = data = procedural_bytes(scene)
+        sky = [float(x) for x in INTERIOR_CONFIGS.get(scene, {}).get("scene", {}).get("sky", [0.0, 0.0, 0.0])]
     glb = work / f"{scene}.glb"
     glb.write_bytes(data)
     pdoc = json.loads(points_file.read_text())
     if pdoc["glb_sha256"] != hashlib.sha256(src).hexdigest() \
-            or (external and pdoc.get("config") != EXTERNAL[scene]["config"]):
+            or (external and pdoc.get("config") != EXTERNAL[scene]["config"]) \
+            or (not external and pdoc.get("config") != INTERIOR_CONFIGS.get(scene)):
         raise RuntimeError(f"{scene}.points.json was made for another version of the scene: rerun --points-only")
     pts = work / f"{scene}.{tag}points.json"
     pts.write_text(json.dumps({"points": pdoc["points"]}))
@@ -1169,6 +1254,8 @@ def reference(scene: str, material: str, samples: int, seeds: list[int], timeout
                                     + ("; a material for primitives without one: see oracle_scene_fix"
                                        if fix and fix.get("material") else ""),
                  "oracle_scene_fix": fix}
+    if scene in INTERIOR_CONFIGS:
+        extra["config"] = INTERIOR_CONFIGS[scene]
     if use_sky:
         extra["sky_direct_runs"] = {
             "seeds": seeds[:len(direct_runs)], "samples": direct_samples,
@@ -1223,7 +1310,7 @@ def main() -> None:
     args = ap.parse_args()
     scenes = [s for s in args.scenes.split(",") if s]
     for s in scenes:
-        if (s not in ALL_SCENES and s not in EXTERNAL) or s not in REGIONS:
+        if (s not in ALL_SCENES and s not in EXTERNAL and s not in INTERIOR_SCENES) or s not in REGIONS:
             raise SystemExit(f"no check points for scene {s!r}; have {', '.join(REGIONS)}")
     for s in [s for s in scenes if s in EXTERNAL and not external_path(s).is_file()]:
         print(f"skipping {s}: its source {external_path(s)} is not there (a real scene, read from "
