@@ -20,7 +20,8 @@ scene (Cycles' references exist only for plane-wall). Printed per scene: at the 
 irradiance of every live probe inside the dark room (>= 3 cm from its surfaces; 6 axis directions) over the path
 tracer at the probe's relocated position, by distance from the wall; and the light stage's gather at the dark room's
 probe-ray hits: how many dark-side hits give any weight to a probe on the lit side of the wall (through the door: the
-hits in the door's plane) and the lit probes' total weight there.
+hits in the door's plane) and the lit probes' total weight there; and, at a sample of the dark room's hits, the light
+stage's gathered E_indirect (the final maps) over the path tracer's, by the hit's distance to the room's nearest edge.
 """
 from __future__ import annotations
 
@@ -40,7 +41,7 @@ sys.path.insert(0, str(ROOT / "tests" / "bench"))
 import bench_fidelity as BF  # noqa: E402
 from workers import procedural_interiors as PI  # noqa: E402
 from workers.kernels.ddgi import cage_probes  # noqa: E402
-from workers.kernels.gather import sampler_weights  # noqa: E402
+from workers.kernels.gather import apply_sampler_weights, sampler_weights  # noqa: E402
 from workers.kernels.grid import OFF, unpack_atlas  # noqa: E402
 from workers.kernels.octahedral import bilinear_sample  # noqa: E402
 from workers.kernels.pathtrace import indirect_irradiance  # noqa: E402
@@ -65,7 +66,7 @@ def box_wall_glb(th: float) -> bytes:
                                 bake_box=PI._bounds(ops)))
 
 
-def measure(label: str, glb: bytes, work: Path, config: dict, spp: int, probe_spp: int) -> dict:
+def measure(label: str, glb: bytes, work: Path, config: dict, spp: int, probe_spp: int, hit_sample: int) -> dict:
     path = work / f"{label}.glb"
     path.write_bytes(glb)
     scene, recs, cfg, _ = BF.bake(label, work, None, config, source=path)
@@ -120,6 +121,25 @@ def measure(label: str, glb: bytes, work: Path, config: dict, spp: int, probe_sp
     out["gather"] = {"dark_hits": int(keep.sum()), "with_lit_weight": int((wl > 0).sum()),
                      "lit_weight_sum": float(wl.sum()), "lit_weight_sum_off_door": float(wl[~door].sum()),
                      "with_lit_weight_off_door": int((wl[~door] > 0).sum())}
+    # 4. the gathered E_indirect (final maps) at a sample of those hits inside room B against the path tracer there,
+    # by the hit's distance to the nearest edge of room B (a concave edge: floor / ceiling / wall junctions)
+    inb = np.flatnonzero(np.all((P_ > np.asarray(ROOM_B[0]) - 0.01) & (P_ < np.asarray(ROOM_B[1]) + 0.01), axis=1))
+    sub = np.sort(np.random.default_rng(cfg.seed).choice(inb, size=min(hit_sample, inb.size), replace=False))
+    maps = np.ascontiguousarray(irr, np.float32)
+    eg = apply_sampler_weights(W, maps)[sub].mean(-1)
+    geo = surf.geo_normal[keep][sub].astype(np.float64)
+    ep = np.asarray(indirect_irradiance(scene, P_[sub].astype(np.float64), N_[sub].astype(np.float64), lit["lights"],
+                                        sky=lit["sky"], spp=probe_spp, bounces=64, rr_depth=3, seed=cfg.seed + 2,
+                                        geo_normals=geo).irradiance).mean(-1)
+    alb = surf.albedo[keep][sub].mean(-1)
+    dd = np.sort(np.minimum(np.abs(P_[sub] - np.asarray(ROOM_B[0])), np.abs(P_[sub] - np.asarray(ROOM_B[1]))), axis=1)
+    edge = dd[:, 1]                                    # dd[:, 0] ~ 0: the face the hit lies on
+    tot = float((alb * ep).sum())
+    out["hits"] = {k: {"n": int(c.sum()), "gathered_over_pt": float(eg[c].sum() / ep[c].sum()),
+                       "excess_share": float((alb[c] * (eg[c] - ep[c])).sum() / tot)}
+                   for k, c in {"edge < 5 cm": edge < 0.05, "5-15 cm": (edge >= 0.05) & (edge < 0.15),
+                                "15-30 cm": (edge >= 0.15) & (edge < 0.3), ">= 30 cm": edge >= 0.3,
+                                "all": edge >= 0}.items()}
     return out
 
 
@@ -128,17 +148,18 @@ def main() -> int:
     ap.add_argument("--thickness", type=float, default=0.01, help="the box wall's thickness, metres")
     ap.add_argument("--spp", type=int, default=4096, help="path tracer paths per receiver")
     ap.add_argument("--probe-spp", type=int, default=256, help="path tracer paths per probe direction")
+    ap.add_argument("--hits", type=int, default=6000, help="dark-room hits path-traced (--probe-spp paths each)")
     ap.add_argument("--json", type=Path, default=None)
     args = ap.parse_args()
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         t0 = time.perf_counter()
-        res["plane"] = measure("plane-wall", PI.make_interior("plane-wall"), work, {}, args.spp, args.probe_spp)
+        res["plane"] = measure("plane-wall", PI.make_interior("plane-wall"), work, {}, args.spp, args.probe_spp, args.hits)
         g = res["plane"]["grid"]
         o, s, c = (np.asarray(g[k], np.float64) for k in ("origin", "spacing", "counts"))
         fixed = {"place": {"counts": [int(v) for v in c], "box": {"min": o.tolist(), "max": (o + s * (c - 1)).tolist()}}}
-        res["box"] = measure("box-wall", box_wall_glb(args.thickness), work, fixed, args.spp, args.probe_spp)
+        res["box"] = measure("box-wall", box_wall_glb(args.thickness), work, fixed, args.spp, args.probe_spp, args.hits)
         print(f"grid {list(c)} spacing {np.round(s, 3).tolist()} (plane-wall's automatic grid, both scenes); "
               f"box wall {args.thickness * 100:.1f} cm; {time.perf_counter() - t0:.0f} s")
     print(f"{'receivers (mode / Kiln PT)':<28}" + "".join(f"{k + ' ' + m[:8]:>20}" for k in res for m in ("vis_wtd", "mask_norm")))
@@ -154,6 +175,10 @@ def main() -> int:
         print(f"{k}: {gth['dark_hits']} dark-side hits of dark probes; {gth['with_lit_weight']} give weight to a lit-side "
               f"probe (sum {gth['lit_weight_sum']:.1f}); away from the door (> 30 cm): {gth['with_lit_weight_off_door']} "
               f"(sum {gth['lit_weight_sum_off_door']:.2f})")
+    print(f"{'room B hits: gathered / PT':<28}" + "".join(f"{k:>20}" for k in res) + "   (excess share of the hits' E)")
+    for b in res["plane"]["hits"]:
+        print(f"{b:<28}" + "".join(f"{res[k]['hits'][b]['gathered_over_pt']:>8.3f} ({res[k]['hits'][b]['n']:>4}) "
+                                   f"{res[k]['hits'][b]['excess_share']:+.3f}" for k in res))
     if args.json:
         args.json.write_text(json.dumps(res, indent=1) + "\n")
     return 0
