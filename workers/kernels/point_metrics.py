@@ -99,8 +99,8 @@ import numpy as np
 
 from workers.kernels import metrics as MT
 
-__all__ = ["point_metrics", "metrics_with_stderr", "paired_delta_stderr", "region_ratios", "radiance", "point_summary",
-           "check_point_report", "METRICS", "REPLICAS"]
+__all__ = ["point_metrics", "metrics_with_stderr", "paired_delta_stderr", "reference_mean_stderr", "region_ratios",
+           "radiance", "point_summary", "check_point_report", "METRICS", "REPLICAS"]
 
 METRICS = ("rmse", "indirect_relative_rmse", "leak", "indirect_excess", "mean_ratio")
 REPLICAS = 128
@@ -213,6 +213,22 @@ def _debiased_rmse_stderr(diff, noise, mse: float, dof: int = NOISE_DOF, channel
     return math.sqrt(v) / (r + math.sqrt(r * r + math.sqrt(v))) if v > 0 else 0.0
 
 
+def _mean_norm_stderr(ref, err) -> float:
+    """Standard error of ``mean_i |R_i|`` (the denominator of ``indirect_relative_rmse``): the noise along each
+    ``R_i``, one draw per point for all channels."""
+    r, s = np.asarray(ref, np.float64), np.asarray(err, np.float64)
+    norm = np.linalg.norm(r, axis=-1, keepdims=True)
+    along = np.sum(np.divide(r, norm, out=np.zeros_like(r), where=norm > 0) * s, axis=-1)
+    return math.sqrt(float(np.sum(along ** 2))) / len(r)
+
+
+def reference_mean_stderr(err) -> float:
+    """Standard error of the mean luminance of a reference over its points, ``err`` (..., 3) their RGB standard
+    errors (one draw per point for all channels)."""
+    e = np.asarray(err, np.float64).reshape(-1, 3)
+    return float(np.sqrt(np.sum((e @ MT.REC709) ** 2)) / len(e))
+
+
 def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas: int = REPLICAS,
                         seed: int = 0, exposure: float | None = None, cache: dict | None = None) -> dict:
     """:func:`point_metrics` plus ``<metric>_stderr`` for each (module doc); ``exposure`` default: from the
@@ -248,10 +264,7 @@ def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas:
     if out["indirect_relative_rmse"] is not None and den > 0:
         mse = float(np.mean(np.sum((t - r) ** 2, axis=-1)) - v_irr.mean())
         sd_num = _debiased_rmse_stderr(t - r, s, mse)
-        # and the denominator's noise (mean |R|: the noise along each R), in quadrature
-        norm = np.linalg.norm(r, axis=-1, keepdims=True)
-        sd_den = math.sqrt(float(np.sum(np.sum(np.divide(r, norm, out=np.zeros_like(r), where=norm > 0) * s,
-                                               axis=-1) ** 2))) / len(r)
+        sd_den = _mean_norm_stderr(r, s)              # and the denominator's noise, in quadrature
         out["indirect_relative_rmse_stderr"] = math.hypot(sd_num / den, out["indirect_relative_rmse"] * sd_den / den)
     return out
 
@@ -310,7 +323,7 @@ def paired_delta_stderr(test_a, test_b, ref, err, e_direct, albedo, emission, *,
     if "noise" not in cache:
         cache["noise"] = _noise_variance(r, s, d, a, e, exposure)
         cache["replicas"] = _prepare(_replicas(r, s, replicas, seed), d, a, e, exposure)
-    noise, reps, n = cache["noise"], cache["replicas"], len(r)
+    noise, reps = cache["noise"], cache["replicas"]
     # the bootstrap, paired: both tests against the same replicas (and the same dark set of the leak)
     yr = MT.luminance(r)
     dark = yr <= MT.LEAK_TAU * yr.mean()
@@ -331,9 +344,7 @@ def paired_delta_stderr(test_a, test_b, ref, err, e_direct, albedo, emission, *,
     den = float(np.mean(np.linalg.norm(r, axis=-1)))
     if den > 0:
         root = [math.sqrt(max(float(np.mean(np.sum((x - r) ** 2, axis=-1)) - v_irr.mean()), 0.0)) for x in (ta, tb)]
-        norm = np.linalg.norm(r, axis=-1, keepdims=True)
-        sd_den = math.sqrt(float(np.sum(np.sum(np.divide(r, norm, out=np.zeros_like(r), where=norm > 0) * s,
-                                               axis=-1) ** 2))) / n
+        sd_den = _mean_norm_stderr(r, s)
         delta = (root[1] - root[0]) / den
         out["indirect_relative_rmse"] = math.hypot(_paired_root_delta_stderr(ta - r, tb - r, s, *root) / den,
                                                    delta * sd_den / den)
@@ -362,7 +373,7 @@ def region_ratios(test, ref, err, regions: dict, *, replicas: int = REPLICAS, se
                      "mean_ratio_stderr": float(np.std(ratios, ddof=1)) if ratio is not None and len(ratios) > 1
                      else None,
                      "mean": float(yt.mean()), "reference_mean": mr,
-                     "reference_mean_stderr": float(np.sqrt(np.sum((ss @ MT.REC709) ** 2)) / len(yr))}
+                     "reference_mean_stderr": reference_mean_stderr(ss)}
     return out
 
 
@@ -388,7 +399,7 @@ def point_summary(modes, recon: dict, pts: dict, seed: int) -> tuple[dict, dict]
                 summary[f"{m}.{k}"] = float(v)
     lum = MT.luminance(pts["e_indirect"])
     summary["reference.mean_indirect"] = float(lum.mean())
-    summary["reference.mean_indirect_stderr"] = float(np.sqrt(np.sum((pts["stderr"] @ MT.REC709) ** 2)) / len(lum))
+    summary["reference.mean_indirect_stderr"] = reference_mean_stderr(pts["stderr"])
     return summary, per_mode
 
 

@@ -129,7 +129,7 @@ def paired_stderr(st: Store, a: dict, b: dict) -> tuple[dict[str, float], dict]:
             mr = float(yr.mean()) if yr.size else 0.0
             if mr <= 0:
                 continue
-            rel = float(np.sqrt(np.sum((cerr[idx].reshape(-1, 3) @ MT.REC709) ** 2)) / yr.size) / mr
+            rel = PM.reference_mean_stderr(cerr[idx]) / mr
             for m in (m for m in ca["modes"] if m in cb["modes"]):
                 ya = MT.luminance(np.asarray(ca["modes"][m], np.float64)[idx].reshape(-1, 3)).mean()
                 yb = MT.luminance(np.asarray(cb["modes"][m], np.float64)[idx].reshape(-1, 3)).mean()
