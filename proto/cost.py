@@ -437,8 +437,7 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         cpn = len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0   # check-point normals
         pts = ev.surface_points + cpn
         # refined surface points (reference.refine_points): dark ones get dark_spp paths, 5% of the points at most
-        # in the scenes measured (two-rooms 2.6%); noisy ones about the first pass again (two-rooms 1.04x,
-        # zdm2 0.02x; at most REFINE_BUDGET = 1.5x)
+        # in the scenes measured (two-rooms 2.6%); the others at most the first pass again (REFINE_BUDGET = 1x)
         # (+ the pilot that chooses them and is the roulette's control variate, a quarter of spp, always run:
         # kernels/reference.pilot_spp)
         paths = ev.surface_points * ev.spp * (2.25 if ev.dark_spp > ev.spp else 1.25) + \

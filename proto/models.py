@@ -398,8 +398,8 @@ class EvaluateSection(_Strict):
     dark_spp: Int = Field(1024, ge=0, le=262144, description=(
         "reference: the most paths per surface point. Points whose reference is dark after the first spp paths "
         "(luminance at most twice the leak metric's threshold, 10% of the mean: the leak metrics are computed "
-        "there) get this many; points whose relative noise exceeds 20% of their light get spp·2^k up to it "
-        "(two-rooms: the indirectly lit room, 78% of the rmse noise at 128 paths), both judged on an independent "
+        "there) get this many; the others spp·2^k up to it, more where their noise in the rmse metrics' units "
+        "(pooled over 16 neighbouring points) is larger, at most as many extra paths as the first pass; both judged on an independent "
         "pilot pass of spp/4 paths, so the choice does not bias the values; 0 or <= spp: none (and no pilot)"))
     preview_spp: Int = Field(4, ge=1, le=4096, description="reference: paths per preview pixel (pictures only, "
                                                            "never metrics)")

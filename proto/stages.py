@@ -72,7 +72,8 @@ STAGES: tuple[StageDef, ...] = (
     # refined is chosen on an independent pilot pass (the choice on the first pass biased values and errors low);
     # 4: stratified first directions with replicate standard errors, the pilot's Russian-roulette control variate
     # (workers/kernels/pathtrace.py); 5: path vertices with bent shading normals shaded as Cycles 3.4 does
-    StageDef("reference", 5, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
+    # 6: extra paths by the square root of each point's noise in the rmse metrics' units, pooled over neighbours
+    StageDef("reference", 6, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
     # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by

@@ -57,16 +57,14 @@ def test_irradiance_at_points_of_nothing():
 
 
 def test_refine_points_pools_more_paths_where_the_reference_is_dark_or_noisy():
-    """Dark points (at most DARK_FRACTION of the mean) get max_spp paths; noisy ones spp·2^k, the least k that brings
-    their noise under the target relative to their light (direct + indirect, at most NOISE_CAP x the mean);
-    pooled by path count; the rest untouched; a budget on the extra paths relaxes the target."""
-    from workers.kernels.reference import DARK_FRACTION, NOISE_CAP, NOISE_TARGET, refine_points
+    """Dark points (at most DARK_FRACTION of the mean) get max_spp paths; the others spp·2^k, more where a path's
+    variance is larger (n >= c·sqrt(v / mean v)), within budget × N × spp extra paths; pooled by path count."""
+    from workers.kernels.reference import DARK_FRACTION, refine_points
 
     e = np.array([[1.0] * 3, [1.0] * 3, [0.05] * 3, [0.001] * 3, [1.0] * 3, [0.2] * 3])   # mean 0.5418
-    mean = 0.5418
     s = np.full((6, 3), 0.01)
-    s[4] = 0.13              # relative to its light capped at 0.5 x mean: 0.48 -> 0.17 < 0.2 at 8 x 64 paths
-    s[5] = 0.06              # relative to its light 0.2: 0.3 -> 0.21 at 2 x, 0.15 at 4 x 64 paths
+    s[4] = 0.16              # per-path variance 256 x points 0 and 1's
+    s[5] = 0.04              # 16 x
     d = np.zeros((6, 3))
     asked = []
 
@@ -74,28 +72,55 @@ def test_refine_points_pools_more_paths_where_the_reference_is_dark_or_noisy():
         asked.append((idx.tolist(), n))
         return np.full((len(idx), 3), 0.02), np.full((len(idx), 3), 0.01)
 
-    assert 0.05 <= DARK_FRACTION * mean < 0.2 and NOISE_CAP * mean < 1.0 and NOISE_TARGET == 0.2
-    e2, s2, paths = refine_points(trace, d, e, s, 64, 1024, budget=100)
-    assert sorted(asked) == [([2, 3], 960), ([4], 448), ([5], 192)]
-    assert paths.tolist() == [64, 64, 1024, 1024, 512, 256]
+    assert 0.05 <= DARK_FRACTION * 0.5418 < 0.2
+    e2, s2, paths = refine_points(trace, d, e, s, 64, 1024, budget=2.0)
+    assert paths[2] == paths[3] == 1024                       # dark
+    assert paths[4] > paths[5] > paths[0] == paths[1] == 64   # by their noise
+    assert (paths[[0, 1, 4, 5]] - 64).sum() <= 2.0 * 6 * 64
+    assert all(n in (64, 128, 256, 512, 1024) for n in paths)
+    assert sorted(asked) == sorted((np.flatnonzero(paths == n).tolist(), int(n) - 64) for n in np.unique(paths[paths > 64]))
     np.testing.assert_allclose(e2[2], (64 * 0.05 + 960 * 0.02) / 1024)
-    np.testing.assert_allclose(e2[3], (64 * 0.001 + 960 * 0.02) / 1024)
     np.testing.assert_allclose(s2[3], np.sqrt((64 * 0.01) ** 2 + (960 * 0.01) ** 2) / 1024)
-    np.testing.assert_allclose(e2[4], (64 * 1.0 + 448 * 0.02) / 512)
+    np.testing.assert_allclose(e2[4], (64 * 1.0 + (paths[4] - 64) * 0.02) / paths[4])
     np.testing.assert_array_equal(e2[:2], e[:2])
-    # direct light counts in a point's light: point 5 lit directly is no longer noisy (its light is capped at
-    # NOISE_CAP x the mean, 0.27: 0.06 / 0.27 = 0.22 -> 2 x); nor is point 4 with a tenth of its noise
-    d[5] = 10.0
-    s[4] = 0.013
-    assert refine_points(trace, d, e, s, 64, 1024, budget=100)[2].tolist() == [64, 64, 1024, 1024, 64, 128]
-    # the budget relaxes the target: at most 0.3 x N x spp = 115 extra paths -> only point 4, once (dark ones still)
-    d[5] = 0.0
-    s[4] = 0.13
-    assert refine_points(trace, d, e, s, 64, 1024, budget=0.3)[2].tolist() == [64, 64, 1024, 1024, 128, 64]
+    # a larger budget refines more; none leaves the dark points alone and spends nothing else
+    more = refine_points(trace, d, e, s, 64, 1024, budget=8.0)[2]
+    assert (more >= paths).all() and more.sum() > paths.sum()
+    assert refine_points(trace, d, e, s, 64, 1024, budget=0.0)[2].tolist() == [64, 64, 1024, 1024, 64, 64]
     # nothing more when max_spp <= spp, or nothing is dark or noisy
     asked.clear()
     assert refine_points(trace, d, e, s, 64, 64)[2].tolist() == [64] * 6 and asked == []
     assert refine_points(trace, d[:3], np.ones((3, 3)), s[:3] * 0, 64, 1024)[2].tolist() == [64] * 3 and asked == []
+
+
+def test_refine_points_pools_the_noise_over_neighbours_that_face_the_same_way():
+    """A pilot point that saw no noise, among same-facing neighbours that did, is refined like them (its own few
+    paths missed the rare bright ones); a point facing the other way at the same place is not pooled with them."""
+    from workers.kernels.reference import POOL_NEIGHBOURS, refine_points
+
+    n = 40
+    pos = np.zeros((n, 3))
+    pos[:, 0] = np.arange(n) * 0.01
+    nrm = np.tile([0.0, 1.0, 0.0], (n, 1))
+    e = np.ones((n, 3))
+    s = np.full((n, 3), 0.01)
+    s[:8] = 0.2                       # a noisy cluster at x < 0.08
+    s[3] = 0.0                        # ... one of whose points saw no noise
+    nrm[5] = [0.0, -1.0, 0.0]         # ... and one faces the other way, its own noise nil
+    s[5] = 0.0
+    trace = lambda idx, k: (np.ones((len(idx), 3)), np.full((len(idx), 3), 0.01))
+    alone = refine_points(trace, np.zeros((n, 3)), e, s, 64, 1024, budget=1.0)[2]
+    assert alone[3] == alone[5] == 64 and alone[0] > 64
+    surface = {"position": pos, "normal": nrm}
+    pooled = refine_points(trace, np.zeros((n, 3)), e, s, 64, 1024, budget=1.0, surface=surface)[2]
+    assert POOL_NEIGHBOURS >= 8
+    assert pooled[3] > 64 and pooled[3] >= pooled[20]
+    assert pooled[5] == 64
+    # with albedo and emission the tone-mapped noise is weighed too (the same choice here)
+    surface.update(albedo=np.full((n, 3), 0.7), emission=np.zeros((n, 3)))
+    tm = refine_points(trace, np.zeros((n, 3)), e, s, 64, 1024, budget=1.0, surface=surface)[2]
+    assert tm[3] > 64 and tm[5] == 64
+
 
 def test_refinement_chosen_on_a_pilot_leaves_values_and_errors_unbiased():
     """refine_points' pilot (kernels/reference.py): heavy-tailed paths (2% carry 40, the rest 0.2; mean 0.996), 16

@@ -17,8 +17,8 @@ from workers.kernels import metrics as MT
 from workers.kernels.pathtrace import DEFAULT_MAX_PATHS, indirect_irradiance, scene_eps
 from workers.kernels.shading import direct_irradiance
 
-__all__ = ["refine_points", "pilot_spp", "tail_guess", "PILOT_FRACTION", "DARK_FRACTION", "NOISE_TARGET",
-           "REFINE_BUDGET", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
+__all__ = ["refine_points", "pilot_spp", "tail_guess", "PILOT_FRACTION", "DARK_FRACTION",
+           "REFINE_BUDGET", "POOL_NEIGHBOURS", "irradiance_at_points", "reference_at_gbuffer", "exitant_radiance"]
 
 
 def reference_at_gbuffer(scene, gbuffer, lights=(), *, sky=(0.0, 0.0, 0.0), caster=None, eps=None, spp: int = 64,
@@ -126,16 +126,14 @@ DARK_FRACTION = 2 * MT.LEAK_TAU
 """Surface points whose reference luminance is at most this fraction of the mean get ``dark_spp`` paths
 (:func:`refine_points`): twice the leak metric's threshold, so that points near it are refined too."""
 
-NOISE_TARGET = 0.2
-"""Relative standard error of a surface point's total irradiance (direct + indirect luminance) that
-:func:`refine_points` refines towards (up to ``dark_spp`` paths)."""
-
-NOISE_CAP = 0.5
-"""The light a point's noise is measured against is at most this fraction of the mean indirect luminance: on bright
-points the irradiance metrics (``indirect_relative_rmse``) weigh the absolute noise, which grows with the light."""
-
-REFINE_BUDGET = 1.5
+REFINE_BUDGET = 1.0
 """At most this many times the first pass's paths are spent on noisy points (dark points not counted)."""
+
+POOL_NEIGHBOURS = 16
+""":func:`refine_points` judges a point's noise by the pilot's paths at this many nearest surface points (itself
+included) that face its way (normals within 25.8°: :data:`POOL_COS`)."""
+
+POOL_COS = 0.9
 
 
 PILOT_FRACTION = 0.25
@@ -147,25 +145,42 @@ def pilot_spp(spp: int) -> int:
     return max(int(round(PILOT_FRACTION * int(spp))), 8)
 
 
-def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *, target: float = NOISE_TARGET,
-                  budget: float = REFINE_BUDGET, pilot=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """More paths where the reference is least certain, so that no metric is decided by a few noisy points.
+def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *, budget: float = REFINE_BUDGET,
+                  pilot=None, surface: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """More paths where the reference's noise weighs most on the metrics, so that no metric is decided by a few noisy
+    points.
 
-    The metrics (:mod:`workers.kernels.point_metrics`) weigh every point alike, and their noise comes from the
-    points whose estimate is noisiest relative to what they show: in a room lit only indirectly, 128 paths leave a
-    third of two-rooms' points at 30-50% relative noise, 78% of the ``rmse`` variance; and the leak metrics pick
-    their dark points by a threshold the noisy points straddle. So after the first pass of ``spp`` paths:
+    The metrics (:mod:`workers.kernels.point_metrics`) weigh every point alike. Their noise comes from two kinds of
+    point: those the leak metrics pick by a threshold on the reference (dark points), and those whose noise is
+    largest in the units the two rmse metrics square — irradiance (``indirect_relative_rmse``) and tone-mapped
+    exitant radiance (``rmse``), where the tone map's steep foot makes dim points with a heavy tail count most
+    (two-rooms, 192 paths: 1% of the points held 44% of the ``rmse`` noise's fourth power, most of them dim points
+    at 30-60% relative noise that kept their 192 paths). So after the first pass of ``spp`` paths:
 
     * **dark** points (luminance at most :data:`DARK_FRACTION` of the mean) get ``max_spp`` paths in all;
-    * every other point with relative noise ``ρ = s_Y / min(Y_direct + Y_indirect, NOISE_CAP · mean Y_indirect)``
-      (:data:`NOISE_CAP`) above ``target`` gets
-      ``n = spp·2^k`` paths, the least k with ``ρ·sqrt(spp/n) ≤ target`` (noise ∝ 1/√n), at most ``max_spp``; when
-      that asks more than ``budget × N × spp`` extra paths the target is relaxed (×1.25 per step) until it fits.
+    * every other point gets ``n = spp·2^k`` paths, the least k with ``n >= c·w`` (at most ``max_spp``), for a weight
+      ``w = max((v_E / mean v_E)^½, (v_C / mean v_C)^½)``: ``v_E`` a path's variance of the point's luminance
+      irradiance, ``v_C`` of its tone-mapped exitant radiance (the delta method of
+      :func:`workers.kernels.point_metrics._noise_variance`, the exposure of the points), means over the points
+      that are not dark; ``c`` the largest that spends at most ``budget × N × spp`` extra paths on them. The square
+      root is the allocation that minimises ``Σ v_i/n_i`` at a given ``Σ n_i``: the noise of an rmse is
+      ``Σ 4(d_i·u_i)² + 2|u_i|⁴`` with ``|u_i|² = v_i/n_i`` and errors ``d_i`` unknown here (they are the mode's).
+    * the variances are **pooled** over the point's :data:`POOL_NEIGHBOURS` nearest surface points facing its way
+      (``surface``: ``position`` and ``normal``): a pilot of 48 paths does not see its own rare bright paths
+      (two-rooms: log-correlation of a pilot point's tone-mapped variance with the refined reference's 0.29 on its
+      own, 0.73 pooled over 16).
+
+    Measured (two-rooms, default config, scored on the same bake's modes; docs/architecture.md, the evaluate
+    stage): against the rule this replaced (relative noise above 20% of the light, up to 1.5x the paths) the relative
+    standard errors of ``rmse`` 0.212 → 0.140 (ddgi) and 0.188 → 0.123 (normalized mask), of
+    ``indirect_relative_rmse`` 0.172 → 0.121 and 0.163 → 0.126, at 1.2% fewer paths.
 
     ``trace(index, paths)`` path-traces the points ``index`` with ``paths`` more paths each (another seed per
     ``paths``) and returns their ``(e_indirect, stderr)``; ``e_direct``, ``e_indirect``, ``stderr`` (N, 3): the
     first pass. The estimates are pooled by path count: ``E = (n₁E₁ + n₂E₂)/(n₁ + n₂)``,
     ``s = sqrt(n₁²s₁² + n₂²s₂²)/(n₁ + n₂)``. Returns the new (N, 3) arrays and the (N,) paths per point.
+    ``surface`` (optional): ``position``, ``normal`` (N, 3) for the pooling (else each point alone), ``albedo``
+    and ``emission`` (N, 3) for ``v_C`` (else ``v_E`` alone).
 
     **Pilot** (``pilot = (e_indirect, stderr, paths)`` of an independent pass, :func:`pilot_spp` paths a point, its
     own seed): the choice of which points get more paths is made on the pilot, and the pilot is then discarded.
@@ -174,9 +189,9 @@ def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *
     so the pooled values are biased low and their ``s`` biased low — the metrics' noise correction
     (:mod:`workers.kernels.point_metrics`, "Noise bias") then under-corrects. Measured on two-rooms at 192 paths:
     the refined reference read the ddgi mode's ``indirect_relative_rmse`` 0.057 and ``mean_ratio`` 1.039 where the
-    same reference without refinement read 0.038 and 1.032. With the choice made on an independent pilot, the first
-    pass and the refinement paths are fresh samples whatever was chosen: each point's pooled ``E`` and ``s²`` are
-    unbiased (test_reference.py). The pilot's relative noise is scaled to ``spp`` paths (``ρ·sqrt(n_pilot/spp)``).
+    same reference without refinement read 0.038 and 1.032. With the choice made on an independent pilot (and the
+    pooling over neighbours reads only the pilot), the first pass and the refinement paths are fresh samples whatever
+    was chosen: each point's pooled ``E`` and ``s²`` are unbiased (test_reference.py).
     ``pilot=None``: the choice is made on the first pass (biased; kept for callers without a pilot).
     """
     e = np.array(e_indirect, np.float64)
@@ -185,7 +200,57 @@ def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *
     paths = np.full(n_pts, spp, np.int64)
     if n_pts == 0 or max_spp <= spp:
         return e, s, paths
-    # what the choice is made on: the pilot (its noise as it will be at spp paths), else the first pass itself
+    # what the choice is made on: the pilot, else the first pass itself; per-path variances (s² × paths)
+    e_c, s_c, n_c = (e, s, spp) if pilot is None else (np.asarray(pilot[0], np.float64),
+                                                        np.asarray(pilot[1], np.float64), int(pilot[2]))
+    y = MT.luminance(e_c)
+    mean = float(y.mean())
+    dark = (y <= DARK_FRACTION * mean) if mean > 0 else np.zeros(n_pts, bool)
+    variances = [(s_c @ MT.REC709) ** 2 * n_c]
+    surface = surface or {}
+    if surface.get("albedo") is not None and surface.get("emission") is not None:
+        from workers.kernels import point_metrics as PM
+        d, a, em = (np.asarray(x, np.float64) for x in (e_direct, surface["albedo"], surface["emission"]))
+        exposure = MT.exposure_for(PM._img(PM.radiance(d, e_c, a, em)))
+        variances.append(PM._noise_variance(e_c, s_c, d, a, em, exposure)[1].sum(axis=1) * n_c)
+    if surface.get("position") is not None and surface.get("normal") is not None and n_pts > 1:
+        from scipy.spatial import cKDTree
+        x, nrm = (np.asarray(surface[k], np.float64) for k in ("position", "normal"))
+        _, idx = cKDTree(x).query(x, k=min(POOL_NEIGHBOURS, n_pts))
+        same = (np.einsum("ij,ikj->ik", nrm, nrm[idx]) > POOL_COS).astype(np.float64)
+        same[:, 0] = 1.0                                     # the point itself
+        variances = [(v[idx] * same).sum(axis=1) / same.sum(axis=1) for v in variances]
+    w = np.zeros(n_pts)
+    for v in variances:
+        m = float(v[~dark].mean()) if (~dark).any() else 0.0
+        if m > 0:
+            w = np.maximum(w, np.sqrt(v / m))
+    w[dark] = 0.0
+
+    def want_at(c: float) -> np.ndarray:
+        n = np.clip(c * w, spp, max_spp)
+        return np.minimum(spp * 2.0 ** np.ceil(np.log2(n / spp) - 1e-9), max_spp).astype(np.int64)
+
+    extra = float(budget) * n_pts * spp
+    want = np.full(n_pts, spp, np.int64)
+    if w.max() > 0 and extra > 0:              # the largest c within the budget (bisection on log c)
+        lo, hi = math.log(spp / w.max()), math.log(max_spp / max(w[w > 0].min(), 1e-300)) + 1.0
+        for _ in range(60):
+            mid = 0.5 * (lo + hi)
+            if (want_at(math.exp(mid)) - spp).sum() > extra:
+                hi = mid
+            else:
+                lo = mid
+        want = want_at(math.exp(lo))
+    want[dark] = max_spp
+    for n in np.unique(want[want > spp]):
+        idx = np.flatnonzero(want == n)
+        n1, n2 = spp, int(n) - spp
+        e2, s2 = trace(idx, n2)
+        e[idx] = (n1 * e[idx] + n2 * np.asarray(e2, np.float64)) / (n1 + n2)
+        s[idx] = np.sqrt((n1 * s[idx]) ** 2 + (n2 * np.asarray(s2, np.float64)) ** 2) / (n1 + n2)
+    paths[:] = want
+    return e, s, paths    # what the choice is made on: the pilot (its noise as it will be at spp paths), else the first pass itself
     e_c, s_c = (e, s) if pilot is None else (np.asarray(pilot[0], np.float64),
                                              np.asarray(pilot[1], np.float64) * math.sqrt(int(pilot[2]) / spp))
     y = MT.luminance(e_c)

@@ -14,8 +14,8 @@ is scored at the same points, from the same cameras.
 3. **Check points**: ``evaluate.points`` (each point with its normal, or the 6 axis normals).
 4. At every surface point and check-point normal: direct and path-traced indirect irradiance with its standard
    error (:func:`workers.kernels.reference.irradiance_at_points`): ``spp`` paths per surface point, ``check_spp``
-   per check-point normal (then surface points that are dark, or noisy relative to their light, get more, up
-   to ``dark_spp`` in all: :func:`workers.kernels.reference.refine_points`, chosen on an independent pilot pass of
+   per check-point normal (then surface points that are dark get ``dark_spp`` in all, and the others more paths in proportion to
+   the square root of their noise in the rmse metrics' units, pooled over their neighbours, up to ``dark_spp``: :func:`workers.kernels.reference.refine_points`, chosen on an independent pilot pass of
    :func:`~workers.kernels.reference.pilot_spp` paths a point, traced first, so the choice does not bias
    the values or their standard errors; the pilot's values are also the Russian-roulette control variate of the
    surface points' passes, :func:`~workers.kernels.reference.tail_guess`), ``bounces`` vertices
@@ -119,7 +119,7 @@ def run_reference(ctx: StageContext) -> StageOutput:
     e_ind, err, paths_per_point = refine_points(
         lambda i, n: trace(sp["position"][i], sp["normal"][i], sp["geo_normal"][i], n, seed + 0x20000 + n, 0,
                            tail[i])[0][1:3],
-        e_dir, e_ind, err, s["spp"], s["dark_spp"], pilot=pilot)
+        e_dir, e_ind, err, s["spp"], s["dark_spp"], pilot=pilot, surface=sp)
     refined = int((paths_per_point > s["spp"]).sum())
     timings["refine_s"] = time.perf_counter() - t0
     arts = [Artifact("reference_points", np.ascontiguousarray(point_table(sp, e_dir, e_ind, err)), format="npy",
