@@ -1,7 +1,7 @@
 """Fidelity benchmark (outside check of materials and default bakes): run by hand, not part of the test command.
 
     .venv/bin/python tests/bench/bench_fidelity.py [--scenes two-rooms-vc,metal-room,living-room,zdm2]
-        [--json OUT.json] [--store DIR] [--pt-spp N]
+        [--json OUT.json] [--store DIR] [--pt-spp N] [--set SECTION.KEY=JSON] [--rotate DEG]
 
 Compares Kiln's baked light with Blender Cycles (tests/data/fidelity/*.cycles.json, made by
 tests/data/fidelity/make_references.py with ../shared/oracle; Blender is not needed here). By default every scene
@@ -65,6 +65,12 @@ with a points file in tests/data/fidelity (:data:`DEFAULT_SCENES`). Per scene:
 never tuned on, as issue 12's filer will measure (a lit room beside a smaller dark one through a 2 cm wall; a sunlit
 room with a window and sky on a ground slab beside a closed room; an L-shaped corridor lit at one end; a 40 cm wall
 with a door through it; two rooms divided by one double-sided plane). Baked like the procedural scenes, plus the points file's ``config`` (sun-window's sky).
+
+``--rotate DEG`` bakes each procedural scene rotated DEG degrees about +Y (one new root node over its meshes and
+lights; the points file's added lights rotated too) and reads it at the receivers and normals rotated the same way:
+light is the same in every frame, so the Cycles references still hold, while no wall is axis-aligned any more — as in
+a level whose building stands at an angle, which the automatic grid's layer fit between axis-aligned faces does not
+see. The rows of stored probe values are left out then (their positions are the unrotated grid's).
 
 ``furnace`` has no Cycles reference but a closed form (``furnace.closed-form.reference.json``, made by
 ``tests/data/fidelity/make_closed_form.py``): the default config with a uniform sky of radiance 1, where every receiver
@@ -148,7 +154,46 @@ def procedural_bytes(name: str) -> bytes:
     return make_interior(name) if name in INTERIOR_SCENES else make_scene(name)
 
 
-def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None, source: Path | None = None):
+def rotation_y(deg: float) -> np.ndarray:
+    """(3, 3) rotation by ``deg`` degrees about +Y (right-handed, glTF's up axis)."""
+    a = math.radians(deg)
+    c, s = math.cos(a), math.sin(a)
+    return np.array([[c, 0.0, s], [0.0, 1.0, 0.0], [-s, 0.0, c]])
+
+
+def rotated_glb(glb: bytes, deg: float) -> bytes:
+    """The GLB ``glb`` with its scene's root nodes (meshes and KHR_lights_punctual lights alike) under one new root
+    node rotated by ``deg`` degrees about +Y: the same scene in another frame (:func:`rotation_y`)."""
+    import struct
+
+    n_json = struct.unpack_from("<I", glb, 12)[0]
+    doc = json.loads(glb[20:20 + n_json])
+    rest = glb[20 + n_json:]
+    half = math.radians(deg) / 2
+    doc["nodes"].append({"name": f"rotate-y-{deg:g}", "rotation": [0.0, math.sin(half), 0.0, math.cos(half)]})
+    root = len(doc["nodes"]) - 1
+    for sc in doc["scenes"]:
+        doc["nodes"][root].setdefault("children", []).extend(sc["nodes"])
+        sc["nodes"] = [root]
+    text = json.dumps(doc, separators=(",", ":")).encode()
+    text += b" " * (-len(text) % 4)
+    body = struct.pack("<II", len(text), 0x4E4F534A) + text + rest
+    return struct.pack("<III", 0x46546C67, 2, 12 + len(body)) + body
+
+
+def rotated_config(config: dict, rot: np.ndarray) -> dict:
+    """``config`` with its added lights' ``direction`` and ``position`` rotated by ``rot`` (a uniform sky is the same
+    in every frame)."""
+    out = copy.deepcopy(config)
+    for light in (out.get("scene") or {}).get("lights") or []:
+        for k in ("direction", "position"):
+            if k in light:
+                light[k] = (rot @ np.asarray(light[k], np.float64)).tolist()
+    return out
+
+
+def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None, source: Path | None = None,
+         rotate: float = 0.0):
     """Bake scene ``name`` (procedural, or the real scene at ``source``, read in place) with ``config`` (default:
     the default config, ``BakeConfig()``): (scene, {stage: LazyArtifacts}, config, seconds per stage)."""
     if source is not None:
@@ -157,7 +202,7 @@ def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = No
             glb = work / f"{name}.zip"
     else:
         glb = work / f"{name}.glb"
-        glb.write_bytes(procedural_bytes(name))
+        glb.write_bytes(rotated_glb(procedural_bytes(name), rotate) if rotate else procedural_bytes(name))
     store = Store(store_dir or (work / "store"))
     t0 = time.perf_counter()
     scene = ingest_file(glb)
@@ -332,10 +377,15 @@ def sanity(modes: dict[str, np.ndarray], probes: dict[str, np.ndarray], probe_id
 
 
 def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384,
-              overrides: dict | None = None) -> dict | None:
-    """The comparison of scene ``name``; None (with a message) for a real scene whose source is not there."""
+              overrides: dict | None = None, rotate: float = 0.0) -> dict | None:
+    """The comparison of scene ``name``; None (with a message) for a real scene whose source is not there.
+    ``rotate``: the scene, its added lights, the receivers and their normals rotated by that many degrees about +Y
+    (procedural scenes only; the Cycles references hold in any frame); the stored-probe rows are left out then."""
     pdoc = json.loads((DATA / f"{name}.points.json").read_text())
     source = source_of(pdoc)
+    if rotate and source is not None:
+        raise SystemExit(f"--rotate: only procedural scenes can be rotated, not {name} ({source})")
+    rot = rotation_y(rotate)
     if source is not None and not source.is_file():
         print(f"skipping {name}: its source {source} is not there (a real scene, read from {SHARED_SCENES}, never "
               f"copied into the project; KILN_SHARED_SCENES sets the folder)", flush=True)
@@ -356,13 +406,14 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
         if ref["glb_sha256"] != sha or ref["points"] != pdoc["points"] or (ref.get("config") or {}) != scene_config:
             notes.append(f"reference {m} was made for another version of the scene, points or lights: regenerate it")
     t0 = time.perf_counter()
-    scene, recs, cfg, times = bake(name, work, store_dir, deep_merge(scene_config, overrides or {}), source)
+    scene, recs, cfg, times = bake(name, work, store_dir,
+                                   rotated_config(deep_merge(scene_config, overrides or {}), rot), source, rotate)
     bake_seconds = time.perf_counter() - t0
     points = np.asarray(pdoc["points"], np.float64)
     dirs = np.asarray(next(iter(refs.values()))["dirs"], np.float64)
     P, D = len(points), len(dirs)
-    pts = np.repeat(points, D, axis=0)
-    nrm = np.tile(dirs, (P, 1))
+    pts = np.repeat(points, D, axis=0) @ rot.T           # the receivers in the rotated frame (identity by default)
+    nrm = np.tile(dirs, (P, 1)) @ rot.T
     modes = {m: v.reshape(P, D, 3) for m, v in reconstruct(recs, cfg, pts, nrm).items()}
     pt_seconds = None
     if pt_spp > 0:
@@ -383,7 +434,7 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
             scene.specular_gi = cfg.scene.specular_gi
             extra["kiln_pt_diffuse"] = np.asarray(pt2.irradiance, np.float64).reshape(P, D, 3)
         modes = {"kiln_pt": np.asarray(pt.irradiance, np.float64).reshape(P, D, 3), **extra, **modes}
-    probe_idx = pdoc["regions"].get("probes", [])
+    probe_idx = [] if rotate else pdoc["regions"].get("probes", [])
     probes, probe_info, probe_bake = ({}, [], None)
     if probe_idx:
         pv, probe_info = probe_values(recs, cfg, points[probe_idx], dirs)
@@ -399,12 +450,13 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
             full = np.full((P, D, 3), np.nan)
             full[probe_idx] = v
             probes[m] = full
-    default_probes = default_grid_probes(name, recs, cfg, dirs)
+    default_probes = None if rotate else default_grid_probes(name, recs, cfg, dirs)
     place = recs["place"].stats
     lit = recs["ingest"]["lights"]
     out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times,
            "config": "default (BakeConfig())" + (f" + {json.dumps(scene_config)}" if scene_config else "")
-           + (f" + EXPERIMENT {json.dumps(overrides)}" if overrides else ""),
+           + (f" + EXPERIMENT {json.dumps(overrides)}" if overrides else "")
+           + (f" (scene, lights and receivers rotated {rotate:g} deg about +Y)" if rotate else ""),
            "source": pdoc.get("source"), "triangles": int(np.asarray(scene.triangles).shape[0]),
            "lights": len(lit["lights"]), "sky": list(lit["sky"]),
            "sanity": sanity(modes, probes, probe_idx, recs, cfg),
@@ -522,6 +574,9 @@ def main() -> int:
     ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
                     help="a config override on top of the default (an experiment, not the default: the table says "
                          "so), e.g. --set masks.clusters=8; repeatable")
+    ap.add_argument("--rotate", type=float, default=0.0, metavar="DEG",
+                    help="rotate each (procedural) scene, its lights and the receivers DEG degrees about +Y: the "
+                         "same light in a frame where no wall is axis-aligned (the references hold in any frame)")
     args = ap.parse_args()
     overrides: dict = {}
     for item in args.set:
@@ -535,7 +590,7 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for name in [s for s in args.scenes.split(",") if s]:
             print(f"baking {name} ...", flush=True)
-            res = run_scene(name, Path(tmp), args.store, args.pt_spp, overrides)
+            res = run_scene(name, Path(tmp), args.store, args.pt_spp, overrides, args.rotate)
             if res is None:
                 continue
             results[name] = res
