@@ -230,6 +230,17 @@ class LightSection(_Strict):
     sh_order: Literal[1, 2] = Field(2, description="spherical-harmonics order of the per-probe SH output")
     self_shadow_bias: Float = Field(SELF_SHADOW_BIAS, ge=0.0, le=2.0,
                                     description="B of DDGI-P eq 2")  # default: proto/gi_modes.json
+    near_radius: Float = Field(1.5, ge=0.0, le=4.0,
+                               description="near-field occlusion at the probe-ray hits: geometry within this many "
+                                           "probe spacings (the smallest axis) of a hit covers part of its "
+                                           "hemisphere that the probes, up to a cell away, see as far field "
+                                           "(workers/kernels/probe_hits.py near_occlusion; 0 = off)")
+    near_rays: Int = Field(8, ge=0, le=256, description="near-field occlusion rays per probe-ray hit (0 = off)")
+    near_strength: Float = Field(0.25, ge=0.0, le=1.0,
+                                 description="the weight s of the near-field term: E_indirect = (1 - s·a)·G + "
+                                             "s·a·(the nearby surface's light), a the occluded part of the hit's "
+                                             "hemisphere; a fit against the path tracer on three held-out interiors "
+                                             "(docs/architecture.md, near-field occlusion)")
 
     @field_validator("sh_order", mode="before")
     @classmethod

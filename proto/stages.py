@@ -52,8 +52,9 @@ STAGES: tuple[StageDef, ...] = (
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
     # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance and SH volumes RGBA16F,
     # probe_sh a KTX2 table (issue 17); 6: irradiance E5B9G9R9_UFLOAT_PACK32 without the tile borders,
-    # probe_sh a half-float table; 7: bent shading normals shaded as Cycles 3.4 does (workers/kernels/shading.py)
-    StageDef("light", 7, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # probe_sh a half-float table; 7: bent shading normals shaded as Cycles 3.4 does (workers/kernels/shading.py);
+    # 8: near-field occlusion at the probe-ray hits (workers/kernels/probe_hits.py near_occlusion)
+    StageDef("light", 8, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)

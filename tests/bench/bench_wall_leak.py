@@ -21,7 +21,9 @@ irradiance of every live probe inside the dark room (>= 3 cm from its surfaces; 
 tracer at the probe's relocated position, by distance from the wall; and the light stage's gather at the dark room's
 probe-ray hits: how many dark-side hits give any weight to a probe on the lit side of the wall (through the door: the
 hits in the door's plane) and the lit probes' total weight there; and, at a sample of the dark room's hits, the light
-stage's gathered E_indirect (the final maps) over the path tracer's, by the hit's distance to the room's nearest edge.
+stage's gathered E_indirect (the final maps: G) and the E_indirect it shades the hits with (G with its near-field
+occlusion, ``light.near_*``: "shaded"; the same as G with ``--set light.near_radius=0``) over the path tracer's, by the
+hit's distance to the room's nearest edge. ``--set SECTION.KEY=JSON`` changes both bakes' config.
 """
 from __future__ import annotations
 
@@ -45,7 +47,8 @@ from workers.kernels.gather import apply_sampler_weights, sampler_weights  # noq
 from workers.kernels.grid import OFF, unpack_atlas  # noqa: E402
 from workers.kernels.octahedral import bilinear_sample  # noqa: E402
 from workers.kernels.pathtrace import indirect_irradiance  # noqa: E402
-from workers.kernels.probe_hits import hit_surfaces, probe_visibility  # noqa: E402
+from workers.kernels.probe_hits import hit_surfaces, near_occlusion, probe_visibility  # noqa: E402
+from workers.kernels.shading import direct_irradiance  # noqa: E402
 from workers.procedural_glb import Light, SceneSpec, encode_glb, solid_mesh  # noqa: E402
 from workers.raycast import caster_for_scene  # noqa: E402
 
@@ -126,8 +129,26 @@ def measure(label: str, glb: bytes, work: Path, config: dict, spp: int, probe_sp
     inb = np.flatnonzero(np.all((P_ > np.asarray(ROOM_B[0]) - 0.01) & (P_ < np.asarray(ROOM_B[1]) + 0.01), axis=1))
     sub = np.sort(np.random.default_rng(cfg.seed).choice(inb, size=min(hit_sample, inb.size), replace=False))
     maps = np.ascontiguousarray(irr, np.float32)
-    eg = apply_sampler_weights(W, maps)[sub].mean(-1)
+    G = apply_sampler_weights(W, maps)[sub]
+    eg = G.mean(-1)
     geo = surf.geo_normal[keep][sub].astype(np.float64)
+    # what the light stage shades the hits with: G with its near-field occlusion (workers.kernels.bounce.integrate
+    # ``near``), at its fixed point E = ((1 − a)·G + a·(π·L'_e + ρ'·E_direct)) / (1 − a·ρ'), a the weighted
+    # occlusion (light.near_strength × near_occlusion's)
+    lc = cfg.light
+    es = eg
+    if lc.near_radius > 0 and lc.near_rays > 0:
+        bounds = np.asarray(recs["ingest"].stats["bounds"])
+        eps = 1e-4 * max(float(np.linalg.norm(bounds[1] - bounds[0])), 1e-3)
+        caster = caster_for_scene(scene)
+        Ps, Ns, Gs = P_[sub], N_[sub], surf.geo_normal[keep][sub]
+        nf = near_occlusion(scene, Ps, Ns, Gs, caster, lc.near_radius * float(min(grid["spacing"])), lc.near_rays,
+                            eps)
+        a, rn, le = np.zeros((len(sub), 1)), np.zeros((len(sub), 3)), np.zeros((len(sub), 3))
+        a[nf.index, 0], rn[nf.index], le[nf.index] = lc.near_strength * nf.a, nf.albedo, nf.emission
+        ed = (direct_irradiance(Ps, Ns, lit["lights"], caster, eps, geo_normals=Gs) if lit["lights"]
+              else np.zeros((len(sub), 3)))
+        es = (((1 - a) * G + a * (np.pi * le + rn * ed)) / (1 - a * rn)).mean(-1)
     ep = np.asarray(indirect_irradiance(scene, P_[sub].astype(np.float64), N_[sub].astype(np.float64), lit["lights"],
                                         sky=lit["sky"], spp=probe_spp, bounces=64, rr_depth=3, seed=cfg.seed + 2,
                                         geo_normals=geo).irradiance).mean(-1)
@@ -136,7 +157,8 @@ def measure(label: str, glb: bytes, work: Path, config: dict, spp: int, probe_sp
     edge = dd[:, 1]                                    # dd[:, 0] ~ 0: the face the hit lies on
     tot = float((alb * ep).sum())
     out["hits"] = {k: {"n": int(c.sum()), "gathered_over_pt": float(eg[c].sum() / ep[c].sum()),
-                       "excess_share": float((alb[c] * (eg[c] - ep[c])).sum() / tot)}
+                       "shaded_over_pt": float(es[c].sum() / ep[c].sum()),
+                       "excess_share": float((alb[c] * (es[c] - ep[c])).sum() / tot)}
                    for k, c in {"edge < 5 cm": edge < 0.05, "5-15 cm": (edge >= 0.05) & (edge < 0.15),
                                 "15-30 cm": (edge >= 0.15) & (edge < 0.3), ">= 30 cm": edge >= 0.3,
                                 "all": edge >= 0}.items()}
@@ -150,15 +172,24 @@ def main() -> int:
     ap.add_argument("--probe-spp", type=int, default=256, help="path tracer paths per probe direction")
     ap.add_argument("--hits", type=int, default=6000, help="dark-room hits path-traced (--probe-spp paths each)")
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--set", action="append", default=[], metavar="SECTION.KEY=JSON",
+                    help="a config override for both bakes, e.g. --set light.near_radius=0; repeatable")
     args = ap.parse_args()
     res = {}
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)
         t0 = time.perf_counter()
-        res["plane"] = measure("plane-wall", PI.make_interior("plane-wall"), work, {}, args.spp, args.probe_spp, args.hits)
+        extra: dict = {}
+        for item in args.set:
+            key, val = item.split("=", 1)
+            sec, name = key.split(".", 1)
+            extra.setdefault(sec, {})[name] = json.loads(val)
+        res["plane"] = measure("plane-wall", PI.make_interior("plane-wall"), work, extra, args.spp, args.probe_spp,
+                               args.hits)
         g = res["plane"]["grid"]
         o, s, c = (np.asarray(g[k], np.float64) for k in ("origin", "spacing", "counts"))
-        fixed = {"place": {"counts": [int(v) for v in c], "box": {"min": o.tolist(), "max": (o + s * (c - 1)).tolist()}}}
+        fixed = {**extra, "place": {**extra.get("place", {}), "counts": [int(v) for v in c],
+                                    "box": {"min": o.tolist(), "max": (o + s * (c - 1)).tolist()}}}
         res["box"] = measure("box-wall", box_wall_glb(args.thickness), work, fixed, args.spp, args.probe_spp, args.hits)
         print(f"grid {list(c)} spacing {np.round(s, 3).tolist()} (plane-wall's automatic grid, both scenes); "
               f"box wall {args.thickness * 100:.1f} cm; {time.perf_counter() - t0:.0f} s")
@@ -175,10 +206,10 @@ def main() -> int:
         print(f"{k}: {gth['dark_hits']} dark-side hits of dark probes; {gth['with_lit_weight']} give weight to a lit-side "
               f"probe (sum {gth['lit_weight_sum']:.1f}); away from the door (> 30 cm): {gth['with_lit_weight_off_door']} "
               f"(sum {gth['lit_weight_sum_off_door']:.2f})")
-    print(f"{'room B hits: gathered / PT':<28}" + "".join(f"{k:>20}" for k in res) + "   (excess share of the hits' E)")
+    print(f"{'room B hits: G / PT, shaded':<28}" + "".join(f"{k:>26}" for k in res) + "   (excess share of the hits' E)")
     for b in res["plane"]["hits"]:
-        print(f"{b:<28}" + "".join(f"{res[k]['hits'][b]['gathered_over_pt']:>8.3f} ({res[k]['hits'][b]['n']:>4}) "
-                                   f"{res[k]['hits'][b]['excess_share']:+.3f}" for k in res))
+        print(f"{b:<28}" + "".join(f"{res[k]['hits'][b]['gathered_over_pt']:>8.3f} {res[k]['hits'][b]['shaded_over_pt']:.3f} "
+                                   f"({res[k]['hits'][b]['n']:>4}) {res[k]['hits'][b]['excess_share']:+.3f}" for k in res))
     if args.json:
         args.json.write_text(json.dumps(res, indent=1) + "\n")
     return 0

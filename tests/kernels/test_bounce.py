@@ -152,3 +152,50 @@ def test_the_loops_ray_major_maps_equal_irradiance_maps():
         got = _RayMajorMaps(dirs, n, states)(np.ascontiguousarray(rad.transpose(1, 0, 2)))
         assert got.shape == want.shape and got.dtype == np.float32
         assert np.allclose(got, want, rtol=1e-6, atol=1e-7) and np.all(got[::4] == 0)
+
+
+@pytest.mark.parametrize("rho_near", [0.5, 0.2, 0.8])
+def test_near_field_occlusion_in_a_closed_box(rho_near):
+    # every hit sees part a of its hemisphere covered by a nearby surface of albedo ρ' lit as the hit is:
+    # E = (1 − a)·M + a·ρ'·(E0 + E), M = alb·(E0 + E) the probes' maps; converged
+    # E = ((1 − a)·alb + a·ρ')·E0 / (1 − (1 − a)·alb − a·ρ'). With ρ' = alb (a uniform box) nothing changes.
+    from workers.kernels.probe_hits import NearField
+    alb, a = 0.5, 0.3
+    e0 = np.array([[1.0, 2.0, 3.0]])
+    index, miss, albedo, e, dirs, states, gather = _box(alb, e0)
+    H = index.size
+    near = NearField(index=np.arange(H), a=np.full(H, a, np.float32), albedo=np.full((H, 3), rho_near, np.float32),
+                     emission=np.zeros((H, 3), np.float32))
+    irr, _, _, _ = integrate_one(index, miss, albedo, e[0], dirs, states, N, gather, bounces=None,
+                                 max_bounces=500, tolerance=1e-5, near=near)
+    k = (1 - a) * alb + a * rho_near
+    E = k * e0[0] / (1 - k)
+    assert np.allclose(irr, alb * (e0[0] + E), rtol=1e-4)
+    if rho_near == alb:
+        assert np.allclose(irr, e0[0] * alb / (1 - alb), rtol=1e-4)
+    # the occluders' emission L'_e reaches the hit as a·π·L'_e (a light-only bounce: 2 bounces, E0 = 0)
+    e1 = NearField(index=near.index, a=near.a, albedo=near.albedo, emission=np.full((H, 3), 2.0, np.float32))
+    irr2, _, _, _ = integrate_one(index, miss, albedo, np.zeros_like(e[0]), dirs, states, N, gather, bounces=2,
+                                  max_bounces=2, tolerance=0, near=e1)
+    assert np.allclose(irr2, alb * a * math.pi * 2.0, rtol=1e-5)
+
+
+def test_near_field_leaves_hits_without_occlusion_bit_identical():
+    from workers.kernels.probe_hits import NearField
+    rng = np.random.default_rng(5)
+    index, miss, albedo, dirs, states, gather = _random_scene(rng)
+    e = rng.uniform(0, 1, (index.size, 3)).astype(np.float32)
+    kw = dict(bounces=6, max_bounces=6, tolerance=0)
+    ref = integrate_one(index, miss, albedo, e, dirs, states, N, gather, **kw)
+    empty = NearField(index=np.zeros(0, np.int64), a=np.zeros(0, np.float32), albedo=np.zeros((0, 3), np.float32),
+                      emission=np.zeros((0, 3), np.float32))
+    got = integrate_one(index, miss, albedo, e, dirs, states, N, gather, near=empty, **kw)
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    # occlusion on a few hits changes those rays only at the first shaded bounce (the second)
+    some = NearField(index=np.array([3, 7]), a=np.float32([0.4, 0.2]), albedo=np.full((2, 3), 0.1, np.float32),
+                     emission=np.zeros((2, 3), np.float32))
+    got = integrate_one(index, miss, albedo, e, dirs, states, N, gather, near=some, bounces=2, max_bounces=2,
+                        tolerance=0)
+    ref2 = integrate_one(index, miss, albedo, e, dirs, states, N, gather, bounces=2, max_bounces=2, tolerance=0)
+    changed = np.flatnonzero(np.any(got[1].reshape(-1, 3) != ref2[1].reshape(-1, 3), axis=1))
+    assert set(changed.tolist()) <= {int(index[3]), int(index[7])} and changed.size >= 1

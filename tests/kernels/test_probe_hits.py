@@ -1,6 +1,7 @@
 """Probe-ray hits as shading points and their cage visibility (workers/kernels/probe_hits.py)."""
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import numpy as np
@@ -85,3 +86,54 @@ def test_counting_order_is_the_stable_argsort():
         key = rng.integers(0, n_keys, size)
         assert np.array_equal(_counting_order(key, n_keys), np.argsort(key, kind="stable"))
     assert _counting_order(np.zeros(0, np.int64), 8).shape == (0,)
+
+
+def _corner(L=50.0, wall_albedo=(0.8, 0.6, 0.4), floor_albedo=(0.3, 0.3, 0.3)):
+    """A floor z = 0 (facing +z) and a wall x = 0 (facing +x), both L m wide: a concave 90° edge along y."""
+    floor = [[(-L, -L, 0), (L, -L, 0), (L, L, 0)], [(-L, -L, 0), (L, L, 0), (-L, L, 0)]]
+    wall = [[(0, -L, 0), (0, L, 0), (0, L, L)], [(0, -L, 0), (0, L, L), (0, -L, L)]]
+    tris = np.array(floor + wall, np.float32)
+    mats = [{"name": nm, "base_color": list(c) + [1.0], "base_color_texture": None, "emissive": [0.0, 0.0, 0.0],
+             "emissive_texture": None, "double_sided": False, "metallic": 0.0, "roughness": 1.0}
+            for nm, c in (("floor", floor_albedo), ("wall", wall_albedo))]
+    nrm = np.repeat(np.float32([[0, 0, 1], [0, 0, 1], [1, 0, 0], [1, 0, 0]])[:, None], 3, axis=1)
+    return NormalizedScene(triangles=tris, normals=nrm, uv0=np.zeros((4, 3, 2), np.float32),
+                           material=np.array([0, 0, 1, 1], np.int32), materials=mats)
+
+
+def test_near_occlusion_at_a_concave_edge_is_the_closed_form_and_zero_in_the_open():
+    from workers.kernels.probe_hits import near_occlusion
+    from workers.raycast.embree import EmbreeRayCaster
+
+    scene = _corner()
+    caster = EmbreeRayCaster(scene.triangles)
+    r, N = 0.3, 3000
+    d = np.array([0.01, 0.05, 0.1, 0.2, 0.29, 0.31, 2.0])
+    pos = np.zeros((len(d) * N, 3), np.float32)
+    pos[:, 0] = np.repeat(d, N)
+    pos[:, 1] = np.tile(np.linspace(-5, 5, N), len(d))
+    up = np.tile(np.float32([0, 0, 1]), (len(pos), 1))
+    nf = near_occlusion(scene, pos, up, up, caster, r, 8, 1e-4)
+    a = np.zeros(len(pos))
+    a[nf.index] = nf.a
+    mean = a.reshape(len(d), N).mean(axis=1)
+    # a floor point at distance d from an infinite wall: the cosine-weighted directions that reach the wall within
+    # r project onto the unit disk's segment x > c = d/r (Malley): a = (acos c − c·√(1 − c²))/π
+    c = np.minimum(d / r, 1.0)
+    want = (np.arccos(c) - c * np.sqrt(1 - c * c)) / math.pi
+    assert np.allclose(mean, want, atol=0.01), (mean, want)
+    assert np.all(a.reshape(len(d), N)[d > r] == 0)                  # beyond the radius, and the open floor: 0 exactly
+    assert nf.rays == len(pos) * 8
+    # the occluders are the wall: its albedo, no emission; the hits' own material does not enter
+    assert np.allclose(nf.albedo, (0.8, 0.6, 0.4), atol=1e-6) and np.all(nf.emission == 0)
+    # a wall hit next to the floor sees the floor (both faces single-sided, seen from the front)
+    side = np.tile(np.float32([1, 0, 0]), (N, 1))
+    p = np.zeros((N, 3), np.float32)
+    p[:, 2], p[:, 1] = 0.02, np.linspace(-5, 5, N)
+    nf = near_occlusion(scene, p, side, side, caster, r, 8, 1e-4)
+    assert nf.index.size > 0.9 * N and np.allclose(nf.albedo, 0.3, atol=1e-6)
+    # seen from behind, a single-sided occluder carries no light (albedo 0, DDGI-P §4.1): the floor behind the wall
+    q = p.copy()
+    q[:, 0], q[:, 2] = -0.05, 0.0
+    behind = near_occlusion(scene, q, up[:N], up[:N], caster, r, 8, 1e-4)
+    assert behind.index.size > 0.5 * N and np.all(behind.albedo == 0)

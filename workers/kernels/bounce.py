@@ -138,7 +138,8 @@ class BounceLog:
 def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct: np.ndarray, dirs: np.ndarray,
               states: np.ndarray, n: int, gather, retire, *, emission: np.ndarray | None = None, sky=None,
               bounces: int | None, max_bounces: int, tolerance: float, report=None,
-              correction: np.ndarray | None = None, indirect_scale: np.ndarray | None = None) -> BounceLog:
+              correction: np.ndarray | None = None, indirect_scale: np.ndarray | None = None,
+              near=None) -> BounceLog:
     """Sum the bounce series of B lighting configurations (module doc) over the same cached probe-ray hits.
 
     Parameters
@@ -176,6 +177,13 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         Multiplies E_indirect at each hit (the light stage's horizon factor of bent shading normals,
         :func:`workers.kernels.shading.horizon_factor`): ``L = emission + albedo/π · (E_direct + h·E_indirect)``.
         None: 1.
+    near : :class:`workers.kernels.probe_hits.NearField` or None
+        Near-field occlusion of the hits (:func:`workers.kernels.probe_hits.near_occlusion`: the cosine-weighted
+        part a of a hit's hemisphere that geometry within a radius of about a probe spacing covers, the light stage's
+        weight ``light.near_strength`` folded in, and the occluders' mean albedo ρ' and emission L'_e). The probes
+        stand up to a cell away and report the far field in those directions; the hit sees the nearby surface, whose irradiance the hit's own stands in for (multi-bounce
+        ambient occlusion): ``E_indirect = (1 − a)·G + a·(π·L'_e + ρ'·(E_direct + E_indirect'))``, G the gathered
+        irradiance and E_indirect' the hit's previous bounce. None, or hits not in it: ``E_indirect = G`` exactly.
     """
     P, R = miss.shape
     B, H = e_direct.shape[0], index.size
@@ -190,6 +198,15 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     rows = (index % R) * P + index // R
     if sky is not None:
         radiance[miss.T.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+    if near is not None and near.index.size:   # the near-field hits (parameter ``near``), (k, ·) each
+        sel = near.index
+        near_a = near.a[:, None].astype(np.float32)
+        near_rho = np.tile(near_a * near.albedo, (1, B))                               # a·ρ_near
+        near_base = np.tile(near_a * np.float32(math.pi) * near.emission, (1, B)) + \
+            near_rho * e_direct[:, sel].transpose(1, 0, 2).reshape(sel.size, 3 * B)
+        near_prev = np.zeros_like(near_base)
+    else:
+        near = None
     accumulate = _RayMajorMaps(dirs, n, states)
     maps = np.zeros((P, t, t, 3 * B), np.float32)
     live = np.arange(B)
@@ -200,7 +217,11 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         if b == 1:
             radiance[rows] = base                                              # E_indirect = 0: the first bounce
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
-            _shade_hits(radiance, rows, base, rho, np.ascontiguousarray(gather(maps), np.float32))
+            e_ind = np.ascontiguousarray(gather(maps), np.float32)
+            if near is not None:    # multi-bounce near-field occlusion (parameter ``near``)
+                near_prev = (1 - near_a) * e_ind[sel] + near_base + near_rho * near_prev
+                e_ind[sel] = near_prev
+            _shade_hits(radiance, rows, base, rho, e_ind)
         new = accumulate(radiance.reshape(R, P, -1))                          # DDGI-I eq 1, α = 0
         if correction is not None:
             new += correction                                                  # the fixed term over more rays
@@ -237,6 +258,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         live = live[keep]
         deltas = [d[:, keep] for d in deltas]
         base, rho = base[:, kc], rho[:, kc]
+        if near is not None:
+            near_rho, near_base, near_prev = near_rho[:, kc], near_base[:, kc], near_prev[:, kc]
         radiance = np.ascontiguousarray(radiance[:, kc])
         maps = np.ascontiguousarray(maps[..., kc])
         if correction is not None:
@@ -246,7 +269,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
 
 def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emission=None, sky=None,
                   bounces: int | None, max_bounces: int, tolerance: float, report=None, correction=None,
-                  indirect_scale=None):
+                  indirect_scale=None, near=None):
     """:func:`integrate` for one configuration: ``e_direct`` (H, 3). Returns ``(irradiance (P, n+2, n+2, 3),
     radiance (P, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float)."""
     out = {}
@@ -256,5 +279,5 @@ def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emi
 
     log = integrate(index, miss, albedo, e_direct[None], dirs, states, n, gather, retire, emission=emission,
                     sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report,
-                    correction=correction, indirect_scale=indirect_scale)
+                    correction=correction, indirect_scale=indirect_scale, near=near)
     return out["maps"], out["radiance"], log.change[0], log.residual[0]

@@ -14,6 +14,7 @@ nothing here imports it. Consumers: stages/light, kernels/prt_dataset. Inverse: 
 """
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -22,7 +23,7 @@ from numba import njit
 from workers.kernels.ddgi import cage_probes, cage_rays
 from workers.kernels.shading import ensure_valid_reflection, surface_at_hits
 
-__all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "VISIBILITY_CHUNK", "HIT_CHUNK"]
+__all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "near_occlusion", "NearField", "VISIBILITY_CHUNK", "HIT_CHUNK"]
 
 HIT_CHUNK = 1 << 21
 """Hits shaded per :func:`workers.kernels.shading.surface_at_hits` call in :func:`hit_surfaces` (memory bound)."""
@@ -174,3 +175,126 @@ def probe_visibility(surf, grid: dict, positions: np.ndarray, states: np.ndarray
         vis[a:b] = live
         rays += int(slot.shape[0])
     return vis, rays
+
+
+NEAR_CHUNK = 1 << 18
+"""Hits per batch of :func:`near_occlusion` rays (``rays`` each), bounding memory."""
+
+
+@njit(cache=True, nogil=True)
+def _near_rays(pos, nrm, geo, eps, k, seed, a0, o, d, slot):
+    """Cosine-distributed directions about ``nrm[h]`` for hits a0..a0+len: k per hit, a spiral on the unit disk
+    (radius sqrt((j+½)/k), golden angle) rotated by a per-hit angle from a hash of (seed, h) and lifted onto the
+    hemisphere (Malley). Directions within 1e-4 of the geometric plane or below it are not cast (the horizon factor
+    handles those). Writes the cast rays (origin x + eps·Ng) into o, d and the hit's local index into slot; returns
+    the count."""
+    m = 0
+    golden = math.pi * (3.0 - math.sqrt(5.0))
+    for i in range(pos.shape[0]):
+        h = a0 + i
+        x = (np.uint64(h) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(seed) * np.uint64(0xBF58476D1CE4E5B9))
+        x ^= x >> np.uint64(31)
+        x *= np.uint64(0x94D049BB133111EB)
+        x ^= x >> np.uint64(29)
+        phi0 = 2.0 * math.pi * (float(x >> np.uint64(11)) / 9007199254740992.0)
+        nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
+        # tangent frame (Duff et al. 2017)
+        sg = 1.0 if nz >= 0.0 else -1.0
+        aa = -1.0 / (sg + nz)
+        bb = nx * ny * aa
+        tx, ty, tz = 1.0 + sg * nx * nx * aa, sg * bb, -sg * nx
+        bx, by, bz = bb, sg + ny * ny * aa, -ny
+        for j in range(k):
+            r = math.sqrt((j + 0.5) / k)
+            ph = phi0 + j * golden
+            u, v = r * math.cos(ph), r * math.sin(ph)
+            w = math.sqrt(max(0.0, 1.0 - u * u - v * v))
+            dx = u * tx + v * bx + w * nx
+            dy = u * ty + v * by + w * ny
+            dz = u * tz + v * bz + w * nz
+            if dx * geo[i, 0] + dy * geo[i, 1] + dz * geo[i, 2] <= 1e-4:
+                continue
+            o[m, 0] = pos[i, 0] + eps * geo[i, 0]
+            o[m, 1] = pos[i, 1] + eps * geo[i, 1]
+            o[m, 2] = pos[i, 2] + eps * geo[i, 2]
+            d[m, 0], d[m, 1], d[m, 2] = dx, dy, dz
+            slot[m] = i
+            m += 1
+    return m
+
+
+@dataclass
+class NearField:
+    """Near-field occlusion of the hits that have any (:func:`near_occlusion`): ``index`` (k,) int64 into the hits;
+    ``a`` (k,) float32 the cosine-weighted occluded part of the hemisphere; ``albedo`` and ``emission`` (k, 3)
+    float32 the mean GI albedo and emitted radiance of the occluders the rays hit (0 for the back of a single-sided
+    surface: it carries no light, DDGI-P §4.1); ``rays`` the number cast."""
+
+    index: np.ndarray
+    a: np.ndarray
+    albedo: np.ndarray
+    emission: np.ndarray
+    rays: int = 0
+
+
+def near_occlusion(scene, position: np.ndarray, normal: np.ndarray, geo_normal: np.ndarray, caster, radius: float,
+                   rays: int, eps: float, seed: int = 0) -> NearField:
+    """The part of each hit's hemisphere that geometry within ``radius`` covers, and what covers it.
+
+    Parameters
+    ----------
+    scene : NormalizedScene
+        Materials of the occluders (:func:`workers.kernels.shading.surface_at_hits`).
+    position, normal, geo_normal : (H, 3) float32
+        Hit points (world space, metres), the shading normal N' E_indirect is gathered about and the geometric
+        normal on the same side (unit).
+    caster
+        ``intersect(origins, dirs, tnear, tfar) -> Hits`` (:mod:`workers.raycast`).
+    radius : float
+        Occluders farther than this (metres) are the probes' far field, not counted.
+    rays : int
+        Cosine-distributed rays per hit (stratified, rotated per hit).
+    eps : float
+        Ray origin offset along the geometric normal, metres.
+
+    ``a = (1/π) ∫ max(0, N'·ω) [hit within radius along ω] dω``, estimated by ``rays`` cosine-distributed
+    rays (each 1/rays of the lobe; rays at or below the geometric plane count as free: the horizon factor of bent
+    normals owns them). An open plane gives a = 0 exactly; beside an infinite wall at distance d (d ≤ radius) a
+    = (acos c − c·√(1 − c²))/π with c = d/radius, 1/2 at the edge. Fixed per geometry (the hits do not move
+    between bounces). Only hits with a > 0 are returned.
+    """
+    H = position.shape[0]
+    idx, aa, alb, emi, cast = [], [], [], [], 0
+    if H and rays > 0 and radius > 0:
+        for s in range(0, H, NEAR_CHUNK):
+            e = min(H, s + NEAR_CHUNK)
+            n = e - s
+            o = np.empty((n * rays, 3), np.float32)
+            d = np.empty((n * rays, 3), np.float32)
+            slot = np.empty(n * rays, np.int64)
+            m = _near_rays(np.ascontiguousarray(position[s:e], np.float64),
+                           np.ascontiguousarray(normal[s:e], np.float64),
+                           np.ascontiguousarray(geo_normal[s:e], np.float64), float(eps), int(rays), int(seed), s,
+                           o, d, slot)
+            if m == 0:
+                continue
+            cast += m
+            h = caster.intersect(o[:m], d[:m], 0.0, np.full(m, radius, np.float32))
+            hit = np.flatnonzero(np.asarray(h.tri) >= 0)
+            if hit.size == 0:
+                continue
+            sl = slot[:m][hit]
+            surf = surface_at_hits(scene, np.asarray(h.tri)[hit], np.asarray(h.u)[hit], np.asarray(h.v)[hit])
+            dark = (np.asarray(h.backface)[hit] & ~np.asarray(surf["double_sided"], bool))[:, None]
+            count = np.bincount(sl, minlength=n)
+            own = np.flatnonzero(count)
+            w = 1.0 / count[own][:, None]
+            sums = [np.stack([np.bincount(sl, np.where(dark[:, 0], 0.0, surf[k][:, c]), minlength=n)
+                              for c in range(3)], axis=1)[own] for k in ("albedo", "emission")]
+            idx.append(own + s)
+            aa.append(count[own] / rays)
+            alb.append(sums[0] * w)
+            emi.append(sums[1] * w)
+    cat = (lambda xs, shape: np.concatenate(xs).astype(np.float32) if xs else np.zeros(shape, np.float32))
+    return NearField(index=np.concatenate(idx) if idx else np.zeros(0, np.int64), a=cat(aa, (0,)),
+                     albedo=cat(alb, (0, 3)), emission=cat(emi, (0, 3)), rays=cast)

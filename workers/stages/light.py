@@ -18,6 +18,13 @@ bake bit-identically (stats ``bent_hits``, ``horizon_hits``, ``horizon_mean``). 
 tilted lobe dips below the plane into bright geometry the probes still see, E_indirect stays somewhat high (a bent
 floor under a sun: 3%, tests/workers/test_light.py). The point lights' hot spots (below) are shaded about the
 interpolated normal, as before.
+Near-field occlusion (:func:`workers.kernels.probe_hits.near_occlusion`, once per geometry): ``light.near_rays``
+cosine-distributed rays per hit out to ``light.near_radius`` × the smallest spacing find the part a of the hit's lobe
+that nearby geometry covers (the probes, up to a cell away, report the far field there) and the occluders' albedo
+and emission; each bounce shades ``E_indirect = (1 − s·a)·G + s·a·(π·L'_e + ρ'·(E_direct + E_indirect'))``, s =
+``light.near_strength`` (a fit, docs/architecture.md), the hit's previous bounce standing in for the nearby surface's
+irradiance (:func:`workers.kernels.bounce.integrate` ``near``). Hits with nothing within the radius: G exactly
+(stats ``near_hits``, ``near_rays``, ``near_mean`` the mean a over all hits before the weight, ``near_seconds``).
 The hot spots a point / spot light makes on a surface next to it (direct irradiance above 32x the light's median at
 the hits) are sampled from the light (:mod:`workers.kernels.light_spots`): the rays carry the bounded part, virtual
 point lights the excess, added to every bounce's maps and to the SH (stats ``spot_lights``, ``spot_rays``).
@@ -51,7 +58,7 @@ from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
 from workers.kernels.light_spots import split_direct, spot_correction, spot_thresholds
 from workers.kernels.materials import albedo_warnings, double_sided_triangles
-from workers.kernels.probe_hits import hit_surfaces, probe_visibility
+from workers.kernels.probe_hits import hit_surfaces, near_occlusion, probe_visibility
 from workers.kernels.octahedral import oct_texel_directions
 from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project
 from workers.kernels.shading import direct_irradiance, horizon_factor
@@ -95,8 +102,16 @@ def run_light(ctx: StageContext) -> StageOutput:
     horizon = horizon_factor(surf.normal, surf.geo_normal, surf.smooth_normal, surf.bent).astype(np.float32)
     n_bent, n_horizon = int(surf.bent.sum()), int((horizon < 1).sum())
     horizon = None if n_horizon == 0 else horizon          # flat shading: 1 everywhere, bit-identical to no factor
-    surf.geo_normal = surf.smooth_normal = surf.bent = frame = None
     t_direct = time.perf_counter() - t0
+    t0 = time.perf_counter()        # near-field occlusion (workers.kernels.probe_hits.near_occlusion)
+    near, near_mean = None, 0.0
+    if sec.near_radius > 0 and sec.near_rays > 0:
+        near = near_occlusion(scene, surf.position, surf.normal, surf.geo_normal, caster,
+                              sec.near_radius * float(min(grid["spacing"])), sec.near_rays, eps)
+        near_mean = float(near.a.sum(dtype=np.float64) / max(surf.index.size, 1))
+        near.a *= np.float32(sec.near_strength)       # the fitted weight (proto/models.py LightSection)
+    t_near = time.perf_counter() - t0
+    surf.geo_normal = surf.smooth_normal = surf.bent = frame = None
     t0 = time.perf_counter()
     visible, vis_rays = probe_visibility(surf, grid, positions, states, caster, sec.self_shadow_bias)
     t_vis = time.perf_counter() - t0
@@ -117,7 +132,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
         tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps,
-        indirect_scale=horizon)
+        indirect_scale=horizon, near=near)
     t_bounces = time.perf_counter() - t1
     sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
@@ -141,6 +156,9 @@ def run_light(ctx: StageContext) -> StageOutput:
         "horizon_mean": float(horizon.mean()) if horizon is not None else 1.0, "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces, "weights_seconds": t_weights,
         "visibility_rays": vis_rays, "visibility_seconds": t_vis,
+        "near_rays": near.rays if near is not None else 0, "near_seconds": t_near,
+        "near_hits": int(near.index.size) if near is not None else 0,
+        "near_mean": near_mean,
         "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
     }

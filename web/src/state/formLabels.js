@@ -39,6 +39,9 @@ export const FIELD_UI = {
   'light.irradiance_texels': { label: 'Irradiance map size', unit: 'texels', help: 'per-probe irradiance resolution', advanced: true },
   'light.sh_order': { label: 'SH order', help: 'spherical-harmonics order of the probe output (2 = sharper)', advanced: true },
   'light.self_shadow_bias': { label: 'Self-shadow bias', help: 'offset that keeps surfaces from shadowing themselves', advanced: true },
+  'light.near_radius': { label: 'Near-field radius', help: 'geometry this close to a surface (in probe spacings) darkens it as the probes cannot see (0: off)', advanced: true },
+  'light.near_rays': { label: 'Near-field rays', help: 'short rays per surface point that find the nearby geometry', advanced: true },
+  'light.near_strength': { label: 'Near-field strength', help: 'how much of the nearby geometry\'s shading is applied', advanced: true },
 
   visibility: { label: 'Leak removal: visibility', help: 'which probes each point can see, so light does not leak through walls' },
   'visibility.samples_per_cell': { label: 'Samples per cell', help: 'resolution of the visibility field; leave unset to pick from the walls' },
