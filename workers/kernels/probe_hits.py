@@ -21,6 +21,7 @@ import numpy as np
 from numba import njit
 
 from workers.kernels.ddgi import cage_probes, cage_rays
+from workers.kernels.path_rng import _cosine_dir, _uniform
 from workers.kernels.shading import ensure_valid_reflection, surface_at_hits
 
 __all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "near_occlusion", "NearField", "VISIBILITY_CHUNK", "HIT_CHUNK"]
@@ -184,34 +185,16 @@ NEAR_CHUNK = 1 << 18
 @njit(cache=True, nogil=True)
 def _near_rays(pos, nrm, geo, eps, k, seed, a0, o, d, slot):
     """Cosine-distributed directions about ``nrm[h]`` for hits a0..a0+len: k per hit, a spiral on the unit disk
-    (radius sqrt((j+½)/k), golden angle) rotated by a per-hit angle from a hash of (seed, h) and lifted onto the
-    hemisphere (Malley). Directions within 1e-4 of the geometric plane or below it are not cast (the horizon factor
-    handles those). Writes the cast rays (origin x + eps·Ng) into o, d and the hit's local index into slot; returns
-    the count."""
+    (u1 = (j+½)/k, golden-angle steps) rotated by a per-hit uniform of (seed, h) and lifted onto the hemisphere
+    (:func:`workers.kernels.path_rng._cosine_dir`: Malley in Duff et al.'s basis). Directions within 1e-4 of the
+    geometric plane or below it are not cast (the horizon factor handles those). Writes the cast rays (origin
+    x + eps·Ng) into o, d and the hit's local index into slot; returns the count."""
     m = 0
-    golden = math.pi * (3.0 - math.sqrt(5.0))
+    golden = (3.0 - math.sqrt(5.0)) / 2.0           # the golden angle as a fraction of a turn
     for i in range(pos.shape[0]):
-        h = a0 + i
-        x = (np.uint64(h) * np.uint64(0x9E3779B97F4A7C15) + np.uint64(seed) * np.uint64(0xBF58476D1CE4E5B9))
-        x ^= x >> np.uint64(31)
-        x *= np.uint64(0x94D049BB133111EB)
-        x ^= x >> np.uint64(29)
-        phi0 = 2.0 * math.pi * (float(x >> np.uint64(11)) / 9007199254740992.0)
-        nx, ny, nz = nrm[i, 0], nrm[i, 1], nrm[i, 2]
-        # tangent frame (Duff et al. 2017)
-        sg = 1.0 if nz >= 0.0 else -1.0
-        aa = -1.0 / (sg + nz)
-        bb = nx * ny * aa
-        tx, ty, tz = 1.0 + sg * nx * nx * aa, sg * bb, -sg * nx
-        bx, by, bz = bb, sg + ny * ny * aa, -ny
+        turn0 = _uniform(np.uint64(seed), np.uint64(a0 + i), 0, 0)
         for j in range(k):
-            r = math.sqrt((j + 0.5) / k)
-            ph = phi0 + j * golden
-            u, v = r * math.cos(ph), r * math.sin(ph)
-            w = math.sqrt(max(0.0, 1.0 - u * u - v * v))
-            dx = u * tx + v * bx + w * nx
-            dy = u * ty + v * by + w * ny
-            dz = u * tz + v * bz + w * nz
+            dx, dy, dz, _ = _cosine_dir(nrm[i, 0], nrm[i, 1], nrm[i, 2], (j + 0.5) / k, (turn0 + j * golden) % 1.0)
             if dx * geo[i, 0] + dy * geo[i, 1] + dz * geo[i, 2] <= 1e-4:
                 continue
             o[m, 0] = pos[i, 0] + eps * geo[i, 0]

@@ -250,29 +250,4 @@ def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *
         e[idx] = (n1 * e[idx] + n2 * np.asarray(e2, np.float64)) / (n1 + n2)
         s[idx] = np.sqrt((n1 * s[idx]) ** 2 + (n2 * np.asarray(s2, np.float64)) ** 2) / (n1 + n2)
     paths[:] = want
-    return e, s, paths    # what the choice is made on: the pilot (its noise as it will be at spp paths), else the first pass itself
-    e_c, s_c = (e, s) if pilot is None else (np.asarray(pilot[0], np.float64),
-                                             np.asarray(pilot[1], np.float64) * math.sqrt(int(pilot[2]) / spp))
-    y = MT.luminance(e_c)
-    mean = float(y.mean())
-    dark = (y <= DARK_FRACTION * mean) if mean > 0 else np.zeros(n_pts, bool)
-    light = np.minimum(y + MT.luminance(np.asarray(e_direct, np.float64)), NOISE_CAP * mean)
-    rho = (s_c @ MT.REC709) / np.maximum(light, 1e-30)
-    rho[dark] = 0.0
-    want = np.full(n_pts, spp, np.int64)
-    t = float(target)
-    while True:
-        k = np.ceil(np.log2(np.maximum((rho / t) ** 2, 1.0)) - 1e-9)
-        want = np.minimum(spp * 2.0 ** k, max_spp).astype(np.int64)
-        if (want - spp).sum() <= budget * n_pts * spp:
-            break
-        t *= 1.25
-    want[dark] = max_spp
-    for n in np.unique(want[want > spp]):
-        idx = np.flatnonzero(want == n)
-        n1, n2 = spp, int(n) - spp
-        e2, s2 = trace(idx, n2)
-        e[idx] = (n1 * e[idx] + n2 * np.asarray(e2, np.float64)) / (n1 + n2)
-        s[idx] = np.sqrt((n1 * s[idx]) ** 2 + (n2 * np.asarray(s2, np.float64)) ** 2) / (n1 + n2)
-    paths[:] = want
     return e, s, paths
