@@ -182,6 +182,11 @@ class PlaceSection(_Strict):
     budget: Int = Field(24_000, ge=8, le=MAX_PROBES, description="most probes of the automatic grid")
     padding: Float = Field(0.0, ge=0.0, le=0.5,
                            description="fraction of each extent added on both sides of the box")
+    yaw: Float | None = Field(
+        None, ge=-180.0, le=180.0,
+        description="degrees the probe grid is turned about +Y (the bake frame, manifest grid.frame); default: "
+                    "turned to the scene's dominant wall directions (0 with a `box`, or when the scene has no "
+                    "dominant walls). With `yaw` set, a `box` is in the turned frame")
 
     @model_validator(mode="before")
     @classmethod
@@ -294,7 +299,8 @@ class LightRange(_Strict):
 
     types: list[Literal["point", "spot", "directional"]] = Field(["point"], min_length=1)
     count: Int = Field(1, ge=1, le=8, description="lights per configuration")
-    box: Box | None = Field(None, description="where point/spot lights are placed; default: the scene bounds")
+    box: Box | None = Field(None, description="where point/spot lights are placed (world axes; in a turned bake "
+                                                  "frame, place.yaw, its bounding box there); default: the scene bounds")
     near_surface: Float = Field(0.5, ge=0.0, le=1.0, description="share of point/spot lights placed close to a "
                                 "surface (near_distance along its normal) instead of uniformly in the box")
     near_distance: tuple[Float, Float] = Field((0.02, 0.25), description="metres from the surface, min and max")

@@ -43,7 +43,8 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("ingest", 3, ("scene",), (), timeout=600),
     # 7: stats["warnings"] grid_coarse (the default budget binds the automatic grid far above what the rooms ask);
     # 8: the automatic spacing room scale / 8 (was / 6; workers/kernels/autogrid.py ROOM_DIVISIONS)
-    StageDef("place", 8, ("place", "seed"), ("ingest",), timeout=600),
+    # 9: the bake frame: the grid turned about +Y to the walls (workers/kernels/frame.py; stats["frame"], grid.frame)
+    StageDef("place", 9, ("place", "seed"), ("ingest",), timeout=600),
     StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
     # 3: depth_moments' far texels clamped to the probe's reach (workers/kernels/depth_moments.py clamp_far), which
@@ -217,6 +218,8 @@ def build_manifest(records: StageRecords, scene_summary: dict, config: BakeConfi
         artifacts += [ArtifactInfo(**a) for a in rec["artifacts"] if not a.get("meta", {}).get("internal")]
         if st.name == "place":
             grid = {k: rec["stats"][k] for k in ("counts", "origin", "spacing")}
+            if "frame" in rec["stats"]:
+                grid["frame"] = rec["stats"]["frame"]   # the bake frame: world -> grid axes (proto/bundle.md 5)
             if rec["stats"].get("auto") is not None:
                 grid["auto"] = rec["stats"]["auto"]     # what the automatic grid chose, and why
     warnings = collect_warnings([(s.name, s.stats) for s in stages], scene_summary.get("warnings"))

@@ -60,6 +60,44 @@ def load_scene(store: Store, scene_id: str) -> NormalizedScene:
     return NormalizedScene.from_bytes(store.read_bytes(scene_id))
 
 
+FRAME_STAGES = frozenset({"place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
+                          "evaluate"})
+"""The stages that work in the bake frame (:mod:`workers.kernels.frame`): their ``ctx.scene`` is the scene turned by
+the place section's yaw, and (all but evaluate) their ``ingest`` input's lights and bounds are turned likewise.
+``ingest`` and ``reference`` stay in the world frame (the reference is shared by bakes of any probe config);
+evaluate maps the reference's world points into the frame at its GI lookups. Their cache keys follow the frame:
+it is a function of the scene and the ``place`` section, which every one of them reads through ``place``'s key."""
+
+
+def framed_scene(scene: NormalizedScene, config: BakeConfig) -> NormalizedScene:
+    """``scene`` in the bake frame of ``config.place`` (:func:`workers.kernels.frame.choose_frame`); the choice is
+    on the result's ``frame`` attribute (the place stage records it)."""
+    from workers.kernels.frame import choose_frame, frame_of, rotate_scene
+
+    info = choose_frame(scene.triangles, config.place)
+    out = rotate_scene(scene, frame_of({"frame": info}))
+    out.frame = info
+    return out
+
+
+def framed_ingest(ingest: LazyArtifacts, scene: NormalizedScene) -> LazyArtifacts:
+    """The ``ingest`` stage's outputs seen from the bake frame of ``scene`` (a :func:`framed_scene`): ``lights``
+    turned, ``stats["bounds"]`` the turned scene's box. Unchanged in the world frame."""
+    from workers.kernels.frame import frame_of, rotate_lights
+
+    M = frame_of({"frame": getattr(scene, "frame", None)})
+    if M is None:
+        return ingest
+
+    def lights():
+        doc = ingest["lights"]
+        return {**doc, "lights": rotate_lights(doc["lights"], M)}
+
+    loaders = {n: (lambda n=n: ingest[n]) for n in ingest.names()}
+    loaders["lights"] = lights
+    return LazyArtifacts({**ingest.stats, "bounds": scene.bounds.tolist()}, loaders)
+
+
 WRITE_THREADS = 4
 """Threads that write one stage's artifacts (each one's encoding, hashing and fsync overlap the others')."""
 
@@ -94,14 +132,21 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
         if dep_rec is None:
             raise RuntimeError(f"stage {stage} needs {dep}, which is not in the store")
         inputs[dep] = _lazy(store, dep_rec)
+    framed = (st.parent or st.name) in FRAME_STAGES
+
     def scene_loader() -> NormalizedScene:
         scene = load_scene(store, scene_id)
         scene.max_albedo = config.scene.max_albedo        # material options of the bake (workers.kernels.materials)
         scene.specular_gi = config.scene.specular_gi
+        if framed:
+            scene = framed_scene(scene, config)
         return scene
 
     ctx = StageContext(config=config, scene_loader=scene_loader, inputs=inputs, report=report,
                        shard=st.shard, shard_count=st.shard_count)
+    if framed and "ingest" in inputs and (st.parent or st.name) != "evaluate":
+        inputs["ingest"] = framed_ingest(inputs["ingest"], ctx.scene)
+        ctx.frame = getattr(ctx.scene, "frame", None)
     t0 = time.perf_counter()
     out = (SHARD_RUNNERS[st.parent] if st.shard is not None else RUNNERS[st.name])(ctx)
     seconds = time.perf_counter() - t0

@@ -107,7 +107,7 @@ def bake_grid(bake: dict) -> dict:
         return bake["manifest"].get("grid", {})
     for s in bake["stages"]:
         if s["name"] == "place" and s.get("stats"):
-            return {k: s["stats"][k] for k in ("counts", "origin", "spacing") if k in s["stats"]}
+            return {k: s["stats"][k] for k in ("counts", "origin", "spacing", "frame") if k in s["stats"]}
     return {}
 
 
@@ -141,8 +141,12 @@ def write_relit_bundle(store, bake: dict, scene: dict, infos: dict[str, dict], l
     from workers.raycast import caster_for_scene
     from workers.scene import NormalizedScene
 
+    from workers.kernels.frame import frame_of, rotate_lights, rotate_scene
+
+    M = frame_of(bake_grid(bake))       # the bake frame (proto/bundle.md 5): the PRT points and basis live in it
+
     def make_caster():
-        return caster_for_scene(NormalizedScene.from_bytes(store.read_bytes(scene_id)))
+        return caster_for_scene(rotate_scene(NormalizedScene.from_bytes(store.read_bytes(scene_id)), M))
 
     scene_id = bake["scene_id"]
     t0 = time.perf_counter()
@@ -150,9 +154,10 @@ def write_relit_bundle(store, bake: dict, scene: dict, infos: dict[str, dict], l
         model, caster = load_prt_model(store, infos), make_caster()
     else:
         model = cache.get("model", _model_key(infos), lambda: load_prt_model(store, infos))
-        caster = cache.get("caster", scene_id, make_caster)
+        caster = cache.get("caster", scene_id if M is None else f"{scene_id}:{bake_grid(bake)['frame']['yaw_deg']}",
+                           make_caster)
     t1 = time.perf_counter()
-    out = relight(model, lights, caster, lightmap=lightmap)
+    out = relight(model, rotate_lights(lights, M), caster, lightmap=lightmap)
     t2 = time.perf_counter()
 
     summary = SceneSummary(id=scene_id, triangles=scene.get("triangles", 0), bounds=scene.get("bounds", []),

@@ -69,8 +69,10 @@ with a door through it; two rooms divided by one double-sided plane). Baked like
 ``--rotate DEG`` bakes each procedural scene rotated DEG degrees about +Y (one new root node over its meshes and
 lights; the points file's added lights rotated too) and reads it at the receivers and normals rotated the same way:
 light is the same in every frame, so the Cycles references still hold, while no wall is axis-aligned any more — as in
-a level whose building stands at an angle, which the automatic grid's layer fit between axis-aligned faces does not
-see. The rows of stored probe values are left out then (their positions are the unrotated grid's).
+a level whose building stands at an angle. The default bake frame (:mod:`workers.kernels.frame`) turns the grid to
+the walls, and the receivers go through ``grid.frame`` as any reader's points; ``--set place.yaw=0`` bakes in the
+world axes instead (the grid at an angle to the walls). The rows of stored probe values are left out then (their
+positions are the unrotated grid's).
 
 ``furnace`` has no Cycles reference but a closed form (``furnace.closed-form.reference.json``, made by
 ``tests/data/fidelity/make_closed_form.py``): the default config with a uniform sky of radiance 1, where every receiver
@@ -114,6 +116,7 @@ from workers.gltf import ingest_file  # noqa: E402
 from workers.gltf.pack import embed_glb, pack_model  # noqa: E402
 from workers.kernels import samplers as SM  # noqa: E402
 from workers.kernels.ddgi import sample_irradiance  # noqa: E402
+from workers.kernels.frame import frame_of, to_frame  # noqa: E402
 from workers.kernels.grid import OFF, unpack_atlas  # noqa: E402
 from workers.kernels.octahedral import bilinear_sample  # noqa: E402
 from workers.kernels.pathtrace import indirect_irradiance  # noqa: E402
@@ -230,9 +233,11 @@ def merged_arrays(recs: dict) -> dict:
 
 
 def reconstruct(recs: dict, cfg: BakeConfig, pts: np.ndarray, nrm: np.ndarray) -> dict[str, np.ndarray]:
-    """(N, 3) indirect irradiance of each mode at receivers (pts, nrm); views = nrm."""
+    """(N, 3) indirect irradiance of each mode at receivers (pts, nrm; world); views = nrm."""
     place = recs["place"].stats
     grid = {k: place[k] for k in ("counts", "origin", "spacing")}
+    M = frame_of(place)                          # the bake frame (workers/kernels/frame.py): lookups in its axes
+    pts, nrm = to_frame(pts, M), to_frame(nrm, M)
     arrays = merged_arrays(recs)
     out = {}
     for mode in MODES:

@@ -5,7 +5,9 @@
 Run by hand (not part of the test command). ``bench_fidelity.py --rotate 30`` reads thick-wall's, plane-wall's and
 sun-window's dark rooms 1.07-1.26 of Cycles where the unrotated scenes read 0.96-1.09 (docs/architecture.md, "The same
 interiors rotated"), every mode alike: the light stage's values. This bakes one held-out interior (or two-rooms)
-rotated ``--rotate`` degrees about +Y (:func:`bench_fidelity.rotated_glb`) with the default config and measures,
+rotated ``--rotate`` degrees about +Y (:func:`bench_fidelity.rotated_glb`) with the default config but ``place.yaw = 0``
+(the grid in the world axes: since place stage 9 the default turns it to the walls, workers/kernels/frame.py) and
+measures,
 against Kiln's path tracer (:func:`workers.kernels.pathtrace.indirect_irradiance`, ``--spp`` paths):
 
 1. the stored octahedral irradiance of the dark room's live probes (6 axis directions of the scene's own frame), by
@@ -74,7 +76,11 @@ def measure(name: str, deg: float, spp: int, n_hits: int, work: Path) -> dict:
     cfg0 = json.loads((BF.DATA / f"{name}.points.json").read_text()).get("config") or {}
     path = work / f"{name}.glb"
     path.write_bytes(BF.rotated_glb(BF.procedural_bytes(name), deg) if deg else BF.procedural_bytes(name))
-    scene, recs, cfg, _ = BF.bake(name, work, None, BF.rotated_config(cfg0, rot), source=path)
+    # place.yaw = 0: the world axes, the grid at an angle to the walls, which is what this measures (the default bake
+    # frame, workers/kernels/frame.py, turns the grid to the walls and the excess is gone: bench_fidelity --rotate 30)
+    cfg1 = BF.rotated_config(cfg0, rot)
+    cfg1 = {**cfg1, "place": {**cfg1.get("place", {}), "yaw": 0.0}}
+    scene, recs, cfg, _ = BF.bake(name, work, None, cfg1, source=path)
     place = recs["place"].stats
     grid = {k: place[k] for k in ("counts", "origin", "spacing")}
     counts, origin, spacing = (np.asarray(grid[k]) for k in ("counts", "origin", "spacing"))

@@ -93,3 +93,40 @@ def test_bake_grid_from_the_manifest_or_the_place_stage():
     assert bake_grid({"manifest": {"grid": grid}, "stages": []}) == grid
     assert bake_grid({"manifest": None, "stages": [{"name": "place", "stats": dict(grid, auto=None)}]}) == grid
     assert bake_grid({"manifest": None, "stages": [{"name": "place", "stats": {}}]}) == {}
+
+
+def test_a_turned_bake_relights_world_lights_as_the_unturned_bake(tmp_path):
+    """The Cornell box turned 30 deg in its file bakes in the frame of its walls (grid.frame): relighting it with
+    world lights (the relight route's input) gives the unturned bake's relit probes for the unturned lights."""
+    from tests.bench.bench_fidelity import rotated_glb, rotation_y
+    from workers.procedural import make_scene
+
+    R = rotation_y(30.0)
+    out = {}
+    for name, data, lights in (
+            ("flat", make_scene("cornell"), LIGHTS),
+            ("turned", rotated_glb(make_scene("cornell"), 30.0),
+             [{**LIGHTS[0], "position": (R @ np.asarray(LIGHTS[0]["position"])).tolist()}])):
+        p = tmp_path / f"{name}.glb"
+        p.write_bytes(data)
+        scene = ingest_file(p)
+        store = Store(tmp_path / f"store-{name}")
+        sid = store.put_bytes(scene.to_bytes())
+        prt = {**CONFIG["prt"], "scenario": {"types": ["point", "spot"]}}        # the scene bounds: either frame
+        # spacing 0.3 (probes 0.1 m outside the walls, then moved in): CONFIG's counts put probes exactly on the
+        # walls, where the float rounding of the turned vertices decides their side
+        cfg = BakeConfig.model_validate({**CONFIG, "place": {"spacing": 0.3}, "prt": prt})
+        recs = {n: pipeline.execute_stage(store, sid, cfg, n)[0]
+                for n in ("ingest", "place", "relocate", "trace", "light", "prt")}
+        infos = {a["name"]: a for rec in recs.values() for a in rec["artifacts"]}
+        bake = {"id": name, "scene_id": sid, "config": cfg.model_dump(mode="json"), "manifest": None,
+                "stages": [{"name": n, "stats": rec["stats"]} for n, rec in recs.items()]}
+        summary = {"triangles": len(scene.triangles), "bounds": [[0, 0, 0], [1, 1, 1]], "lights": 0, "materials": 1,
+                   "warnings": []}
+        write_relit_bundle(store, bake, summary, infos, lights, tmp_path / f"relit-{name}")
+        out[name] = (bake_grid(bake), bundle.open_bundle(tmp_path / f"relit-{name}")[1])
+    (g0, a0), (g30, a30) = out["flat"], out["turned"]
+    assert g0["frame"]["yaw_deg"] == 0.0 and abs(g30["frame"]["yaw_deg"] - 30.0) < 1e-3
+    sh0, sh30 = np.asarray(a0["probe_sh"]), np.asarray(a30["probe_sh"])
+    assert np.abs(sh0).max() > 0
+    np.testing.assert_allclose(sh30, sh0, atol=0.01 * np.abs(sh0).max())

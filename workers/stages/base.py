@@ -74,6 +74,9 @@ class StageContext:
     report: Callable[[float], None]
     shard: int | None = None          # for a shard of a sharded stage: its index and the shard count
     shard_count: int | None = None
+    #: The bake frame (:func:`workers.kernels.frame.choose_frame`'s record) the pipeline turned ``scene`` into for a
+    #: probe stage that reads ``ingest``; None: the world frame, or not known to this stage.
+    frame: dict | None = None
     _scene: NormalizedScene | None = None
 
     @property

@@ -30,6 +30,7 @@ import numpy as np
 
 from proto.models import EvaluateSection
 from workers.kernels import point_metrics as PM
+from workers.kernels.frame import frame_of, rotate_lights, to_frame
 from workers.kernels.point_modes import MaskArrays, available_modes, gi_fetches, mode_irradiance
 from workers.kernels.reference_layout import point_columns
 from workers.render.previews import HEATMAP_VMAX, mode_previews, mode_resources, png_supported
@@ -77,6 +78,10 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
     settings, seed, B = settings_of(ctx.config), int(ctx.config.seed), float(ctx.config.light.self_shadow_bias)
     ref, place, lights = ctx.inputs["reference"], ctx.inputs["place"].stats, ctx.inputs["ingest"]["lights"]["lights"]
     rstats, grid, lights = ref.stats, {k: place[k] for k in ("counts", "origin", "spacing")}, list(lights)
+    # the reference's points, cameras and the lights are in the world; the bake's GI in its frame (grid.frame): every
+    # GI lookup maps its world points, normals and views with M (workers/kernels/frame.py), the PRT mode's lights too
+    M = frame_of(place)
+    frame_lights = rotate_lights(lights, M)
     arrays = _Lazy(ctx)
     have = available_modes(arrays)
     if "prt" in have and not (ctx.inputs.get("prt") and ctx.inputs["prt"].stats.get("enabled", True)):
@@ -96,8 +101,8 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
     ctx.report(0.02)
 
     def values(m, points, normals, views):
-        return mode_irradiance(m, marr, grid, points, normals, views, self_shadow_bias=B, lights=lights,
-                               caster=caster, prt_model=prt_model)
+        return mode_irradiance(m, marr, grid, to_frame(points, M), to_frame(normals, M), to_frame(views, M),
+                               self_shadow_bias=B, lights=frame_lights, caster=caster, prt_model=prt_model)
 
     t0 = time.perf_counter()                                   # ---- the modes at the reference's points
     pts, recon = point_columns(ref["reference_points"]), {}
@@ -110,11 +115,12 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
                                    summary) if "reference_check_points" in ref else None)
     t_check = time.perf_counter() - t0
     ctx.report(0.5)
-    resources = mode_resources(modes, arrays, grid, lights, caster, B, mask_meta)   # ---- textures, GI fetches
+    resources = mode_resources(modes, arrays, grid, frame_lights, caster, B, mask_meta)   # ---- textures, GI fetches
     for m in modes:
         summary[f"{m}.texture_bytes"] = float(resources[m].texture_bytes)
         if len(pts["position"]):
-            f = gi_fetches(m, resources[m], marr, grid, pts["position"], pts["normal"], pts["view"])
+            f = gi_fetches(m, resources[m], marr, grid, to_frame(pts["position"], M), to_frame(pts["normal"], M),
+                           to_frame(pts["view"], M))
             summary[f"{m}.gi_fetches_per_pixel"] = float(f.mean()) if f.size else 0.0
             summary[f"{m}.gi_fetches_max"] = float(f.max()) if f.size else 0.0
     ctx.report(0.6)
@@ -122,7 +128,7 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
     rdoc = ref["reference_cameras"] if "reference_cameras" in ref else {"cameras": [], "previews": []}
     pictures, info, warnings = mode_previews(
         ref, rdoc, modes, resources, lights, summary, previews=settings["previews"], repeats=settings["repeats"],
-        flip=settings["flip"], report=lambda f: ctx.report(0.6 + 0.35 * f))
+        flip=settings["flip"], report=lambda f: ctx.report(0.6 + 0.35 * f), frame=M)
     arts = [Artifact(n, data, format=fmt, description=d, meta=meta) for n, data, fmt, d, meta in pictures]
     t_previews, cameras = time.perf_counter() - t0, rstats.get("cameras") or []
     if len(pts["position"]):                                   # ---- artifacts and stats

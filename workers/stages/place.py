@@ -6,8 +6,12 @@ With neither ``counts`` nor ``spacing`` (the default) the grid is chosen from th
 manifest's ``grid.auto``) records what was chosen and why. Otherwise a regular grid over the scene bounds
 (or the config's box) from ``counts`` or ``spacing`` (:func:`workers.kernels.grid.grid_layout`).
 
+All of it in the bake frame (:mod:`workers.kernels.frame`): the pipeline hands this stage, and every probe stage
+after it, the scene turned about +Y by ``place.yaw`` or the yaw fitted to its walls; the stats' ``frame`` (the
+manifest's ``grid.frame``) records the turn, its world → bake matrix and why.
+
 Output ``probe_positions``: (nz, ny, nx, 3) float32 KTX2 volume (R32G32B32_SFLOAT),
-world-space metres; texel (i, j, k) = probe at origin + spacing * (i, j, k) (proto/bundle.md).
+bake-frame metres; texel (i, j, k) = probe at origin + spacing * (i, j, k) (proto/bundle.md 5).
 """
 from __future__ import annotations
 
@@ -77,13 +81,15 @@ def run_place(ctx: StageContext) -> StageOutput:
     positions = grid_positions(counts, origin, spacing)
     ctx.report(1.0)
     stats = {"counts": counts.tolist(), "origin": origin.tolist(), "spacing": spacing.tolist(), "probes": n}
+    if ctx.frame is not None:                          # the bake frame (workers.pipeline.framed_scene); grid.frame
+        stats["frame"] = ctx.frame
     if auto is not None:
         stats["auto"] = auto
         warning = coarse_grid_warning(auto, section.budget)
         if warning:
             stats["warnings"] = [warning]
     return StageOutput(
-        artifacts=[Artifact("probe_positions", positions, description="probe grid positions, world space, metres",
+        artifacts=[Artifact("probe_positions", positions, description="probe grid positions, bake frame (grid.frame), metres",
                             meta={"counts": counts.tolist()})],
         stats=stats,
     )

@@ -32,6 +32,7 @@ import time
 import numpy as np
 
 from workers.kernels import precision
+from workers.kernels.frame import frame_of, to_frame
 from workers.kernels.grid import unpack_atlas
 from workers.kernels.prt_dataset import PrtDataset, PrtTooLarge, build_dataset, fit_targets
 from workers.kernels.prt_scenario import triangle_areas
@@ -62,6 +63,11 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
         raise StageError("no_surface", "the scene's triangles have no area to place measurement points on")
     scen = sec.scenario
     box = (scen.box.min, scen.box.max) if scen.box is not None else (bounds[0], bounds[1])
+    M = frame_of({"frame": ctx.frame})
+    if scen.box is not None and M is not None:       # a world box: its bounding box in the bake frame
+        corners = np.array([[(box[1] if c >> a & 1 else box[0])[a] for a in range(3)] for c in range(8)], np.float64)
+        turned = to_frame(corners, M)
+        box = (turned.min(axis=0), turned.max(axis=0))
     try:
         return build_dataset(
             scene, caster_for_scene(scene), np.random.default_rng([ctx.config.seed, PRT_SEED_SALT]), grid=grid,

@@ -22,6 +22,7 @@ export const FIELD_UI = {
   'place.budget': { label: 'Most probes', help: 'upper limit of the automatic grid' },
   'place.box': { label: 'Grid box', unit: 'm', help: 'the box the grid fills; default: the scene (its rooms)', advanced: true },
   'place.padding': { label: 'Padding', help: 'fraction of the box added on each side', advanced: true },
+  'place.yaw': { label: 'Grid turn', unit: '°', help: 'turn the probe grid about the vertical axis; default: turned to line up with the walls', advanced: true },
 
   trace: { label: 'Probe rays', help: 'rays each probe shoots, and moving probes out of walls' },
   'trace.rays_per_probe': { label: 'Rays per probe', help: 'more rays: less noise, longer bake' },
