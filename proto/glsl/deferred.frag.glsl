@@ -2,7 +2,8 @@
 // with the punctual lights (lights.glsl) times a ray-traced shadow mask and the GI mode bound to @mode:
 //   L_out = emission + albedo/π · (E_direct + E_indirect)       (DESIGN stage 2, Lambertian; linear HDR)
 // uOutput: 0 radiance, 1 E_indirect, 2 E_direct (irradiance, linear). Uncovered pixels and back faces of
-// single-sided surfaces (uGPosition.w = 0) are 0.
+// single-sided surfaces (uGPosition.w = 0) are 0. The G-buffer, uEye and the lights are world; the mode is
+// evaluated in the bake frame (gi_view.glsl uGiFrame, identity for a bake without grid.frame).
 // G-buffer (2D, NEAREST, row 0 = the image's top row as uploaded; the pass reads texel = gl_FragCoord):
 //   uGPosition xyz world position, w 1 where shaded; uGNormal xyz unit shading normal facing the camera;
 //   uGAlbedo rgb linear albedo; uGEmission rgb emitted radiance;
@@ -41,9 +42,9 @@ void main() {
   vec3 n = texelFetch(uGNormal, gPixel, 0).xyz;
   if (uLightCount > 0) gShadow0 = texelFetch(uShadowMask0, gPixel, 0);
   if (uLightCount > 4) gShadow1 = texelFetch(uShadowMask1, gPixel, 0);
-  giViewDir = normalize(uEye - P.xyz);
-  vec3 eDirect = directIrradiance(P.xyz, n);
-  vec3 eIndirect = giIndirectIrradiance(P.xyz, n);
+  giViewDir = uGiFrame * normalize(uEye - P.xyz);                          // the GI modes work in the bake frame
+  vec3 eDirect = directIrradiance(P.xyz, n);                                // direct light: world
+  vec3 eIndirect = giIndirectIrradiance(uGiFrame * P.xyz, uGiFrame * n);
   vec3 c;
   if (uOutput == 1) c = eIndirect;
   else if (uOutput == 2) c = eDirect;

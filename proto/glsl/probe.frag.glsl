@@ -1,6 +1,8 @@
 // Probe spheres: colour by state (OFF red, ACTIVE green, SLEEPING blue; DDGI-P §6) or shade each sphere with
-// its own probe's SH irradiance (texelFetch: no interpolation between probes).
+// its own probe's SH irradiance (texelFetch: no interpolation between probes). The sphere's normal is world; the SH
+// is in the bake frame (gi_view.glsl uGiFrame).
 #include "common.glsl"
+#include "gi_view.glsl"
 #include "sh.glsl"
 #include "tonemap.glsl"
 
@@ -18,7 +20,8 @@ out vec4 fragColor;
 void main() {
   vec3 n = normalize(vNormal);
   if (uProbeColoring == 1) {
-    vec3 e = shIrradianceL1(texelFetch(uShR, vProbe, 0), texelFetch(uShG, vProbe, 0), texelFetch(uShB, vProbe, 0), n);
+    vec3 e = shIrradianceL1(texelFetch(uShR, vProbe, 0), texelFetch(uShG, vProbe, 0), texelFetch(uShB, vProbe, 0),
+                            uGiFrame * n);
     fragColor = vec4(displayColor(max(e, 0.0) * INV_PI), 1.0);
     return;
   }

@@ -5,7 +5,7 @@ uniform mat4 projectionMatrix;
 uniform float uProbeRadius;  // metres
 
 in vec3 position;        // unit sphere
-in vec3 aProbePosition;  // world space, metres
+in vec3 aProbePosition;  // world space, metres (the viewer maps the bake-frame positions with uGiFrame^T)
 in vec3 aProbeIndex;     // (i, j, k)
 in float aProbeState;    // 0 off, 1 active, 2 sleeping
 

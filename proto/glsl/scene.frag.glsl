@@ -1,5 +1,6 @@
 // Scene surfaces: L_out = emission + albedo/π · (E_direct + E_indirect) (DESIGN stage 2, Lambertian),
-// with E_indirect from the GI mode bound to the @mode slot. Output is display-encoded (tonemap.glsl).
+// with E_indirect from the GI mode bound to the @mode slot, evaluated in the bake frame (gi_view.glsl uGiFrame).
+// Output is display-encoded (tonemap.glsl).
 // Define KILN_SHADOWS to shadow the direct light with shadows.glsl (the caller renders the maps).
 #include "common.glsl"
 #ifdef KILN_SHADOWS
@@ -50,9 +51,9 @@ void main() {
     metallic *= mr.b;
   }
   vec3 albedo = giAlbedo(base.rgb, metallic, roughness);
-  giViewDir = normalize(cameraPosition - vWorldPos);
-  vec3 eDirect = directIrradiance(vWorldPos, n);
-  vec3 eIndirect = uIndirectScale * giIndirectIrradiance(vWorldPos, n);
+  giViewDir = uGiFrame * normalize(cameraPosition - vWorldPos);            // the GI modes work in the bake frame
+  vec3 eDirect = directIrradiance(vWorldPos, n);                            // direct light: world
+  vec3 eIndirect = uIndirectScale * giIndirectIrradiance(uGiFrame * vWorldPos, uGiFrame * n);
   vec3 radiance;
   if (uOutput == 1) radiance = eIndirect * INV_PI;
   else if (uOutput == 2) radiance = eDirect * INV_PI;

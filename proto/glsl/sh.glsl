@@ -38,7 +38,7 @@ float shIrradianceL1Channel(vec4 c, vec3 n) {
 #endif
 }
 
-// E(n) for unit world-space normal n, linear RGB; constant radiance L gives π·L.
+// E(n) for unit normal n (in the SH's frame: the bake frame, gi_view.glsl), linear RGB; constant radiance L gives π·L.
 vec3 shIrradianceL1(vec4 r, vec4 g, vec4 b, vec3 n) {
   return vec3(shIrradianceL1Channel(r, n), shIrradianceL1Channel(g, n), shIrradianceL1Channel(b, n));
 }

@@ -20,7 +20,7 @@ from workers.kernels.ddgi import sample_irradiance
 from workers.kernels.grid import unpack_atlas
 from workers.kernels.shading import direct_irradiance
 from workers.raycast import RayCaster
-from workers.render.shading import MODES, GBufferInputs, ShadingRenderer, prepare_mode, shadow_masks
+from workers.render.shading import MODES, GBufferInputs, ShadingRenderer, frame_matrix, prepare_mode, shadow_masks
 
 from tests.render.conftest import bake_arrays, bake_grid, mask_meta
 from tests.workers.test_probes import bake_until
@@ -50,9 +50,10 @@ def _as_image(a, W=64):
     return np.asarray(a, np.float32).reshape(-1, W, a.shape[-1])
 
 
-def _render_indirect(ctx, res, mode, p, n, eye) -> np.ndarray:
-    """(N, 3) E_indirect of ``mode`` (prepared ``res``) at the 64 × 48 G-buffer of points p, normals n."""
-    r = ShadingRenderer(ctx)
+def _render_indirect(ctx, res, mode, p, n, eye, frame=None) -> np.ndarray:
+    """(N, 3) E_indirect of ``mode`` (prepared ``res``) at the 64 × 48 G-buffer of points p, normals n (bake frame
+    ``frame``, None = identity)."""
+    r = ShadingRenderer(ctx, frame=frame)
     try:
         r.set_mode(res)
         r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((48, 64, 3)), np.zeros((48, 64, 3)),
@@ -140,6 +141,86 @@ def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
     else:
         assert np.quantile(per_point, 0.995) <= F16, np.quantile(per_point, 0.995)
         assert per_point.max() <= (0.05 if mode == "ddgi" else 2.0 ** -8), per_point.max()
+
+
+def _yaw(deg: float) -> np.ndarray:
+    """R_y(θ) = [[cos θ, 0, sin θ], [0, 1, 0], [-sin θ, 0, cos θ]] (a turn about +Y)."""
+    t = np.radians(deg)
+    return np.array([[np.cos(t), 0.0, np.sin(t)], [0.0, 1.0, 0.0], [-np.sin(t), 0.0, np.cos(t)]])
+
+
+@pytest.mark.parametrize("mode,sh_order", [("leaking", None), ("leaking", 1), ("ddgi", None), ("mask", None),
+                                           ("mask_normalized", 1)])
+def test_bake_frame_evaluates_the_mode_at_the_bake_frame_point(ctx, two_rooms, mode, sh_order):
+    """A bake in a frame M = R_y(30°)ᵀ (grid.frame.matrix, world -> bake): its artifacts are the two-rooms bake's as
+    they are (the bake frame), the world is the bake frame turned by Mᵀ. Points, normals and the eye given in world
+    (p_w = Mᵀ p) with frame=M shade as the same points given in the bake frame with no frame: the pass hands the mode
+    M·p, M·n and M·v (uGiFrame; the view direction matters to ddgi's bias and the mask lookup). Without the frame, or
+    with Mᵀ in its place, the world points read other cells: far off."""
+    scene, s = two_rooms
+    arrays, grid = bake_arrays(s), bake_grid(s)
+    rng = np.random.default_rng(17)
+    p, n = _points(64 * 48, rng, TWO_ROOMS_BOX)
+    eye = np.array([4.0, 1.5, 2.0])
+    M = _yaw(30.0).T
+    res = prepare_mode(mode, arrays, grid, mask_meta=mask_meta(s), sh_order=sh_order)
+    want = _render_indirect(ctx, res, mode, p, n, eye)                       # bake frame = world
+    pw, nw, eyew = p @ M, n @ M, M.T @ eye                                    # rows: Mᵀ · x
+    got = _render_indirect(ctx, res, mode, pw, nw, eyew, frame=M)
+    scale = np.abs(want).max()
+    assert scale > 0
+    per_point = np.abs(got - want).max(axis=1) / scale
+    # the same lookups up to float32 rounding of M·(Mᵀ p): hardware filter weights (8 bits) may step at a mask edge
+    assert np.quantile(per_point, 0.995) <= F16, np.quantile(per_point, 0.995)
+    assert per_point.max() <= (0.05 if mode == "ddgi" else 2.0 ** -8), per_point.max()
+    for wrong in (None, M.T):                                                # the test can fail
+        off = np.abs(_render_indirect(ctx, res, mode, pw, nw, eyew, frame=wrong) - want).max(axis=1) / scale
+        assert np.mean(off > 0.02) > 0.2, (wrong, np.mean(off > 0.02))
+
+
+def test_bake_frame_identity_by_default_and_direct_light_stays_world(ctx, two_rooms):
+    """No frame = the identity (GLSL ES has no uniform initializers: an unset mat3 would be 0): frame=None and
+    frame=I render the same bits, and both equal the Python sampler at the world points. E_direct ignores the
+    frame: the lights, the G-buffer and the eye are world."""
+    scene, s = two_rooms
+    arrays, grid = bake_arrays(s), bake_grid(s)
+    lights = s["ingest"]["lights"]["lights"]
+    rng = np.random.default_rng(19)
+    p, n = _points(64 * 48, rng, TWO_ROOMS_BOX)
+    eye = np.array([4.0, 1.5, 2.0])
+    res = prepare_mode("leaking", arrays, grid)
+    plain = _render_indirect(ctx, res, "leaking", p, n, eye)
+    assert np.array_equal(plain, _render_indirect(ctx, res, "leaking", p, n, eye, frame=np.eye(3)))
+    assert np.array_equal(plain, _render_indirect(ctx, res, "leaking", p, n, eye, frame={"counts": grid["counts"]}))
+    want = np.maximum(SM.irradiance("leaking", arrays, grid, p, n), 0)
+    assert np.abs(plain - want).max() <= F16 * np.abs(want).max()
+    direct = {}
+    for key, frame in (("none", None), ("yaw", {"frame": {"yaw_deg": 30.0, "matrix": _yaw(30.0).T.tolist()}})):
+        r = ShadingRenderer(ctx, lights, frame=frame)
+        try:
+            r.set_mode(res)
+            r.set_gbuffer(GBufferInputs(_as_image(p), _as_image(n), np.zeros((48, 64, 3)), np.zeros((48, 64, 3)),
+                                        np.ones((48, 64), bool)))
+            direct[key] = r.render("leaking", output=2, eye=eye)
+            if key == "yaw":   # set_frame(None) goes back to the identity
+                r.set_frame(None)
+                assert np.array_equal(r.render("leaking", output=1, eye=eye).reshape(-1, 3), plain)
+        finally:
+            r.release()
+    assert np.abs(direct["none"]).max() > 0 and np.array_equal(direct["none"], direct["yaw"])
+
+
+def test_frame_matrix_forms_and_errors():
+    """frame_matrix: None, a grid without frame -> I; grid.frame's matrix as given (row-major world -> bake);
+    anything but a rotation is refused."""
+    M = _yaw(-12.5).T
+    assert np.array_equal(frame_matrix(None), np.eye(3))
+    assert np.array_equal(frame_matrix({"counts": [2, 2, 2], "origin": [0, 0, 0]}), np.eye(3))
+    for form in (M, M.tolist(), {"yaw_deg": -12.5, "matrix": M.tolist()}, {"frame": {"matrix": M.tolist()}}):
+        assert np.array_equal(frame_matrix(form), M)
+    for bad in (2 * np.eye(3), np.diag([1.0, 1.0, -1.0]), np.eye(2), np.full((3, 3), np.nan)):
+        with pytest.raises(ValueError):
+            frame_matrix(bad)
 
 
 @pytest.mark.parametrize("sh_order", [None, 1])

@@ -571,3 +571,74 @@ def test_viewer_ddgi_bias_is_the_bakes(page, tmp_path, kiln_server):
     viewer = page.evaluate("window.kiln.viewer.renderer.shared.uDdgiBias.value")
     assert viewer == pytest.approx(python, rel=1e-6), (viewer, python, default)
     assert not page.kiln_errors, page.kiln_errors
+
+
+# Re-open the viewer on `bake` (its place stats given a `frame`, or not), turn the loaded scene by `yaw` degrees about
+# +Y and look from `cam`; indirect light only (the GI lookup), fixed exposure, no light markers. Returns uGiFrame's
+# elements and the probe spheres' positions with the bake's relocated positions.
+_REOPEN = """async ([frame, yaw, cam]) => {
+  const v = window.kiln.viewer;
+  const bake = structuredClone(v.bake);
+  const place = bake.stages.find((s) => s.name === 'place');
+  if (frame) place.stats.frame = frame; else delete place.stats.frame;
+  await v.open({ bake, sceneFile: null, camera: cam, mode: 'ddgi' });
+  v.root.rotation.y = yaw * Math.PI / 180;
+  v.root.updateMatrixWorld(true);
+  v.showLightMarkers(false);
+  v.set({ output: 'indirect', exposure: 0.7, probes: false });
+  v.invalidate();
+  const pos = v.artifacts.probe_positions_relocated;
+  return { frame: Array.from(v.renderer.shared.uGiFrame.value.elements),
+           spheres: Array.from(v.renderer.probeMesh.geometry.attributes.aProbePosition.array),
+           relocated: Array.from(pos.data), stride: pos.components };
+}"""
+
+
+def test_viewer_turns_the_gi_lookup_by_the_bake_frame(page, tmp_path, kiln_server, shots):
+    """A bake whose place stats carry grid.frame (M = R_y(30°)ᵀ, world -> bake), opened over its scene turned by
+    R_y(30°) and seen from the turned camera, shows the same indirect light (ddgi: positions, normals and the view
+    direction all enter) as the bake without a frame over the scene as baked: the viewer sets uGiFrame = M (identity
+    without a frame) and draws the probe spheres at Mᵀ · (relocated position). The turned scene without the frame
+    reads other cells: another picture."""
+    glb = _scene(tmp_path)
+    with open(glb, "rb") as f:
+        scene = kiln_server.api("/v1/scenes", "POST", files={"file": (glb.name, f, "model/gltf-binary")})
+    cfg = {"place": {"counts": [6, 3, 4]}, "trace": {"rays_per_probe": 32},
+           "visibility": {"samples_per_cell": 2, "slabs": 1}, "masks": {"sweeps": 10}, "evaluate": {"enabled": False}}
+    bake_id = kiln_server.api("/v1/bakes", "POST", json={"scene_id": scene["id"], "config": cfg})["id"]
+    assert kiln_server.wait_bake(bake_id, timeout=150)["status"] == "succeeded"
+    page.goto(f"/#/viewer/{bake_id}?mode=ddgi")
+    page.wait_for_selector("#viewer-canvas[data-ready-mode=ddgi]", timeout=60000)
+    canvas = page.locator("#viewer-canvas")
+
+    t = np.radians(30.0)
+    R = np.array([[np.cos(t), 0, np.sin(t)], [0, 1, 0], [-np.sin(t), 0, np.cos(t)]])
+    M = R.T
+    frame = {"yaw_deg": 30.0, "matrix": M.tolist()}
+    cam = {"position": [6.8, 1.7, 3.3], "target": [1.5, 1.0, 1.0], "fov_y": 60}
+    turned = {"position": (R @ cam["position"]).tolist(), "target": (R @ cam["target"]).tolist(), "fov_y": 60}
+
+    def shot(name, frame_, yaw, cam_):
+        drawn = "k => Number(document.getElementById('viewer-canvas').dataset.frames) > k"
+        n = _frames(page)
+        out = page.evaluate(_REOPEN, [frame_, yaw, cam_])
+        page.wait_for_function(drawn, arg=n, timeout=30000)
+        page.evaluate("window.kiln.viewer.invalidate()")
+        page.wait_for_function(drawn, arg=n + 1, timeout=30000)
+        return out, _shot(canvas, shots / f"frame-{name}.png")
+
+    plain, a = shot("none", None, 0.0, cam)
+    framed, b = shot("yaw30", frame, 30.0, turned)
+    _, c = shot("yaw30-without-frame", None, 30.0, turned)
+    np.testing.assert_allclose(plain["frame"], np.eye(3).T.ravel(), atol=0)           # identity, never zero
+    np.testing.assert_allclose(framed["frame"], M.T.ravel(), atol=1e-7)                # column-major: uGiFrame*p = M p
+    k = framed["stride"]
+    reloc = np.asarray(framed["relocated"]).reshape(-1, k)[:, :3]
+    np.testing.assert_allclose(np.asarray(plain["spheres"]).reshape(-1, 3), reloc, atol=1e-6)
+    np.testing.assert_allclose(np.asarray(framed["spheres"]).reshape(-1, 3), reloc @ M, atol=1e-5)  # rows: Mᵀ x
+    _assert_not_blank(a, "ddgi indirect light")
+    same, other = np.abs(b - a).mean(), np.abs(c - a).mean()
+    print(f"mean abs difference: turned with the frame {same:.2f}, turned without it {other:.2f}")
+    assert same < 1.5 and np.quantile(np.abs(b - a).max(axis=2), 0.98) <= 24, same
+    assert other > 4 * same and other > 3, (same, other)
+    assert not page.kiln_errors, page.kiln_errors

@@ -164,6 +164,14 @@ describe('material extension', () => {
     expect(IRRADIANCE_HOOK).toMatch(/irradiance \+= uKilnIndirectScale \* giIndirectIrradiance/);
   });
 
+  it('evaluates the mode in the bake frame: uGiFrame declared once, applied to p, n and the view direction', () => {
+    for (const file of ['mode_leaking.glsl', 'mode_ddgi.glsl', 'mode_mask.glsl']) {
+      expect(modeGLSL(file, {}).match(/uniform mat3 uGiFrame;/g)).toHaveLength(1);
+    }
+    expect(IRRADIANCE_HOOK).toMatch(/giViewDir = uGiFrame \* normalize\( cameraPosition - kilnP \)/);
+    expect(IRRADIANCE_HOOK).toMatch(/giIndirectIrradiance\( uGiFrame \* kilnP, uGiFrame \* kilnN \)/);
+  });
+
   it('stacks volumes along z as gi_grid.glsl giStackedUVW reads them', () => {
     const v = (x) => ({ kind: 'half', components: 4, width: 2, height: 1, depth: 1, is3D: true, data: new Uint16Array(8).fill(x) });
     const s = stackRecords([v(1), v(2), v(3)]);

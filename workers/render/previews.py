@@ -125,14 +125,16 @@ def mode_resources(modes, arrays, grid, lights, caster, self_shadow_bias: float,
 
 
 def mode_previews(ref, rdoc: dict, modes: list[str], resources: dict, lights, summary: dict, *, previews: int,
-                  repeats: int, flip: bool, report) -> tuple[list[tuple], dict, list[dict]]:
+                  repeats: int, flip: bool, report, frame=None) -> tuple[list[tuple], dict, list[dict]]:
     """The evaluate stage's previews (module doc).
 
     ``ref``: the reference stage's artifacts (``reference_<cam>_{gbuffer,image,shadow}``, stats ``preview_spp``);
     ``rdoc``: its ``reference_cameras``; ``resources``: each mode's ModeResources. Adds the per-mode image and
     timing metrics (means over cameras) to ``summary``. Returns the pictures, in order, as ``(name, image
     data, format, description, meta)`` (PNG, else npy), the renderer's info (``{}`` when nothing was rendered; else
-    with ``per_camera``) and the warnings. ``report(fraction)`` after each camera.
+    with ``per_camera``) and the warnings. ``report(fraction)`` after each camera. ``frame``: the bake frame
+    (:func:`workers.render.shading.frame_matrix`: (3, 3) row-major world -> bake, the manifest's ``grid.frame``; None
+    = identity) the deferred pass evaluates the modes in; the G-buffers, cameras and ``lights`` stay world.
     """
     from workers.render.cameras import Camera
     from workers.render.context import RenderUnavailable, create_context, renderer_info
@@ -149,7 +151,7 @@ def mode_previews(ref, rdoc: dict, modes: list[str], resources: dict, lights, su
         return [], {}, [{"code": "previews_unavailable", "message": f"no preview images or pass timings: {e}"}]
     pictures, per_camera, sheet_rows = [], [], []
     try:
-        shader = ShadingRenderer(gl, lights)
+        shader = ShadingRenderer(gl, lights, frame=frame)
         try:
             for m in modes:
                 shader.set_mode(resources[m])

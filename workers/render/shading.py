@@ -38,6 +38,12 @@ SH order (``prepare_mode(sh_order=...)``): None, the default, uses L2 wherever t
 (docs/architecture.md "Runtime SH evaluation": measured better on every axis of an open lit floor), 1 forces L1,
 2 requires L2. The mode's ``info["sh_order"]`` says which was bound.
 
+Bake frame (``ShadingRenderer(frame=M)`` / :meth:`ShadingRenderer.set_frame`): the bake's probe artifacts are in the
+bake frame, the world turned about +Y (the manifest's ``grid.frame.matrix`` M, row-major, p_bake = M · p_world; none
+= identity). The G-buffer, ``eye`` and the lights stay world; the pass hands the mode ``M·p``, ``M·n`` and
+``giViewDir = M·v`` through the uniform ``uGiFrame`` (proto/glsl/gi_view.glsl). Resources from :func:`prepare_mode`
+need no change (their grid and arrays are the bake's); PRT lights must already be in the bake frame.
+
 Timing (:meth:`ShadingRenderer.time_pass`): wall clock of ``render(); ctx.finish()``, median of repeats
 after one warm-up (llvmpipe's timer queries are wrong).
 
@@ -64,7 +70,7 @@ from workers.kernels.shading import direct_irradiance
 from .context import create_context
 
 __all__ = ["MODES", "MAX_LIGHTS", "ModeResources", "GBufferInputs", "ShadingRenderer", "prepare_mode",
-           "shadow_masks", "light_uniforms", "stack_volumes", "wrap_atlas"]
+           "shadow_masks", "light_uniforms", "stack_volumes", "wrap_atlas", "frame_matrix"]
 
 MODES = MODE_IDS
 """The GI modes of ``proto/gi_modes.json``; its constants (MAX_LIGHTS, PRT_MAX_GROUPS, MAX_3D_TEXTURE_DEPTH: deeper L2
@@ -305,6 +311,28 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = SELF_SHAD
     return r
 
 
+# ----------------------------------------------------------------------------------------- bake frame
+def frame_matrix(frame) -> np.ndarray:
+    """The bake frame as a (3, 3) float64 row-major rotation, world -> bake (p_bake = M @ p_world).
+
+    ``frame``: None (identity: a bake without ``grid.frame``, or yaw 0), a (3, 3) array-like, the manifest's
+    ``grid.frame`` dict (its ``matrix``) or a grid dict holding ``frame``. Raises ValueError unless M is a finite
+    rotation (M Mᵀ = I within 1e-4, det +1): normals and view directions are mapped with M as well.
+    """
+    if isinstance(frame, dict) and "matrix" not in frame:  # a grid dict: its frame, if any
+        frame = frame.get("frame")
+    if isinstance(frame, dict):                            # grid.frame: {"yaw_deg", "matrix", ...}
+        frame = frame["matrix"]
+    if frame is None:
+        return np.eye(3)
+    m = np.asarray(frame, np.float64)
+    if m.shape != (3, 3) or not np.isfinite(m).all():
+        raise ValueError(f"bake frame: want a finite (3, 3) matrix, got shape {m.shape}")
+    if not np.allclose(m @ m.T, np.eye(3), atol=1e-4) or np.linalg.det(m) < 0:
+        raise ValueError(f"bake frame: {m.tolist()} is not a rotation (M Mᵀ ≠ I or det < 0)")
+    return m
+
+
 # ----------------------------------------------------------------------------------------- renderer
 class ShadingRenderer:
     """Compiles the deferred pass per mode and renders G-buffers through it.
@@ -312,10 +340,12 @@ class ShadingRenderer:
     Parameters
     ----------
     ctx : moderngl.Context, optional (default: a new headless one, released by :meth:`release`)
-    lights : list of light dicts (the scene's resolved lights; at most 8)
+    lights : list of light dicts (the scene's resolved lights, world; at most 8)
+    frame : (3, 3) array-like, optional: the bake frame, row-major world -> bake (the manifest's
+        ``grid.frame.matrix``; also its dict); None = identity. See :meth:`set_frame` and the module doc.
     """
 
-    def __init__(self, ctx=None, lights=()):
+    def __init__(self, ctx=None, lights=(), frame=None):
         self._own_ctx = ctx is None
         self.ctx = create_context() if ctx is None else ctx
         import moderngl as mgl
@@ -333,8 +363,16 @@ class ShadingRenderer:
         self._size = None
         self._vaos: dict = {}
         self._dummies: dict = {}
+        self.set_frame(frame)
 
     # ------------------------------------------------------------------ setup
+    def set_frame(self, frame=None) -> None:
+        """Set the bake frame (:func:`frame_matrix`: (3, 3) row-major world -> bake, or None = identity) for the
+        following draws: the mode is evaluated at (M·p, M·n, M·v) of the world G-buffer and eye."""
+        self.frame = frame_matrix(frame)
+        # GLSL mat3 is column-major: the bytes of Mᵀ in C order are M's columns, so uGiFrame * p == M @ p
+        self._frame_uniform = np.ascontiguousarray(self.frame.T, np.float32)
+
     def _key(self, mode: str, defines: dict | None = None) -> tuple:
         """(mode, defines) of a compiled pass; defines default to those of the mode's resources."""
         if defines is None:
@@ -439,7 +477,8 @@ class ShadingRenderer:
                 self._dummy(kind).use(location=unit)
                 u.value = unit
                 unit += 1
-        values = {**self.light_uniforms, **res.uniforms, "uEye": tuple(float(x) for x in eye), "uOutput": int(output)}
+        values = {**self.light_uniforms, **res.uniforms, "uEye": tuple(float(x) for x in eye), "uOutput": int(output),
+                  "uGiFrame": self._frame_uniform}
         for name, v in values.items():
             if name not in prog:
                 continue

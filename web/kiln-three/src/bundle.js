@@ -79,7 +79,7 @@ export class KilnBundle {
     return new KilnBundle(base, manifest, options);
   }
 
-  /** The probe grid: {origin, spacing, counts} (metres; proto/bundle.md 5). */
+  /** The probe grid: {origin, spacing, counts} (metres, bake frame; proto/bundle.md 5) and `frame` when turned. */
   get grid() { return this.manifest.grid; }
 
   /** Artifact names in the manifest. */
@@ -110,8 +110,9 @@ export class KilnBundle {
     const bake = await r.json();
     if (bake.status !== 'succeeded') throw new BundleError(`bake ${bakeId} is ${bake.status}, not succeeded`);
     const stats = (name) => (bake.stages || []).find((st) => st.name === name)?.stats || {};
-    const { counts, origin, spacing } = stats('place');
-    const manifest = { format_version: FORMAT_VERSION, bake_id: bake.id, config: bake.config, grid: { counts, origin, spacing },
+    const { counts, origin, spacing, frame } = stats('place');
+    const grid = { counts, origin, spacing, ...(frame ? { frame } : {}) };  // frame: the bake frame (manifest grid.frame)
+    const manifest = { format_version: FORMAT_VERSION, bake_id: bake.id, config: bake.config, grid,
       scene: { bounds: stats('ingest').bounds }, stages: bake.stages, artifacts: bake.artifacts };
     if (!counts) throw new BundleError(`bake ${bakeId} has no probe grid (no place stage stats)`);
     return new KilnBundle(base, manifest, { ...options, fetch: authed, fileUrl: (a) => `artifacts/${encodeURIComponent(a.name)}` });

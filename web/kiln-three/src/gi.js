@@ -11,27 +11,32 @@
  *   proto/gi_modes.json through web/src/state/modes.js) and one call that adds giIndirectIrradiance(p, n) to three's
  *   `irradiance` right after `lights_fragment_maps`: three then applies its own diffuse BRDF to it, as it does to a
  *   light map or a light probe.
+ * - A bake in a turned bake frame (manifest `grid.frame`, web/src/math/frame.js): the extension hands the mode
+ *   uGiFrame·p, uGiFrame·n and uGiFrame·v (proto/glsl/gi_view.glsl). three's LightProbeGrid is an axis-aligned world
+ *   box and cannot turn: createProbeGrid refuses such a bake (use the extension's `leaking` mode).
  */
+import { Matrix3 } from 'three';
 import { LightProbeGridWebGL } from 'three/addons/lighting/LightProbeGridWebGL.js';
 import { GI_MODES, MODE_SAMPLERS, modeAvailability, modeById, modeDefines, modeTextures, MAX_3D_TEXTURE_DEPTH } from '../../src/state/modes.js';
 import { GLSL_SOURCES, hasShader } from '../../src/renderer/shaders.js';
 import { preprocess } from '../../src/renderer/preprocess.js';
 import { probeDataTexture, textureFromKTX2, wrapAtlas } from '../../src/renderer/textures.js';
 import { atlasColumns } from '../../src/math/atlas.js';
+import { frameMatrix, isIdentity } from '../../src/math/frame.js';
 import { padShL2, probeGridBox } from './grid.js';
 
 /** Modes `setMode` takes: 'off', 'grid' (leaking through three's LightProbeGrid) and Kiln's GLSL modes. */
 export const EXTENSION_MODES = ['leaking', 'ddgi', 'mask', 'mask_normalized'];
 
 /** The GLSL added to three's fragment shader after `#include <lights_fragment_maps>` (world-space p and n as
- * three's own lights_fragment_begin derives them for its probe grids). */
+ * three's own lights_fragment_begin derives them for its probe grids, turned into the bake frame by uGiFrame). */
 export const IRRADIANCE_HOOK = `
 #if defined( RE_IndirectDiffuse )
 	{
 		vec3 kilnP = ( ( vec4( geometryPosition, 1.0 ) - viewMatrix[ 3 ] ) * viewMatrix ).xyz;
 		vec3 kilnN = inverseTransformDirection( geometryNormal, viewMatrix );
-		giViewDir = normalize( cameraPosition - kilnP );
-		irradiance += uKilnIndirectScale * giIndirectIrradiance( kilnP, kilnN );
+		giViewDir = uGiFrame * normalize( cameraPosition - kilnP );
+		irradiance += uKilnIndirectScale * giIndirectIrradiance( uGiFrame * kilnP, uGiFrame * kilnN );
 	}
 #endif
 `;
@@ -86,8 +91,10 @@ export class KilnGI {
     this.materials = new Set();
     this.code = '';
     const g = bundle.grid;
+    this.frame = frameMatrix(g);  // world -> bake frame (manifest grid.frame; identity without)
     this.uniforms = {
       uKilnIndirectScale: { value: 1 },
+      uGiFrame: { value: new Matrix3().set(...this.frame[0], ...this.frame[1], ...this.frame[2]) },  // rows in, GLSL columns stored
       uGridOrigin: { value: g.origin.slice() }, uGridSpacing: { value: g.spacing.slice() }, uGridCounts: { value: g.counts.slice() },
     };
     // a slot for every sampler any mode declares: one a program declares but no binding fills (the weights in plain
@@ -95,6 +102,9 @@ export class KilnGI {
     // texture of the other type would make the draw fail
     for (const name of MODE_SAMPLERS) this.uniforms[name] = { value: null };
   }
+
+  /** Whether three's LightProbeGrid can hold this bake: its grid is not turned (no grid.frame, or the identity). */
+  get probeGridFits() { return isIdentity(this.frame); }
 
   /** Kiln modes this bundle can shade: [{id, label, available, reason}] (web/src/state/modes.js availability). */
   modes() {
@@ -109,6 +119,9 @@ export class KilnGI {
    */
   async createProbeGrid() {
     if (!this.bundle.has('sh_l2')) throw new Error('the bundle has no sh_l2 (an L1 bake, light.sh_order = 1): no LightProbeGrid');
+    if (!this.probeGridFits) {
+      throw new Error(`the bake's grid is turned (grid.frame yaw ${this.bundle.grid.frame?.yaw_deg}°): three's LightProbeGrid is an axis-aligned world box; use setMode('leaking')`);
+    }
     const rec = await this.bundle.artifact('sh_l2');
     const grid = this.bundle.grid;
     const box = probeGridBox(grid, this.pad);

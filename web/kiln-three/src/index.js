@@ -10,7 +10,8 @@ import { KilnGI } from './gi.js';
 
 /**
  * Everything at once: the manifest, the baked scene (GLTFLoader on the `scene` artifact, its lights included), the
- * LightProbeGrid (added to the scene; on, mode 'grid') and the material extension on every mesh material.
+ * LightProbeGrid (added to the scene; on, mode 'grid'; none for a bake whose grid is turned, grid.frame) and the
+ * material extension on every mesh material.
  * @param {string} base  URL of the bundle folder (or, with options.bake, of the Kiln server)
  * @param {import('three').WebGLRenderer} renderer
  * @returns {Promise<{bundle: KilnBundle, gltf: object, scene: import('three').Group, gi: KilnGI, probeGrid: object|null}>}
@@ -20,7 +21,8 @@ export async function loadKilnBundle(base, renderer, { pad = 1, fetch, bake = nu
     : await KilnBundle.load(base, { renderer, fetch });
   const gi = new KilnGI(bundle, renderer, { pad });
   const gltf = await bundle.loadScene();
-  const probeGrid = bundle.has('sh_l2') ? await gi.createProbeGrid() : null;
+  // a bake in a turned frame (grid.frame) does not fit three's axis-aligned grid: no probeGrid, mode 'off'
+  const probeGrid = bundle.has('sh_l2') && gi.probeGridFits ? await gi.createProbeGrid() : null;
   if (probeGrid) gltf.scene.add(probeGrid);
   gi.extendScene(gltf.scene);
   await gi.setMode(probeGrid ? 'grid' : 'off');

@@ -1,6 +1,7 @@
 /**
  * CPU mirror of proto/glsl/sh.glsl (L1 and L2 radiance SH -> irradiance, Ramamoorthi & Hanrahan 2001 eq 7-8) and
- * of the probe-grid mapping of proto/glsl/probe_grid.glsl and gi_grid.glsl (the sh_l2 layout). Used by the viewer's CPU-side views and by the
+ * of the probe-grid mapping of proto/glsl/probe_grid.glsl and gi_grid.glsl (the sh_l2 layout). Points and normals are in
+ * the bake frame (math/frame.js), as the shaders' giIndirectIrradiance takes them. Used by the viewer's CPU-side views and by the
  * parity tests against proto/fixtures (written by Python with workers/kernels/sh.py).
  */
 
@@ -48,7 +49,10 @@ export function shIrradianceL1Nonlinear(r, g, b, n) {
   return [r, g, b].map((c) => shIrradianceL1NonlinearChannel(c, n));
 }
 
-/** uvw of world point p in a probe volume: ((p - origin)/spacing + 0.5)/counts (bundle.md section 5). */
+/**
+ * uvw of point p in a probe volume: ((p - origin)/spacing + 0.5)/counts (bundle.md section 5). p is in the bake frame
+ * (the grid's; a world point of a bake with grid.frame goes through math/frame.js toBake first).
+ */
 export function probeGridUVW(p, grid) {
   return [0, 1, 2].map((a) => ((p[a] - grid.origin[a]) / grid.spacing[a] + 0.5) / grid.counts[a]);
 }
@@ -110,7 +114,7 @@ export function shL2Unpack(texels) {
 }
 
 /**
- * Texel coordinate of world point p in a probe volume, clamped to the border texel centres (gi_grid.glsl
+ * Texel coordinate of bake-frame point p (as probeGridUVW) in a probe volume, clamped to the border texel centres (gi_grid.glsl
  * giProbeTexel): clamp((p - origin)/spacing + 0.5, 0.5, counts - 0.5), 0.5 on one-probe axes.
  */
 export function probeTexel(p, grid) {
@@ -122,7 +126,8 @@ export function probeTexel(p, grid) {
 }
 
 /**
- * The 9 [r, g, b] L2 coefficients at world point p from an sh_l2 volume (three.js LightProbeGrid layout:
+ * The 9 [r, g, b] L2 coefficients at bake-frame point p (as probeGridUVW; the normal they are evaluated for is in the
+ * bake frame too) from an sh_l2 volume (three.js LightProbeGrid layout:
  * 7 sub-volumes of nz + 2 z slices, proto/bundle.md 5.1), 7 trilinear fetches as gi_grid.glsl giPaddedStackedUVW
  * and workers/kernels/samplers.py sh_l2_sample read it.
  */

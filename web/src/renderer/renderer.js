@@ -4,7 +4,7 @@
  * current GI mode, draws the probe spheres, and times frames.
  */
 import {
-  Color, DoubleSide, GLSL3, FrontSide, Group, InstancedBufferAttribute, InstancedBufferGeometry, Mesh, RawShaderMaterial,
+  Color, DoubleSide, GLSL3, FrontSide, Group, InstancedBufferAttribute, InstancedBufferGeometry, Matrix3, Mesh, RawShaderMaterial,
   Scene, SphereGeometry, Vector3, Vector4, WebGLRenderer,
 } from 'three';
 import { formatCompileErrors } from './preprocess.js';
@@ -55,6 +55,9 @@ export class GIRenderer {
       uGridOrigin: { value: new Vector3() },
       uGridSpacing: { value: new Vector3(1, 1, 1) },
       uGridCounts: { value: new Vector3(1, 1, 1) },
+      // world -> bake frame (proto/glsl/gi_view.glsl; math/frame.js): GLSL ES has no uniform initializers, so the
+      // identity is set here (an unset mat3 is 0); setFrame replaces it
+      uGiFrame: { value: new Matrix3() },
       // the GI modes' scalar uniforms (workers/render/shading.py prepare_mode); setModeUniforms sets them
       uDdgiBias: { value: 0 },
       uIrradianceTexels: { value: 8 },
@@ -201,6 +204,16 @@ export class GIRenderer {
     this.grid = grid;
   }
 
+  /**
+   * The bake frame: M (3 rows, world -> bake; math/frame.js frameMatrix of the bake's grid) as uGiFrame, so that
+   * uGiFrame * p_world = M · p_world in the scene and probe shaders. The identity for a bake without `grid.frame`.
+   * @param {number[][]} m
+   */
+  setFrame(m) {
+    this.shared.uGiFrame.value.set(...m[0], ...m[1], ...m[2]);  // Matrix3.set takes rows, stores columns (GLSL's order)
+    this.frame = m;
+  }
+
   /** Bind textures by uniform name (shared by every scene material and the probe spheres). */
   setTextures(textures) {
     for (const [name, tex] of Object.entries(textures)) {
@@ -296,7 +309,8 @@ export class GIRenderer {
   }
 
   /**
-   * Probe spheres at `positions` (n·3 floats, x fastest probe order), coloured by `states` (n bytes), or by
+   * Probe spheres at `positions` (world, metres: the caller maps the bake-frame `probe_positions_relocated` with
+   * math/frame.js pointsToWorld; n·stride floats, x fastest probe order), coloured by `states` (n bytes), or by
    * `clusters` (n bytes, bundle.md 5.2; the 'cluster' colouring) when given.
    * @param {{positions: Float32Array, states: Uint8Array|null, clusters?: Uint8Array|null, counts: number[], radius: number}} probes
    */

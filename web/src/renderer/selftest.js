@@ -3,6 +3,8 @@
  * hardware trilinear filtering of RGBA32F 3D textures; the padded sh_l2 stack) and octahedral.glsl on a throwaway WebGL2 context and reads the results
  * back, for the browser tests to compare with the Python kernels' numbers in proto/fixtures/expected.json.
  * Needs EXT_color_buffer_float (to read float results back).
+ * The fixture's points and normals are grid coordinates (the bake frame): no uGiFrame is involved here; the frame's
+ * mapping is covered by web/tests/frame.test.js and tests/render/test_shading.py.
  */
 import { preprocess } from './preprocess.js';
 import { GLSL_SOURCES } from './shaders.js';

@@ -14,17 +14,44 @@ import { atlasColumns } from '../math/atlas.js';
 import { parseNpy } from '../loader/npy.js';
 import { tableFromKTX2 } from '../loader/ktx2.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
+import { frameMatrix, mapLight, pointsToWorld, toBake, toWorld } from '../math/frame.js';
 import { GI_MODES, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
 import { autoCamera } from './autocamera.js';
 import { createControls } from './cameras.js';
 import { buildLightMarkers, disposeMarkers, pickSurface } from './lightMarkers.js';
 
-/** The grid of a bake, from its place stage's stats (the manifest's `grid`). */
+/**
+ * The grid of a bake, from its place stage's stats (the manifest's `grid`): counts, origin and spacing in the bake
+ * frame, and `frame` (`{yaw_deg, matrix, ...}`, world -> bake; null for a bake without one: the identity;
+ * math/frame.js frameMatrix).
+ */
 export function bakeGrid(bake) {
   const place = (bake?.stages || []).find((s) => s.name === 'place');
   const st = place && place.stats;
   if (!st || !st.counts) return null;
-  return { counts: st.counts, origin: st.origin, spacing: st.spacing };
+  return { counts: st.counts, origin: st.origin, spacing: st.spacing, frame: st.frame || null };
+}
+
+/** The world position of grid point (i, j, k) (origin + spacing · ijk is in the bake frame). */
+export function gridPointWorld(grid, ijk) {
+  return toWorld(frameMatrix(grid), ijk.map((x, a) => grid.origin[a] + grid.spacing[a] * x));
+}
+
+/**
+ * The probe spheres' world positions: `positions` (probe_positions_relocated, bake frame, `stride` numbers per
+ * probe, xyz first) turned by Mᵀ; n·3 floats.
+ */
+export function probeWorldPositions(grid, positions, stride = 3) {
+  const [nx, ny, nz] = grid.counts;
+  return pointsToWorld(frameMatrix(grid), positions, stride, nx * ny * nz);
+}
+
+/**
+ * A world light (the relight gizmo's) in the bake frame, where the PRT measurement points are (directVector):
+ * position M·x, direction M·d.
+ */
+export function lightInBakeFrame(grid, light) {
+  return mapLight(frameMatrix(grid), light, toBake);
 }
 
 /** Scene bounds of a bake, from its ingest stage's stats. */
@@ -49,7 +76,7 @@ export function autoExposureEV(bake, lights = []) {
     const vals = [];
     const step = Math.max(1, Math.round(Math.cbrt((nx * ny * nz) / 512)));  // at most ~512 points
     for (let k = 0; k < nz; k += step) for (let j = 0; j < ny; j += step) for (let i = 0; i < nx; i += step) {
-      const p = [i, j, k].map((x, a) => grid.origin[a] + grid.spacing[a] * x);
+      const p = gridPointWorld(grid, [i, j, k]);  // the lights are world
       let sum = 0;
       for (const l of lights) {
         const c = l.color || [1, 1, 1];
@@ -213,6 +240,7 @@ export class Viewer {
     this.root = root;
     const grid = bakeGrid(bake);
     if (grid) this.renderer.setGrid(grid);
+    this.renderer.setFrame(frameMatrix(grid));  // the GI modes' lookups in the bake frame (identity without one)
     const bounds = bakeBounds(bake);
     const cam = camera || autoCamera(root, bounds);
     const size = bounds ? Math.hypot(...bounds[1].map((x, i) => x - bounds[0][i])) : 10;
@@ -289,7 +317,8 @@ export class Viewer {
     const states = this.artifacts.probe_states ? this.artifacts.probe_states.data : null;
     const radius = 0.12 * Math.min(...grid.spacing);
     const clusters = this.artifacts.clusters ? this.artifacts.clusters.data : null;
-    this.renderer.setProbes({ positions: pos.data, stride: pos.components, states, clusters, counts: grid.counts, radius });
+    const positions = probeWorldPositions(grid, pos.data, pos.components);  // bake frame -> world
+    this.renderer.setProbes({ positions, stride: 3, states, clusters, counts: grid.counts, radius });
     if (this.artifacts.sh_l1_r) this.bindTextures(PROBE_SH_TEXTURES);
     this.renderer.setProbeDisplay({ visible: this.state.probes, coloring: this.state.probeColoring });
     this.invalidate();
@@ -353,8 +382,9 @@ export class Viewer {
   // ------------------------------------------------------------------ PRT relighting
   /**
    * Parse the PRT arrays once (KTX2 tables, or npy in older bakes: points, offsets, transfer) and place the
-   * relight light: the bake's
-   * first point light, else the centre of the grid with the first scenario light's colour and intensity.
+   * relight light (world): the bake's first point light (`lights` is world), else the centre of the grid (mapped to
+   * the world) with the first scenario light's colour and intensity (`prt_lights` is in the bake frame: only its
+   * colour and intensity are used here).
    */
   setupPrt() {
     if (this.prt) return this.prt;
@@ -375,7 +405,7 @@ export class Viewer {
     const grid = bakeGrid(this.bake);
     const base = (this.bakeLights || []).find((l) => l.type === 'point');
     const scenario = (this.artifacts.prt_lights?.configurations || []).flat().find((l) => l.type === 'point');
-    const centre = grid ? grid.origin.map((o, a) => o + grid.spacing[a] * (grid.counts[a] - 1) / 2) : [0, 1, 0];
+    const centre = grid ? gridPointWorld(grid, grid.counts.map((c) => (c - 1) / 2)) : [0, 1, 0];
     const light = {
       type: 'point', position: [...(base?.position || centre)], color: [...(base?.color || scenario?.color || [1, 1, 1])],
       intensity: base?.intensity ?? scenario?.intensity ?? 10, range: base?.range ?? null,
@@ -384,12 +414,15 @@ export class Viewer {
     return this.prt;
   }
 
-  /** Recompute the PRT coefficients for the relight light (unshadowed direct at the measurement points). */
+  /**
+   * Recompute the PRT coefficients for the relight light (unshadowed direct at the measurement points, which are in
+   * the bake frame: the world light is turned into it first). The direct light drawn stays the world light.
+   */
   relight() {
     const p = this.prt;
     if (!p) return null;
     const t0 = performance.now();
-    p.x = directVector(p.points, p.offsets, [p.light]);
+    p.x = directVector(p.points, p.offsets, [lightInBakeFrame(bakeGrid(this.bake), p.light)]);
     p.u = relightCoefficients(p.transfer, p.n, p.x, p.section.norm || 'l2');
     this.renderer.setModeUniforms({ uPrtCoef: packPrtCoefficients(p.u, p.n, PRT_MAX_GROUPS) });
     if (this.mode === 'prt') this.renderer.setLights([p.light]);
