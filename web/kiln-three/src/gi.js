@@ -11,27 +11,35 @@
  *   proto/gi_modes.json through web/src/state/modes.js) and one call that adds giIndirectIrradiance(p, n) to three's
  *   `irradiance` right after `lights_fragment_maps`: three then applies its own diffuse BRDF to it, as it does to a
  *   light map or a light probe.
+ * - The bake frame (manifest `grid.frame`, grid.js frameMatrix): every probe artifact is in the world turned about +Y
+ *   by a yaw fitted to the walls. The extension hands the mode uGiFrame·p, uGiFrame·n and giViewDir = uGiFrame·v
+ *   (`uniform mat3 uGiFrame`, world -> bake; the identity for a bake without a frame). three's LightProbeGrid is an
+ *   axis-aligned world box that ignores any rotation (its shader compares the world position with a world box and
+ *   evaluates the SH at the world normal; the box follows `position` only): createProbeGrid and setMode('grid')
+ *   refuse a turned bake.
  */
+import { Matrix3 } from 'three';
 import { LightProbeGridWebGL } from 'three/addons/lighting/LightProbeGridWebGL.js';
 import { GI_MODES, MODE_SAMPLERS, modeAvailability, modeById, modeDefines, modeTextures, MAX_3D_TEXTURE_DEPTH } from '../../src/state/modes.js';
 import { GLSL_SOURCES, hasShader } from '../../src/renderer/shaders.js';
 import { preprocess } from '../../src/renderer/preprocess.js';
 import { probeDataTexture, textureFromKTX2, wrapAtlas } from '../../src/renderer/textures.js';
 import { atlasColumns } from '../../src/math/atlas.js';
-import { padShL2, probeGridBox } from './grid.js';
+import { frameMatrix, isIdentityFrame, padShL2, probeGridBox } from './grid.js';
 
 /** Modes `setMode` takes: 'off', 'grid' (leaking through three's LightProbeGrid) and Kiln's GLSL modes. */
 export const EXTENSION_MODES = ['leaking', 'ddgi', 'mask', 'mask_normalized'];
 
-/** The GLSL added to three's fragment shader after `#include <lights_fragment_maps>` (world-space p and n as
- * three's own lights_fragment_begin derives them for its probe grids). */
+/** The GLSL added to three's fragment shader after `#include <lights_fragment_maps>`: world-space p and n as three's
+ * own lights_fragment_begin derives them for its probe grids, and the view direction, turned into the bake frame by
+ * uGiFrame (world -> bake) before the mode sees them. */
 export const IRRADIANCE_HOOK = `
 #if defined( RE_IndirectDiffuse )
 	{
 		vec3 kilnP = ( ( vec4( geometryPosition, 1.0 ) - viewMatrix[ 3 ] ) * viewMatrix ).xyz;
 		vec3 kilnN = inverseTransformDirection( geometryNormal, viewMatrix );
-		giViewDir = normalize( cameraPosition - kilnP );
-		irradiance += uKilnIndirectScale * giIndirectIrradiance( kilnP, kilnN );
+		giViewDir = uGiFrame * normalize( cameraPosition - kilnP );
+		irradiance += uKilnIndirectScale * giIndirectIrradiance( uGiFrame * kilnP, uGiFrame * kilnN );
 	}
 #endif
 `;
@@ -40,13 +48,18 @@ export const IRRADIANCE_HOOK = `
 const ENTRY = 'kiln_three.glsl';
 const ENTRY_SOURCE = '#include "gi_view.glsl"\n#include "@mode"\n';
 
+/** A declaration of the bake-frame uniform (proto/glsl/gi_view.glsl declares it once the shared GLSL has the frame). */
+const FRAME_DECLARATION = /\buniform\s+(?:(?:highp|mediump|lowp)\s+)?mat3\s+uGiFrame\s*;/;
+
 /**
  * The GLSL of a Kiln mode for three's fragment shader: proto/glsl preprocessed (web/src/renderer/preprocess.js) for
- * WebGL2 without the #version line (three writes its own), with the mode's #defines. Pure.
+ * WebGL2 without the #version line (three writes its own), with the mode's #defines, and `uniform mat3 uGiFrame;`
+ * (IRRADIANCE_HOOK's world -> bake rotation) exactly once: added here where the shared GLSL does not declare it. Pure.
  */
 export function modeGLSL(shaderFile, defines = {}) {
   const { code } = preprocess(ENTRY, { ...GLSL_SOURCES, [ENTRY]: ENTRY_SOURCE }, { target: 'webgl2', slots: { mode: shaderFile }, defines });
-  return code.slice(code.indexOf('\n') + 1);
+  const body = code.slice(code.indexOf('\n') + 1);
+  return FRAME_DECLARATION.test(body) ? body : `uniform mat3 uGiFrame;  // world -> bake frame (grid.frame.matrix)\n${body}`;
 }
 
 /** A record (bundle.js) stacked along z with others of the same size and kind (gi_grid.glsl giStackedUVW). */
@@ -86,14 +99,32 @@ export class KilnGI {
     this.materials = new Set();
     this.code = '';
     const g = bundle.grid;
+    /** World -> bake frame, row-major rows (manifest grid.frame.matrix; the identity without a frame). */
+    this.frame = frameMatrix(g);
     this.uniforms = {
       uKilnIndirectScale: { value: 1 },
+      // Matrix3.set takes rows and stores GLSL's column-major elements: uGiFrame * p_world = M · p_world = p_bake
+      uGiFrame: { value: new Matrix3().set(...this.frame[0], ...this.frame[1], ...this.frame[2]) },
       uGridOrigin: { value: g.origin.slice() }, uGridSpacing: { value: g.spacing.slice() }, uGridCounts: { value: g.counts.slice() },
     };
     // a slot for every sampler any mode declares: one a program declares but no binding fills (the weights in plain
     // mask GI) then gets three's empty texture of its type instead of unit 0, where a
     // texture of the other type would make the draw fail
     for (const name of MODE_SAMPLERS) this.uniforms[name] = { value: null };
+  }
+
+  /** Whether three's LightProbeGrid can hold this bake: its bake frame is the world (no grid.frame, or yaw 0). */
+  get probeGridFits() { return isIdentityFrame(this.frame); }
+
+  /** Why three's LightProbeGrid cannot hold this bake (a turned bake frame), or null when it can. */
+  get probeGridRefusal() {
+    if (this.probeGridFits) return null;
+    const f = this.bundle.grid.frame || {};
+    const yaw = f.yaw_deg ?? (Math.atan2(this.frame[2][0], this.frame[0][0]) * 180) / Math.PI;
+    return `the bake's probe grid is turned ${Number(yaw).toFixed(2)}° about +Y (grid.frame, source ${f.source ?? '?'}): `
+      + "three's LightProbeGrid is an axis-aligned world box that cannot be rotated, so its light would be wrong. "
+      + "Use the material extension's 'leaking' mode (the same SH, the frame applied), or bake with place.yaw = 0 "
+      + '(an axis-aligned grid) for the LightProbeGrid';
   }
 
   /** Kiln modes this bundle can shade: [{id, label, available, reason}] (web/src/state/modes.js availability). */
@@ -109,6 +140,7 @@ export class KilnGI {
    */
   async createProbeGrid() {
     if (!this.bundle.has('sh_l2')) throw new Error('the bundle has no sh_l2 (an L1 bake, light.sh_order = 1): no LightProbeGrid');
+    if (!this.probeGridFits) throw new Error(`no LightProbeGrid: ${this.probeGridRefusal}`);
     const rec = await this.bundle.artifact('sh_l2');
     const grid = this.bundle.grid;
     const box = probeGridBox(grid, this.pad);
@@ -165,6 +197,7 @@ export class KilnGI {
    */
   async setMode(id) {
     if (id === 'off' || id === 'grid') {
+      if (id === 'grid' && !this.probeGridFits) throw new Error(`mode 'grid': ${this.probeGridRefusal}`);
       if (id === 'grid' && !this.probeGrid) throw new Error('createProbeGrid() first');
       this._setCode(id, '');
     } else {
@@ -216,6 +249,7 @@ export class KilnGI {
     const values = mode.uniforms ? mode.uniforms({ grid: b.grid, names, bake: b.manifest, info: (n) => b.info(n),
       artifacts: records, caps: this.caps }) : {};
     for (const [k, v] of Object.entries(values)) {
+      if (k === 'uGiFrame') continue;   // this.frame (grid.frame), set once in the constructor
       (this.uniforms[k] || (this.uniforms[k] = { value: null })).value = Array.isArray(v) ? Float32Array.from(v) : v;
     }
   }
