@@ -22,7 +22,9 @@ from __future__ import annotations
 
 import base64
 import functools
+import hashlib
 import http.server
+import json
 import shutil
 import subprocess
 import sys
@@ -79,10 +81,59 @@ def half_bundle_dir(bundle_dir, tmp_path_factory) -> Path:
     return out
 
 
+TURN_DEG = 30.0
+"""Yaw of the turned twin of the bundle (degrees about +Y)."""
+
+
+def _ry(deg: float) -> np.ndarray:
+    """R_y(θ) (3, 3): bake frame -> world; the manifest's grid.frame.matrix is its transpose (world -> bake)."""
+    t = np.radians(deg)
+    return np.array([[np.cos(t), 0.0, np.sin(t)], [0.0, 1.0, 0.0], [-np.sin(t), 0.0, np.cos(t)]])
+
+
+def _turn_glb(src: Path, dst: Path, deg: float) -> None:
+    """Write `src` (GLB) to `dst` with its scene's root nodes under one new root turned by R_y(deg) about the world
+    origin: meshes and their KHR_lights_punctual lights turn together; the BIN chunk is kept byte for byte."""
+    b = src.read_bytes()
+    n_json = int.from_bytes(b[12:16], "little")
+    assert b[16:20] == b"JSON"
+    gltf = json.loads(b[20:20 + n_json])
+    rest = b[20 + n_json:]                                      # the BIN chunk, header included
+    scene = gltf["scenes"][gltf.get("scene", 0)]
+    half = np.radians(deg) / 2
+    gltf["nodes"].append({"name": "kiln-test-turn", "rotation": [0.0, float(np.sin(half)), 0.0, float(np.cos(half))],
+                          "children": scene["nodes"]})
+    scene["nodes"] = [len(gltf["nodes"]) - 1]
+    j = json.dumps(gltf, separators=(",", ":")).encode()
+    j += b" " * (-len(j) % 4)
+    body = len(j).to_bytes(4, "little") + b"JSON" + j + rest
+    dst.write_bytes(b[:8] + (12 + len(body)).to_bytes(4, "little") + body)
+
+
 @pytest.fixture(scope="module")
-def site(bundle_dir, half_bundle_dir, tmp_path_factory):
+def turned_bundle_dir(bundle_dir, tmp_path_factory) -> Path:
+    """The bundle as a bake in a turned bake frame would be: the scene (glb) turned by R_y(TURN_DEG) about the world
+    origin, every probe artifact as it was (so the old world is the bake frame), and the manifest's
+    grid.frame = {yaw_deg, matrix: R_y(TURN_DEG)ᵀ (world -> bake, row-major)}; the scene artifact's bytes/sha256
+    updated."""
+    out = tmp_path_factory.mktemp("kiln-three-turned") / "bundle"
+    shutil.copytree(bundle_dir, out)
+    manifest = json.loads((out / "manifest.json").read_text())
+    scene = next(a for a in manifest["artifacts"] if a["name"] == "scene")
+    glb = out / scene["file"]
+    _turn_glb(bundle_dir / scene["file"], glb, TURN_DEG)
+    scene["bytes"] = glb.stat().st_size
+    scene["sha256"] = hashlib.sha256(glb.read_bytes()).hexdigest()
+    manifest["grid"]["frame"] = {"yaw_deg": TURN_DEG, "matrix": _ry(TURN_DEG).T.tolist(), "source": "config",
+                                 "reason": "test: the scene turned, the bake frame its old world"}
+    (out / "manifest.json").write_text(json.dumps(manifest, indent=1))
+    return out
+
+
+@pytest.fixture(scope="module")
+def site(bundle_dir, half_bundle_dir, turned_bundle_dir, tmp_path_factory):
     """A static server of web/dist (the example and its assets), the bundle at /bundle/, its half-float twin at
-    /bundle-half/."""
+    /bundle-half/, its turned twin at /bundle-turned/."""
     if not EXAMPLE.exists():
         pytest.skip(f"{EXAMPLE} is not built (cd web && npm run build)")
     root = tmp_path_factory.mktemp("site")
@@ -90,6 +141,7 @@ def site(bundle_dir, half_bundle_dir, tmp_path_factory):
         (root / name).symlink_to(ROOT / "web" / "dist" / name)
     (root / "bundle").symlink_to(bundle_dir)
     (root / "bundle-half").symlink_to(half_bundle_dir)
+    (root / "bundle-turned").symlink_to(turned_bundle_dir)
 
     class Quiet(http.server.SimpleHTTPRequestHandler):
         def log_message(self, *args):
@@ -111,7 +163,7 @@ def _open(browser, site, cam, bundle="bundle", page="kiln-three/example/index.ht
     pg.on("pageerror", lambda e: errors.append(f"pageerror: {e}"))
     pg.on("console", lambda m: errors.append(f"console.error: {m.text}")
           if m.type == "error" and "favicon" not in m.text and "Failed to load resource" not in m.text else None)
-    (px, py, pz), (tx, ty, tz) = CAMERAS[cam]
+    (px, py, pz), (tx, ty, tz) = CAMERAS[cam] if isinstance(cam, str) else cam
     q = "&".join([f"bundle=../../{bundle}/" if bundle else "", f"cam={px},{py},{pz},{tx},{ty},{tz}", f"fov={FOV}"]
                  + [f"{k}={v}" for k, v in params.items()])
     pg.goto(f"{site}/{page}?{q}")
@@ -360,6 +412,52 @@ def test_the_example_reads_a_bake_from_a_kiln_server(browser, kiln_server, scene
             err = rel_l1(served, folder, sel)
             print(f"server bake vs folder bundle, {mode}: rel L1 {err:.4f}")
             assert served[sel].mean() > 0 and err <= LAMBERT_TOL, (mode, err)
+        assert not pg.kiln_errors, pg.kiln_errors
+    finally:
+        ctx.close()
+
+
+def test_a_turned_bake_frame_is_applied_and_threes_grid_refuses_it(browser, site, pages):
+    """grid.frame: the turned twin (scene turned by R_y(30°), probe artifacts as they were, frame = R_y(30°)ᵀ) seen
+    from the turned camera gives the unturned bundle's GI through the material extension (uGiFrame · p, n, v), and
+    fails to without the frame (uGiFrame = identity). three's LightProbeGrid, which cannot turn, is refused with the
+    reason (no probeGrid, createProbeGrid and setMode('grid') throw), and the page starts in 'leaking'."""
+    cam = "b_to_door"
+    R = _ry(TURN_DEG)
+    turned_cam = tuple(tuple(float(x) for x in R @ np.asarray(v)) for v in CAMERAS[cam])
+    ctx, pg = _open(browser, site, turned_cam, bundle="bundle-turned")
+    try:
+        st = pg.evaluate("""(async () => {
+            const k = window.kiln, out = { probeGrid: k.probeGrid, mode: k.gi.mode,
+              frame: Array.from(k.gi.uniforms.uGiFrame.value.elements) };
+            try { await k.gi.createProbeGrid(); out.create = 'no error'; } catch (e) { out.create = e.message; }
+            try { await k.gi.setMode('grid'); out.grid = 'no error'; } catch (e) { out.grid = e.message; }
+            return out; })()""")
+        print("turned bundle:", {k: st[k] for k in ("mode", "create", "grid")})
+        assert st["probeGrid"] is None and st["mode"] == "leaking", st
+        for msg in (st["create"], st["grid"]):
+            assert "LightProbeGrid" in msg and "place.yaw = 0" in msg and "30.00°" in msg, msg
+        # three's Matrix3 elements are column-major: M's columns, so that uGiFrame * p_world = M · p_world
+        M = R.T
+        np.testing.assert_allclose(st["frame"], M.T.ravel(), atol=1e-6)
+
+        ref_off, got_off = _three(pages[cam], "off", "lambert"), _three(pg, "off", "lambert")
+        for mode in ("leaking", "mask_normalized", "ddgi"):
+            ref = _three(pages[cam], mode, "lambert") - ref_off
+            got = _three(pg, mode, "lambert") - got_off
+            sel = ref.sum(-1) > 0.02 * ref.sum(-1).mean()
+            err = rel_l1(got, ref, sel)
+            print(f"turned bake frame, {mode}: rel L1 {err:.2e} against the unturned bundle")
+            assert got[sel].mean() > 0 and err <= LAMBERT_TOL, (mode, err)
+        # the same frame without the frame: the lookups land elsewhere (the check above can fail)
+        pg.evaluate("window.kiln.gi.uniforms.uGiFrame.value.identity()")
+        for mode in ("leaking", "mask_normalized"):
+            ref = _three(pages[cam], mode, "lambert") - ref_off
+            got = _three(pg, mode, "lambert") - got_off
+            sel = ref.sum(-1) > 0.02 * ref.sum(-1).mean()
+            err = rel_l1(got, ref, sel)
+            print(f"turned bake frame ignored (uGiFrame = identity), {mode}: rel L1 {err:.4f}")
+            assert err > 10 * LAMBERT_TOL, (mode, err)
         assert not pg.kiln_errors, pg.kiln_errors
     finally:
         ctx.close()

@@ -1,7 +1,9 @@
 // @kiln/three (web/kiln-three): the pure parts — the Kiln grid -> three.js LightProbeGrid mapping (box, resolution,
 // padding), the stacking of volumes, and the GLSL handed to three's onBeforeCompile.
 import { describe, expect, it } from 'vitest';
-import { cellSize, padShL2, probeGridBox, threeTexelCoord, SH_L2_TEXELS } from '../kiln-three/src/grid.js';
+import { cellSize, frameMatrix, isIdentityFrame, padShL2, probeGridBox, threeTexelCoord, SH_L2_TEXELS } from '../kiln-three/src/grid.js';
+import { GLSL_SOURCES } from '../src/renderer/shaders.js';
+import { KilnBundle } from '../kiln-three/src/bundle.js';
 import { IRRADIANCE_HOOK, modeGLSL, stackRecords } from '../kiln-three/src/gi.js';
 
 const GRID = { origin: [-0.54, -0.25, 0.1], spacing: [1.0164, 0.75, 0.5], counts: [10, 5, 6] };
@@ -164,12 +166,21 @@ describe('material extension', () => {
     expect(IRRADIANCE_HOOK).toMatch(/irradiance \+= uKilnIndirectScale \* giIndirectIrradiance/);
   });
 
-  it('evaluates the mode in the bake frame: uGiFrame declared once, applied to p, n and the view direction', () => {
-    for (const file of ['mode_leaking.glsl', 'mode_ddgi.glsl', 'mode_mask.glsl']) {
-      expect(modeGLSL(file, {}).match(/uniform mat3 uGiFrame;/g)).toHaveLength(1);
-    }
+  it('turns p, n and the view direction into the bake frame: uGiFrame declared exactly once', () => {
     expect(IRRADIANCE_HOOK).toMatch(/giViewDir = uGiFrame \* normalize\( cameraPosition - kilnP \)/);
     expect(IRRADIANCE_HOOK).toMatch(/giIndirectIrradiance\( uGiFrame \* kilnP, uGiFrame \* kilnN \)/);
+    const decl = /uniform\s+mat3\s+uGiFrame\s*;/g;
+    for (const file of ['mode_leaking.glsl', 'mode_ddgi.glsl', 'mode_mask.glsl', 'mode_mask_normalized.glsl']) {
+      expect(modeGLSL(file, { KILN_SH_L2: true }).match(decl)).toHaveLength(1);
+    }
+    // once the shared gi_view.glsl declares it, the extension adds no second declaration
+    const shared = GLSL_SOURCES['gi_view.glsl'];
+    try {
+      GLSL_SOURCES['gi_view.glsl'] = `uniform mat3 uGiFrame;\n${shared.replace(/uniform\s+mat3\s+uGiFrame\s*;/, '')}`;
+      expect(modeGLSL('mode_ddgi.glsl', { KILN_SH_L2: true }).match(decl)).toHaveLength(1);
+    } finally {
+      GLSL_SOURCES['gi_view.glsl'] = shared;
+    }
   });
 
   it('stacks volumes along z as gi_grid.glsl giStackedUVW reads them', () => {
@@ -179,5 +190,52 @@ describe('material extension', () => {
     expect(s.data).toBeInstanceOf(Uint16Array);
     expect(Array.from(s.data.subarray(8, 16))).toEqual(Array(8).fill(2));
     expect(() => stackRecords([v(1), { ...v(2), width: 3 }])).toThrow();
+  });
+});
+
+describe('bake frame (grid.frame)', () => {
+  const ry = (deg) => {   // R_y(θ): bake -> world
+    const t = (deg * Math.PI) / 180;
+    return [[Math.cos(t), 0, Math.sin(t)], [0, 1, 0], [-Math.sin(t), 0, Math.cos(t)]];
+  };
+  const T = (m) => m[0].map((_, j) => m.map((r) => r[j]));
+  const mul = (m, v) => m.map((r) => r[0] * v[0] + r[1] * v[1] + r[2] * v[2]);
+
+  it('is the identity without a frame (every bundle before it)', () => {
+    expect(isIdentityFrame(frameMatrix(GRID))).toBe(true);
+    expect(isIdentityFrame(frameMatrix({ ...GRID, frame: { yaw_deg: 0, matrix: ry(0), source: 'none' } }))).toBe(true);
+  });
+
+  it('reads the row-major world -> bake matrix R_y(θ)ᵀ, or builds it from yaw_deg', () => {
+    const M = T(ry(30));
+    const m = frameMatrix({ ...GRID, frame: { yaw_deg: 30, matrix: M, source: 'walls' } });
+    expect(isIdentityFrame(m)).toBe(false);
+    const pBake = [1.5, 0.7, -2.25];
+    const pWorld = mul(ry(30), pBake);
+    mul(m, pWorld).forEach((x, i) => expect(x).toBeCloseTo(pBake[i], 12));
+    frameMatrix({ ...GRID, frame: { yaw_deg: 30 } }).flat().forEach((x, i) => expect(x).toBeCloseTo(M.flat()[i], 12));
+  });
+
+  it('comes from the place stage\'s stats of a bake on a Kiln server (KilnBundle.fromServer)', async () => {
+    const frame = { yaw_deg: 30, matrix: T(ry(30)), source: 'walls', reason: 'test' };
+    const bake = { id: 'b1', status: 'succeeded', config: {}, artifacts: [],
+      stages: [{ name: 'place', stats: { ...GRID, frame } }, { name: 'ingest', stats: { bounds: [[0, 0, 0], [1, 1, 1]] } }] };
+    const seen = [];
+    const fetch = async (url) => { seen.push(url); return { ok: true, status: 200, json: async () => bake }; };
+    const b = await KilnBundle.fromServer('http://kiln.test/', 'b1', { fetch });
+    expect(seen).toEqual(['http://kiln.test/v1/bakes/b1']);
+    expect(b.grid.frame).toEqual(frame);
+    expect(isIdentityFrame(frameMatrix(b.grid))).toBe(false);
+    bake.stages[0].stats = { ...GRID };   // a bake from before the frame: no grid.frame, the identity
+    const old = await KilnBundle.fromServer('http://kiln.test/', 'b1', { fetch });
+    expect(old.grid.frame).toBeUndefined();
+    expect(isIdentityFrame(frameMatrix(old.grid))).toBe(true);
+  });
+
+  it('refuses a matrix that is not R_y(yaw)ᵀ, not a rotation, or not 3 x 3', () => {
+    expect(() => frameMatrix({ ...GRID, frame: { yaw_deg: 30, matrix: ry(30) } })).toThrow(/not R_y/);   // transposed
+    expect(() => frameMatrix({ ...GRID, frame: { matrix: [[-1, 0, 0], [0, 1, 0], [0, 0, 1]] } })).toThrow(/reflection/);
+    expect(() => frameMatrix({ ...GRID, frame: { matrix: [[2, 0, 0], [0, 1, 0], [0, 0, 1]] } })).toThrow(/not a rotation/);
+    expect(() => frameMatrix({ ...GRID, frame: { matrix: [[1, 0], [0, 1]] } })).toThrow(RangeError);
   });
 });

@@ -4,7 +4,7 @@
  *
  * Query parameters: bundle (URL of the bundle folder, default ./bundle/) or bake (a bake id on the Kiln server that
  * serves the page, or on ?server=URL), mode (grid | off | leaking | ddgi | mask |
- * mask_normalized; default grid), material (standard | lambert), cam=px,py,pz,tx,ty,tz (glTF coordinates, metres),
+ * mask_normalized; default grid, or leaking for a bake whose probe grid is turned: grid.frame), material (standard | lambert), cam=px,py,pz,tx,ty,tz (glTF coordinates, metres),
  * fov (vertical, degrees), exposure (default 0.4; ACES), shadows (0 to turn the shadow maps off). Without cam: the Kiln
  * viewer's first view (web/src/view/autocamera.js, inside a room of a closed scene).
  * window.kiln exposes the state and renderLinear() (linear HDR pixels) for the browser tests.
@@ -30,7 +30,7 @@ renderer.shadowMap.type = PCFShadowMap;
 const camera = new PerspectiveCamera(Number(q.get('fov') || 60), 1, 0.01, 100);
 const controls = new OrbitControls(camera, canvas);
 const materials = { standard: new Map(), lambert: new Map() };   // mesh -> material of each kind
-const state = { mode: q.get('mode') || 'grid', material: q.get('material') || 'standard' };
+const state = { mode: q.get('mode'), material: q.get('material') || 'standard' };   // mode: loadKilnBundle's by default
 
 function lambertOf(m) {
   return new MeshLambertMaterial({ name: `${m.name}:lambert`, color: m.color, map: m.map, emissive: m.emissive,
@@ -136,7 +136,7 @@ async function main() {
   modeSel.onchange = () => api.setMode(modeSel.value);
   matSel.onchange = () => api.setMaterial(matSel.value);
   renderer.compile(scene, camera);
-  await api.setMode(state.mode);
+  await api.setMode(state.mode || gi.mode);
   api.setMaterial(state.material);
   status.textContent = `${bundle.grid.counts.join('×')} probes, ${bundle.names.length} artifacts`;
   controls.addEventListener('change', draw);

@@ -79,7 +79,8 @@ export class KilnBundle {
     return new KilnBundle(base, manifest, options);
   }
 
-  /** The probe grid: {origin, spacing, counts} (metres, bake frame; proto/bundle.md 5) and `frame` when turned. */
+  /** The probe grid: {origin, spacing, counts} (metres, bake frame; proto/bundle.md 5), and `frame` ({yaw_deg, matrix,
+   * source, reason}; grid.js frameMatrix) where the bake frame is the world turned about +Y. */
   get grid() { return this.manifest.grid; }
 
   /** Artifact names in the manifest. */
@@ -97,8 +98,8 @@ export class KilnBundle {
   }
 
   /**
-   * A bake on a Kiln server instead of a bundle folder: `GET {server}/v1/bakes/{id}` (the artifact list; the grid from
-   * the place stage's stats, the bounds from the ingest stage's, as the manifest has them) and each artifact from
+   * A bake on a Kiln server instead of a bundle folder: `GET {server}/v1/bakes/{id}` (the artifact list; the grid, and
+   * its bake frame `frame` where there is one, from the place stage's stats, the bounds from the ingest stage's, as the manifest has them) and each artifact from
    * `/v1/bakes/{id}/artifacts/{name}`. headers: e.g. {Authorization: 'Bearer KEY'}.
    */
   static async fromServer(server, bakeId, { headers = {}, ...options } = {}) {
@@ -111,7 +112,7 @@ export class KilnBundle {
     if (bake.status !== 'succeeded') throw new BundleError(`bake ${bakeId} is ${bake.status}, not succeeded`);
     const stats = (name) => (bake.stages || []).find((st) => st.name === name)?.stats || {};
     const { counts, origin, spacing, frame } = stats('place');
-    const grid = { counts, origin, spacing, ...(frame ? { frame } : {}) };  // frame: the bake frame (manifest grid.frame)
+    const grid = { counts, origin, spacing, ...(frame ? { frame } : {}) };   // frame: the bake frame, as grid.frame
     const manifest = { format_version: FORMAT_VERSION, bake_id: bake.id, config: bake.config, grid,
       scene: { bounds: stats('ingest').bounds }, stages: bake.stages, artifacts: bake.artifacts };
     if (!counts) throw new BundleError(`bake ${bakeId} has no probe grid (no place stage stats)`);

@@ -11,9 +11,12 @@
  *   proto/gi_modes.json through web/src/state/modes.js) and one call that adds giIndirectIrradiance(p, n) to three's
  *   `irradiance` right after `lights_fragment_maps`: three then applies its own diffuse BRDF to it, as it does to a
  *   light map or a light probe.
- * - A bake in a turned bake frame (manifest `grid.frame`, web/src/math/frame.js): the extension hands the mode
- *   uGiFrame·p, uGiFrame·n and uGiFrame·v (proto/glsl/gi_view.glsl). three's LightProbeGrid is an axis-aligned world
- *   box and cannot turn: createProbeGrid refuses such a bake (use the extension's `leaking` mode).
+ * - The bake frame (manifest `grid.frame`, grid.js frameMatrix): every probe artifact is in the world turned about +Y
+ *   by a yaw fitted to the walls. The extension hands the mode uGiFrame·p, uGiFrame·n and giViewDir = uGiFrame·v
+ *   (`uniform mat3 uGiFrame`, world -> bake; the identity for a bake without a frame). three's LightProbeGrid is an
+ *   axis-aligned world box that ignores any rotation (its shader compares the world position with a world box and
+ *   evaluates the SH at the world normal; the box follows `position` only): createProbeGrid and setMode('grid')
+ *   refuse a turned bake.
  */
 import { Matrix3 } from 'three';
 import { LightProbeGridWebGL } from 'three/addons/lighting/LightProbeGridWebGL.js';
@@ -22,14 +25,14 @@ import { GLSL_SOURCES, hasShader } from '../../src/renderer/shaders.js';
 import { preprocess } from '../../src/renderer/preprocess.js';
 import { probeDataTexture, textureFromKTX2, wrapAtlas } from '../../src/renderer/textures.js';
 import { atlasColumns } from '../../src/math/atlas.js';
-import { frameMatrix, isIdentity } from '../../src/math/frame.js';
-import { padShL2, probeGridBox } from './grid.js';
+import { frameMatrix, isIdentityFrame, padShL2, probeGridBox } from './grid.js';
 
 /** Modes `setMode` takes: 'off', 'grid' (leaking through three's LightProbeGrid) and Kiln's GLSL modes. */
 export const EXTENSION_MODES = ['leaking', 'ddgi', 'mask', 'mask_normalized'];
 
-/** The GLSL added to three's fragment shader after `#include <lights_fragment_maps>` (world-space p and n as
- * three's own lights_fragment_begin derives them for its probe grids, turned into the bake frame by uGiFrame). */
+/** The GLSL added to three's fragment shader after `#include <lights_fragment_maps>`: world-space p and n as three's
+ * own lights_fragment_begin derives them for its probe grids, and the view direction, turned into the bake frame by
+ * uGiFrame (world -> bake) before the mode sees them. */
 export const IRRADIANCE_HOOK = `
 #if defined( RE_IndirectDiffuse )
 	{
@@ -45,13 +48,18 @@ export const IRRADIANCE_HOOK = `
 const ENTRY = 'kiln_three.glsl';
 const ENTRY_SOURCE = '#include "gi_view.glsl"\n#include "@mode"\n';
 
+/** A declaration of the bake-frame uniform (proto/glsl/gi_view.glsl declares it once the shared GLSL has the frame). */
+const FRAME_DECLARATION = /\buniform\s+(?:(?:highp|mediump|lowp)\s+)?mat3\s+uGiFrame\s*;/;
+
 /**
  * The GLSL of a Kiln mode for three's fragment shader: proto/glsl preprocessed (web/src/renderer/preprocess.js) for
- * WebGL2 without the #version line (three writes its own), with the mode's #defines. Pure.
+ * WebGL2 without the #version line (three writes its own), with the mode's #defines, and `uniform mat3 uGiFrame;`
+ * (IRRADIANCE_HOOK's world -> bake rotation) exactly once: added here where the shared GLSL does not declare it. Pure.
  */
 export function modeGLSL(shaderFile, defines = {}) {
   const { code } = preprocess(ENTRY, { ...GLSL_SOURCES, [ENTRY]: ENTRY_SOURCE }, { target: 'webgl2', slots: { mode: shaderFile }, defines });
-  return code.slice(code.indexOf('\n') + 1);
+  const body = code.slice(code.indexOf('\n') + 1);
+  return FRAME_DECLARATION.test(body) ? body : `uniform mat3 uGiFrame;  // world -> bake frame (grid.frame.matrix)\n${body}`;
 }
 
 /** A record (bundle.js) stacked along z with others of the same size and kind (gi_grid.glsl giStackedUVW). */
@@ -91,10 +99,12 @@ export class KilnGI {
     this.materials = new Set();
     this.code = '';
     const g = bundle.grid;
-    this.frame = frameMatrix(g);  // world -> bake frame (manifest grid.frame; identity without)
+    /** World -> bake frame, row-major rows (manifest grid.frame.matrix; the identity without a frame). */
+    this.frame = frameMatrix(g);
     this.uniforms = {
       uKilnIndirectScale: { value: 1 },
-      uGiFrame: { value: new Matrix3().set(...this.frame[0], ...this.frame[1], ...this.frame[2]) },  // rows in, GLSL columns stored
+      // Matrix3.set takes rows and stores GLSL's column-major elements: uGiFrame * p_world = M · p_world = p_bake
+      uGiFrame: { value: new Matrix3().set(...this.frame[0], ...this.frame[1], ...this.frame[2]) },
       uGridOrigin: { value: g.origin.slice() }, uGridSpacing: { value: g.spacing.slice() }, uGridCounts: { value: g.counts.slice() },
     };
     // a slot for every sampler any mode declares: one a program declares but no binding fills (the weights in plain
@@ -103,8 +113,19 @@ export class KilnGI {
     for (const name of MODE_SAMPLERS) this.uniforms[name] = { value: null };
   }
 
-  /** Whether three's LightProbeGrid can hold this bake: its grid is not turned (no grid.frame, or the identity). */
-  get probeGridFits() { return isIdentity(this.frame); }
+  /** Whether three's LightProbeGrid can hold this bake: its bake frame is the world (no grid.frame, or yaw 0). */
+  get probeGridFits() { return isIdentityFrame(this.frame); }
+
+  /** Why three's LightProbeGrid cannot hold this bake (a turned bake frame), or null when it can. */
+  get probeGridRefusal() {
+    if (this.probeGridFits) return null;
+    const f = this.bundle.grid.frame || {};
+    const yaw = f.yaw_deg ?? (Math.atan2(this.frame[2][0], this.frame[0][0]) * 180) / Math.PI;
+    return `the bake's probe grid is turned ${Number(yaw).toFixed(2)}° about +Y (grid.frame, source ${f.source ?? '?'}): `
+      + "three's LightProbeGrid is an axis-aligned world box that cannot be rotated, so its light would be wrong. "
+      + "Use the material extension's 'leaking' mode (the same SH, the frame applied), or bake with place.yaw = 0 "
+      + '(an axis-aligned grid) for the LightProbeGrid';
+  }
 
   /** Kiln modes this bundle can shade: [{id, label, available, reason}] (web/src/state/modes.js availability). */
   modes() {
@@ -119,9 +140,7 @@ export class KilnGI {
    */
   async createProbeGrid() {
     if (!this.bundle.has('sh_l2')) throw new Error('the bundle has no sh_l2 (an L1 bake, light.sh_order = 1): no LightProbeGrid');
-    if (!this.probeGridFits) {
-      throw new Error(`the bake's grid is turned (grid.frame yaw ${this.bundle.grid.frame?.yaw_deg}°): three's LightProbeGrid is an axis-aligned world box; use setMode('leaking')`);
-    }
+    if (!this.probeGridFits) throw new Error(`no LightProbeGrid: ${this.probeGridRefusal}`);
     const rec = await this.bundle.artifact('sh_l2');
     const grid = this.bundle.grid;
     const box = probeGridBox(grid, this.pad);
@@ -178,6 +197,7 @@ export class KilnGI {
    */
   async setMode(id) {
     if (id === 'off' || id === 'grid') {
+      if (id === 'grid' && !this.probeGridFits) throw new Error(`mode 'grid': ${this.probeGridRefusal}`);
       if (id === 'grid' && !this.probeGrid) throw new Error('createProbeGrid() first');
       this._setCode(id, '');
     } else {
@@ -229,6 +249,7 @@ export class KilnGI {
     const values = mode.uniforms ? mode.uniforms({ grid: b.grid, names, bake: b.manifest, info: (n) => b.info(n),
       artifacts: records, caps: this.caps }) : {};
     for (const [k, v] of Object.entries(values)) {
+      if (k === 'uGiFrame') continue;   // this.frame (grid.frame), set once in the constructor
       (this.uniforms[k] || (this.uniforms[k] = { value: null })).value = Array.isArray(v) ? Float32Array.from(v) : v;
     }
   }
