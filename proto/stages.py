@@ -67,8 +67,9 @@ STAGES: tuple[StageDef, ...] = (
     # (compress.lookup_blend; its lookup_error stat)
     StageDef("compress", 3, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
     # prt 2: the npy tables as KTX2 tables, the SH basis volumes RGBA16F (proto/bundle.md 5.3); 3: lights near
-    # surfaces in the scenario, the L1 norm, cross-validated ridge (issue 14, artifact 5)
-    StageDef("prt", 3, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
+    # surfaces in the scenario, the L1 norm, cross-validated ridge (issue 14, artifact 5); 4: hits shaded as the light
+    # stage shades them (bent normals, horizon factor, near-field occlusion: workers/kernels/prt_dataset.py)
+    StageDef("prt", 4, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones; 3: which points are
     # refined is chosen on an independent pilot pass (the choice on the first pass biased values and errors low);

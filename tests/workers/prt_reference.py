@@ -21,18 +21,21 @@ def light_stage_reference(ds, lights: list[dict], light_section, lightmap: bool 
     """The light stage's own computation for ``lights`` alone (emission 0, sky 0), for checking a transfer.
 
     ds : the PRT stage's dataset (``PrtDataset``: its cached hits, probes and lightmap texels); light_section :
-    ``BakeConfig.light`` (bounces, max_bounces, tolerance, sh_order). Returns ``(sh (P, K, 3) float32,
+    ``BakeConfig.light`` (bounces, max_bounces, tolerance, sh_order). The hits are shaded as the dataset shades them
+    (its ``probes["shading"]``, ``["horizon"]``, ``["near"]``: the light stage's bent normals, horizon factor and
+    near-field occlusion). Returns ``(sh (P, K, 3) float32,
     texels (L, 3) float32 or None)``: the probes' radiance SH (OFF probes 0) and the DDGI irradiance
     (:func:`workers.kernels.ddgi.sample_irradiance`) of the converged probes at the lightmap texels.
     """
     pr = ds.probes
     surf = pr["surf"]
-    e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"])
+    e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"], **(pr.get("shading") or {}))
     gather = SamplerGather(surf.position, surf.normal, surf.view, pr["grid"], pr["positions"], pr["states"],
                            pr["depth"], pr["bias"], pr["visible"])
     irr, radiance, _, _ = integrate_one(surf.index, surf.miss, surf.albedo, e, pr["dirs"], pr["states"], pr["n"],
                                         gather, bounces=light_section.bounces, max_bounces=light_section.max_bounces,
-                                        tolerance=light_section.tolerance)
+                                        tolerance=light_section.tolerance, indirect_scale=pr.get("horizon"),
+                                        near=pr.get("near"))
     sh = sh_project(pr["dirs"], radiance, order=light_section.sh_order).astype(np.float32)
     sh[pr["states"] == OFF] = 0.0
     tex = None

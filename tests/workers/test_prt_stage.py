@@ -8,6 +8,7 @@ emission excluded, sky 0) through :func:`tests.workers.prt_reference.light_stage
 from __future__ import annotations
 
 import json
+from types import SimpleNamespace
 import zipfile
 
 import numpy as np
@@ -315,3 +316,34 @@ def test_vinc3r_lightmap_uses_texcoord1_charts_and_xatlas(tmp_path):
     sh, tex = light_stage_reference(ds, ds.configs[0], ctx.config.light)
     assert np.allclose(ds.texels[0], tex, rtol=1e-4, atol=1e-5 * np.abs(tex).max())
     assert np.abs(tex).max() > 0
+
+
+def test_the_dataset_shades_hits_as_the_light_stage(tmp_path, scene_files):
+    """What PRT is fit to is the light stage's own result: for a directional light alone (no emission, sky 0, no hot
+    spot), the dataset's computation (light_stage_reference: the dataset's bent normals, horizon factor and near-field
+    occlusion) reproduces the light stage's stored probe SH. Without the near-field term it does not (light stage 8
+    occludes the hits near edges)."""
+    from workers.kernels.grid import OFF
+    from workers.scene import NormalizedScene
+
+    cfg = _config(configurations=8, measurement_points=32, basis=4)
+    cfg["light"] = {"sh_order": 1}                 # no L2 deringing: the stored SH is the projection itself
+    cfg["scene"] = {"use_scene_lights": False, "sky": [0, 0, 0],
+                    "lights": [{"type": "directional", "direction": [0.3, -0.6, -1.0], "intensity": 4.0}]}
+    ctx = _ctx(tmp_path, scene_files["sealed-box"], cfg)       # a box on a ground slab: concave edges, no emission
+    scene: NormalizedScene = ctx.scene
+    assert scene.emissive_materials() == 0
+    ds = sprt.prt_dataset(ctx)
+    assert ds.probes["near"] is not None and ds.probes["near"].index.size > 0
+    lights = ctx.inputs["ingest"]["lights"]["lights"]
+    want = np.asarray(ctx.inputs["light"]["probe_sh"], np.float64).reshape(-1, 4, 3)
+    live = ctx.inputs["trace"]["probe_states"].reshape(-1) != OFF
+    got = light_stage_reference(ds, lights, ctx.config.light, lightmap=False)[0].reshape(-1, 4, 3)
+    scale = np.abs(want[live]).max()
+    assert scale > 0
+    tol = 2e-3 * scale                                                            # half floats stored
+    np.testing.assert_allclose(got[live], want[live], atol=tol)
+    without = dict(ds.probes, near=None)
+    far = light_stage_reference(SimpleNamespace(probes=without, lightmap=None), lights, ctx.config.light,
+                                lightmap=False)[0].reshape(-1, 4, 3)
+    assert np.abs(far[live] - want[live]).max() > 2.5 * tol

@@ -15,8 +15,10 @@
    The indirect targets are what the light stage computes for those lights *alone*: **emission excluded and
    sky 0**, so that the target is linear in the lights (an emissive surface or a sky would add a constant that
    no transfer from x could produce). The front-face probe-ray hits are shaded once
-   (:func:`workers.kernels.probe_hits.hit_surfaces`); per configuration only ``E_direct`` at the hits changes,
-   and the light stage's bounce integrator (:func:`workers.kernels.bounce.integrate`, with the light stage's
+   (:func:`workers.kernels.probe_hits.hit_surfaces`) as the light stage shades them — E_direct about the bent
+   shading normal, E_indirect times the horizon factor, the near-field occlusion (light stage 8; its occluders'
+   emission excluded like the rest) —; per configuration only ``E_direct`` at the hits changes, and the light
+   stage's bounce integrator (:func:`workers.kernels.bounce.integrate`, with the light stage's
    ``bounces`` / ``tolerance``, each configuration stopped by its own residual) re-shades the cached hits.
    Targets: (a) the probes' radiance SH (P, K, 3), what the light stage stores as ``probe_sh``; (b) lightmap
    texels (:func:`workers.kernels.lightmap.lightmap_texels`): the DDGI irradiance of the converged probes at
@@ -45,11 +47,11 @@ from workers.kernels.bounce import integrate
 from workers.kernels.gather import MatrixGather, ddgi_weights
 from workers.kernels.grid import OFF
 from workers.kernels.lightmap import DILATE_TEXELS, dilate, lightmap_texels
-from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, probe_visibility
+from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, near_occlusion, probe_visibility
 from workers.kernels.prt_scenario import (measurement_direct, measurement_points, near_surface_sampler,
                                          random_light_configurations)
 from workers.kernels.sh import sh_count, sh_project
-from workers.kernels.shading import direct_irradiance
+from workers.kernels.shading import direct_irradiance, horizon_factor
 
 __all__ = ["PrtDataset", "PrtTooLarge", "build_dataset", "solve_batch", "fit_targets"]
 
@@ -90,7 +92,7 @@ class PrtDataset:
 
 def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs: np.ndarray, states: np.ndarray,
                 n: int, *, bounces: int | None, max_bounces: int, tolerance: float, sh_order: int,
-                W_texels: sp.csr_matrix | None = None):
+                W_texels: sp.csr_matrix | None = None, indirect_scale: np.ndarray | None = None, near=None):
     """The light stage's bounce integrator (:func:`workers.kernels.bounce.integrate`, emission 0, sky 0) for B
     lighting configurations at once, E_indirect by the sparse DDGI matrix ``W``.
 
@@ -117,7 +119,8 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
             tex_out[ids] = (W_texels @ maps.reshape(P * t * t, -1)).reshape(-1, len(ids), 3).transpose(1, 0, 2)
 
     log = integrate(surf.index, surf.miss, surf.albedo, e_direct, dirs, states, n, MatrixGather(W), retire,
-                    bounces=bounces, max_bounces=max_bounces, tolerance=tolerance)
+                    bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, indirect_scale=indirect_scale,
+                    near=near)
     return sh_out, tex_out, log.bounces, maps_out
 
 
@@ -167,6 +170,18 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
     # 3. dataset: shading data of the cached hits once, the DDGI sampler as matrices once
     t1 = time.perf_counter()
     surf = hit_surfaces(scene, dirs, hits, tri)
+    # shaded as the light stage shades them (workers/stages/light.py): E_direct about the bent normal N' with lights
+    # below the geometric plane rejected, E_indirect times the horizon factor, the near-field occlusion (its
+    # occluders' emission left out: the transfer is linear in the lights, PRT §4)
+    frame = dict(geo_normals=surf.geo_normal, smooth_normals=surf.smooth_normal, bent=surf.bent)
+    horizon = horizon_factor(surf.normal, surf.geo_normal, surf.smooth_normal, surf.bent).astype(np.float32)
+    horizon = None if not (horizon < 1).any() else horizon
+    near = None
+    if light.near_radius > 0 and light.near_rays > 0:
+        near = near_occlusion(scene, surf.position, surf.normal, surf.geo_normal, caster,
+                              light.near_radius * float(min(grid["spacing"])), light.near_rays, eps)
+        near.a *= np.float32(light.near_strength)
+        near.emission = np.zeros_like(near.emission)
     visible, _ = probe_visibility(surf, grid, positions, states, caster, bias)   # as the light stage
     W = ddgi_weights(surf.position, surf.normal, surf.view, grid, positions, states, depth, n_irr, bias, visible)
     lm = None
@@ -201,13 +216,13 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
     for a in range(0, N, batch):
         ids = range(a, min(N, a + batch))
         td = time.perf_counter()
-        e = np.stack([direct_irradiance(surf.position, surf.normal, configs[k], caster, eps) for k in ids])
+        e = np.stack([direct_irradiance(surf.position, surf.normal, configs[k], caster, eps, **frame) for k in ids])
         for k in ids:
             direct[k] = measurement_direct(points, configs[k], caster, eps)
         direct_s += time.perf_counter() - td
         sh, tex, cnt, _ = solve_batch(surf, W, e, dirs, states, n_irr, bounces=light.bounces,
                                       max_bounces=light.max_bounces, tolerance=light.tolerance,
-                                      sh_order=light.sh_order, W_texels=W_lm)
+                                      sh_order=light.sh_order, W_texels=W_lm, indirect_scale=horizon, near=near)
         sh_all[a:a + len(ids)] = sh
         if tex_all is not None:
             tex_all[a:a + len(ids)] = tex
@@ -216,7 +231,8 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
     timings["dataset_seconds"] = time.perf_counter() - t2
     timings["direct_seconds"] = direct_s
     probes = {"surf": surf, "grid": grid, "positions": positions, "states": states, "depth": depth, "dirs": dirs,
-              "n": n_irr, "bias": bias, "caster": caster, "eps": eps, "visible": visible}
+              "n": n_irr, "bias": bias, "caster": caster, "eps": eps, "visible": visible, "shading": frame,
+              "horizon": horizon, "near": near}
     return PrtDataset(configs=configs, points=points, direct=direct, sh=sh_all, texels=tex_all, lightmap=lm,
                       probes=probes, bounces=n_bounces, timings=timings)
 
