@@ -66,8 +66,8 @@ never tuned on, as issue 12's filer will measure (a lit room beside a smaller da
 room with a window and sky on a ground slab beside a closed room; an L-shaped corridor lit at one end; a 40 cm wall
 with a door through it; two rooms divided by one double-sided plane). Baked like the procedural scenes, plus the points file's ``config`` (sun-window's sky).
 
-``--rotate DEG`` bakes each procedural scene rotated DEG degrees about +Y (one new root node over its meshes and
-lights; the points file's added lights rotated too) and reads it at the receivers and normals rotated the same way:
+``--rotate DEG`` bakes each scene rotated DEG degrees about +Y (one new root node over its meshes and lights, a real
+scene's files embedded in one GLB first; the points file's added lights rotated too) and reads it at the receivers and normals rotated the same way:
 light is the same in every frame, so the Cycles references still hold, while no wall is axis-aligned any more — as in
 a level whose building stands at an angle. The default bake frame (:mod:`workers.kernels.frame`) turns the grid to
 the walls, and the receivers go through ``grid.frame`` as any reader's points; ``--set place.yaw=0`` bakes in the
@@ -199,7 +199,10 @@ def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = No
          rotate: float = 0.0):
     """Bake scene ``name`` (procedural, or the real scene at ``source``, read in place) with ``config`` (default:
     the default config, ``BakeConfig()``): (scene, {stage: LazyArtifacts}, config, seconds per stage)."""
-    if source is not None:
+    if source is not None and rotate:                # the real scene as one GLB (its files embedded), turned
+        glb = work / f"{name}.glb"
+        glb.write_bytes(rotated_glb(embed_glb(source), rotate))
+    elif source is not None:
         glb = source
         if pack_model(source, work / f"{name}.zip"):   # a .gltf with files beside it: as `kiln bake scene.gltf`
             glb = work / f"{name}.zip"
@@ -385,11 +388,10 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
               overrides: dict | None = None, rotate: float = 0.0) -> dict | None:
     """The comparison of scene ``name``; None (with a message) for a real scene whose source is not there.
     ``rotate``: the scene, its added lights, the receivers and their normals rotated by that many degrees about +Y
-    (procedural scenes only; the Cycles references hold in any frame); the stored-probe rows are left out then."""
+    (a real scene as one GLB, its files embedded; the Cycles references hold in any frame); the stored-probe rows are
+    left out then."""
     pdoc = json.loads((DATA / f"{name}.points.json").read_text())
     source = source_of(pdoc)
-    if rotate and source is not None:
-        raise SystemExit(f"--rotate: only procedural scenes can be rotated, not {name} ({source})")
     rot = rotation_y(rotate)
     if source is not None and not source.is_file():
         print(f"skipping {name}: its source {source} is not there (a real scene, read from {SHARED_SCENES}, never "
@@ -580,7 +582,7 @@ def main() -> int:
                     help="a config override on top of the default (an experiment, not the default: the table says "
                          "so), e.g. --set masks.clusters=8; repeatable")
     ap.add_argument("--rotate", type=float, default=0.0, metavar="DEG",
-                    help="rotate each (procedural) scene, its lights and the receivers DEG degrees about +Y: the "
+                    help="rotate each scene, its lights and the receivers DEG degrees about +Y: the "
                          "same light in a frame where no wall is axis-aligned (the references hold in any frame)")
     args = ap.parse_args()
     overrides: dict = {}
