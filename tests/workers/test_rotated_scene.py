@@ -39,3 +39,17 @@ def test_rotated_config_turns_added_lights_not_the_sky():
     np.testing.assert_allclose(out["scene"]["lights"][0]["direction"], [0.0, -1.0, -1.0], atol=1e-12)
     np.testing.assert_allclose(out["scene"]["lights"][1]["position"], [3.0, 2.0, 0.0], atol=1e-12)
     assert math.isclose(np.linalg.norm(out["scene"]["lights"][0]["direction"]), math.sqrt(2))
+
+
+def test_a_real_scene_turns_as_one_glb_with_its_files(tmp_path):
+    """bench_fidelity --rotate on a real scene: its files embedded in one GLB, then turned like a procedural one."""
+    from tests.conftest import shared_path
+    from workers.gltf.pack import embed_glb
+
+    src = shared_path("scenes", "cornell-box-mcguire-khr-lights", "CornellBox-Original.gltf")
+    flat = embed_glb(src)
+    base, turned = _ingest(tmp_path, flat, "flat"), _ingest(tmp_path, rotated_glb(flat, 30.0), "turned")
+    a = np.asarray(base.triangles, np.float64).reshape(-1, 3)
+    b = np.asarray(turned.triangles, np.float64).reshape(-1, 3)
+    np.testing.assert_allclose(b, a @ rotation_y(30.0).T, atol=1e-4)
+    assert len(turned.lights) == len(base.lights) > 0
