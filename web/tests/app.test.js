@@ -129,3 +129,16 @@ describe('bake warnings', () => {
     ]);
   });
 });
+
+describe('gridSummary', () => {
+  it('says the probe count, the spacing and the turn of the bake frame', async () => {
+    const { gridSummary } = await import('../src/state/stats.js');
+    const place = (stats) => ({ stages: [{ name: 'ingest', stats: {} }, { name: 'place', stats }] });
+    expect(gridSummary(place({ counts: [10, 4, 5], spacing: [0.25, 0.3, 0.25] }))).toBe('200 probes, 0.30 m apart');
+    expect(gridSummary(place({ counts: [46, 16, 20], spacing: [0.21, 0.21, 0.21], frame: { yaw_deg: 30, matrix: [] } })))
+      .toBe('14,720 probes, 0.21 m apart; grid turned 30.0° about the vertical to follow the walls');
+    expect(gridSummary(place({ counts: [2, 2, 2], spacing: [1, 1, 1], frame: { yaw_deg: 0 } }))).toBe('8 probes, 1.00 m apart');
+    expect(gridSummary({ stages: [] })).toBe('');
+    expect(gridSummary(null)).toBe('');
+  });
+});

@@ -251,3 +251,18 @@ export function bakeWarnings(bake) {
   }
   return out;
 }
+
+/**
+ * One line about a bake's probe grid (its place stage's stats): probe count, spacing, and the turn of the bake frame
+ * (`frame.yaw_deg`, proto/bundle.md 5) when the grid follows walls at an angle to the file's axes. '' before place.
+ */
+export function gridSummary(bake) {
+  const st = (bake?.stages || []).find((s) => s.name === 'place')?.stats;
+  if (!st || !Array.isArray(st.counts)) return '';
+  const n = st.counts.reduce((a, b) => a * b, 1);
+  const sp = Math.max(...(st.spacing || [0]));
+  const yaw = Number(st.frame?.yaw_deg) || 0;
+  let out = `${n.toLocaleString('en-US')} probes, ${sp.toFixed(2)} m apart`;
+  if (yaw) out += `; grid turned ${yaw.toFixed(1)}° about the vertical to follow the walls`;
+  return out;
+}

@@ -11,7 +11,7 @@
 import { Viewer } from '../view/viewer.js';
 import { drawDepthAtlas, drawIrradianceAtlas, drawMaskSlice, drawThetaSlice } from './debugImages.js';
 import { clear, h, shortId } from './dom.js';
-import { bakeWarnings, sceneLabel } from '../state/stats.js';
+import { bakeWarnings, gridSummary, sceneLabel } from '../state/stats.js';
 import { defaultLight } from '../state/lighting.js';
 import { warningList } from './warnings.js';
 import { appendCameraBody, bakeReviewCameras, mergeReviewCameras } from '../view/reviewCameras.js';
@@ -40,6 +40,7 @@ export function createViewerPage(app) {
   const camSave = h('button.small#cam-save', { type: 'button', title: 'add this view (position, target, field of view) to the scene\'s review cameras (PUT /v1/scenes/{id}/cameras): later evaluated bakes of the scene are scored from it too' }, 'Save this view as a review camera');
   const camNote = h('p#cam-note.muted');
   const probesBox = h('input#show-probes', { type: 'checkbox' });
+  const gridNote = h('p.muted#grid-note');
   const probeColor = h('select#probe-coloring', h('option', { value: 'state' }, 'by state (OFF red / ACTIVE green / SLEEPING blue)'), h('option', { value: 'sh' }, 'by own SH irradiance'),
     h('option', { value: 'cluster' }, 'by MD cluster (8 colours; OFF dark)'));
   const debugSelect = h('select#debug-view', h('option', { value: '' }, '— none —'), h('option', { value: 'irradiance' }, 'irradiance atlas'), h('option', { value: 'depth' }, 'depth atlas (mean distance)'), h('option', { value: 'theta' }, 'θ slices (visibility)'),
@@ -78,6 +79,7 @@ export function createViewerPage(app) {
         placeNote,
         h('h3', 'Probes'),
         h('div.row', h('label', probesBox, ' show probes'), probeColor),
+        gridNote,
         h('h3', 'Debug images'),
         h('div.row', debugSelect), debugControls, debugNote,
         shaderError, gpuInfo)));
@@ -487,6 +489,7 @@ export function createViewerPage(app) {
       const camera = linked || reviews[0];
       renderCamList(linked ? null : reviews.length ? 0 : 'auto');
       await v.open({ bake, sceneFile: sceneId ? app.sessionFiles.get(sceneId) || null : null, camera, mode: q.get('mode') || undefined });
+      gridNote.textContent = gridSummary(bake);
       probesBox.checked = !v.root;  // probes alone over an empty scene; over the geometry on demand
       if (probesBox.checked !== v.state.probes) v.setProbes({ visible: probesBox.checked });
       v.showLightMarkers(lightsBox.checked);
