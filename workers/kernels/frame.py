@@ -48,10 +48,10 @@ SNAP_DEG = 0.01
 
 def frame_matrix(yaw_deg: float) -> np.ndarray:
     """(3, 3) float64 ``M = R_y(θ)ᵀ``, world → bake frame (row-major: ``p_bake = M @ p_world``)."""
-    t = math.radians(float(yaw_deg))
-    c, s = math.cos(t), math.sin(t)
     if float(yaw_deg) == 0.0:
         return np.eye(3)
+    t = math.radians(float(yaw_deg))
+    c, s = math.cos(t), math.sin(t)
     return np.array([[c, 0.0, -s], [0.0, 1.0, 0.0], [s, 0.0, c]], np.float64)
 
 

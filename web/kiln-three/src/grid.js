@@ -103,48 +103,7 @@ export function padShL2(data, counts, pad = 1) {
 }
 
 /**
- * The bake frame of a grid (manifest `grid.frame`, the place stage's stats `frame`; proto/bundle.md 5): the world
- * (glTF) turned about +Y by `yaw_deg`. Every probe artifact is in the bake frame; `matrix` M is row-major, world ->
- * bake, p_bake[i] = Σ_j M[i][j]·p_world[j] for positions (about the world origin, no translation) and directions
- * alike, M = R_y(θ)ᵀ with R_y(θ) = [[cos θ, 0, sin θ], [0, 1, 0], [−sin θ, 0, cos θ]]; bake -> world is Mᵀ.
- * @param {{frame?: {yaw_deg?: number, matrix?: number[][]}}} grid  manifest.grid
- * @returns {number[][]}  M, 3 rows of 3 numbers; the identity without `frame` (every bundle before the frame) or
- *   without `matrix` and `yaw_deg`. `matrix` wins; without it M is built from `yaw_deg`.
- * @throws {RangeError}  unless M is a finite rotation (M·Mᵀ = I within 1e-4, det +1) agreeing with `yaw_deg` (1e-3)
+ * The bake frame of a grid (manifest `grid.frame`, the place stage's stats `frame`; proto/bundle.md 5): M (world ->
+ * bake, row-major) and whether it is the identity. One reader for the viewer and @kiln/three: web/src/math/frame.js.
  */
-export function frameMatrix(grid) {
-  const f = grid?.frame;
-  const fromYaw = (deg) => {
-    const t = (Number(deg) * Math.PI) / 180;
-    if (!Number.isFinite(t)) throw new RangeError(`grid.frame.yaw_deg must be a finite number, got ${JSON.stringify(deg)}`);
-    const c = Math.cos(t), s = Math.sin(t);
-    return [[c, 0, -s], [0, 1, 0], [s, 0, c]];   // R_y(θ)ᵀ
-  };
-  if (!f || (f.matrix == null && f.yaw_deg == null)) return [[1, 0, 0], [0, 1, 0], [0, 0, 1]];
-  if (f.matrix == null) return fromYaw(f.yaw_deg);
-  const m = Array.from(f.matrix, (r) => Array.from(r ?? [], Number));
-  if (m.length !== 3 || m.some((r) => r.length !== 3 || !r.every(Number.isFinite))) {
-    throw new RangeError(`grid.frame.matrix must be 3 rows of 3 finite numbers, got ${JSON.stringify(f.matrix)}`);
-  }
-  for (let i = 0; i < 3; i++) {
-    for (let j = 0; j < 3; j++) {
-      const d = m[i][0] * m[j][0] + m[i][1] * m[j][1] + m[i][2] * m[j][2];
-      if (Math.abs(d - (i === j ? 1 : 0)) > 1e-4) throw new RangeError(`grid.frame.matrix ${JSON.stringify(m)} is not a rotation`);
-    }
-  }
-  const [a, b, c] = m;
-  const det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0]);
-  if (det < 0) throw new RangeError(`grid.frame.matrix ${JSON.stringify(m)} is a reflection, not a rotation`);
-  if (f.yaw_deg != null) {
-    const y = fromYaw(f.yaw_deg);
-    if (m.some((r, i) => r.some((x, j) => Math.abs(x - y[i][j]) > 1e-3))) {
-      throw new RangeError(`grid.frame.matrix ${JSON.stringify(m)} is not R_y(${f.yaw_deg}°)ᵀ (world -> bake, row-major)`);
-    }
-  }
-  return m;
-}
-
-/** True when M (frameMatrix) is the identity within 1e-9: the bake frame is the world. */
-export function isIdentityFrame(m) {
-  return m.every((r, i) => r.every((x, j) => Math.abs(x - (i === j ? 1 : 0)) <= 1e-9));
-}
+export { frameMatrix, isIdentity as isIdentityFrame } from '../../src/math/frame.js';

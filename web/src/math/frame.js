@@ -11,29 +11,45 @@
 
 export const IDENTITY = Object.freeze([Object.freeze([1, 0, 0]), Object.freeze([0, 1, 0]), Object.freeze([0, 0, 1])]);
 
+/** R_y(θ)ᵀ for θ = `deg` degrees: the bake frame's M from its yaw alone. */
+function fromYaw(deg) {
+  const t = (Number(deg) * Math.PI) / 180;
+  if (!Number.isFinite(t)) throw new RangeError(`bake frame: yaw_deg must be a finite number, got ${JSON.stringify(deg)}`);
+  const c = Math.cos(t), s = Math.sin(t);
+  return [[c, 0, -s], [0, 1, 0], [s, 0, c]];
+}
+
 /**
  * M (3 rows of 3 numbers, world -> bake) of a grid (`{counts, origin, spacing, frame?}`), of its `frame`
- * (`{yaw_deg, matrix, ...}`) or of a matrix; null / no frame -> the identity. Throws unless M is a finite rotation
- * (M Mᵀ = I within 1e-4, det +1).
+ * (`{yaw_deg, matrix, ...}`) or of a matrix; null / no frame -> the identity. A frame without `matrix` gives
+ * R_y(yaw_deg)ᵀ. Throws a RangeError unless M is a finite rotation (M Mᵀ = I within 1e-4, det +1) agreeing with the
+ * frame's `yaw_deg` (1e-3; a transposed matrix is refused). The viewer's and @kiln/three's reader.
  */
 export function frameMatrix(source) {
-  let m = source;
-  if (m && !Array.isArray(m) && !('matrix' in m)) m = m.frame;  // a grid
-  if (m && !Array.isArray(m)) m = m.matrix;                      // grid.frame
-  if (m == null) return IDENTITY;
-  const rows = Array.from(m, (r) => Array.from(r, Number));
+  if (source == null) return IDENTITY;
+  let f = Array.isArray(source) ? { matrix: source } : source;
+  if (!('matrix' in f) && !('yaw_deg' in f)) f = f.frame;      // a grid
+  if (f == null || (f.matrix == null && f.yaw_deg == null)) return IDENTITY;
+  if (f.matrix == null) return fromYaw(f.yaw_deg);
+  const rows = Array.from(f.matrix, (r) => Array.from(r ?? [], Number));
   if (rows.length !== 3 || rows.some((r) => r.length !== 3 || r.some((x) => !Number.isFinite(x)))) {
-    throw new Error(`bake frame: want a finite 3x3 matrix, got ${JSON.stringify(m)}`);
+    throw new RangeError(`bake frame: want a finite 3x3 matrix, got ${JSON.stringify(f.matrix)}`);
   }
   for (let i = 0; i < 3; i++) {
     for (let j = 0; j < 3; j++) {
       const d = rows[i][0] * rows[j][0] + rows[i][1] * rows[j][1] + rows[i][2] * rows[j][2];
-      if (Math.abs(d - (i === j ? 1 : 0)) > 1e-4) throw new Error(`bake frame: ${JSON.stringify(rows)} is not a rotation`);
+      if (Math.abs(d - (i === j ? 1 : 0)) > 1e-4) throw new RangeError(`bake frame: ${JSON.stringify(rows)} is not a rotation`);
     }
   }
   const [a, b, c] = rows;
   const det = a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0]) + a[2] * (b[0] * c[1] - b[1] * c[0]);
-  if (det < 0) throw new Error(`bake frame: ${JSON.stringify(rows)} is a reflection, not a rotation`);
+  if (det < 0) throw new RangeError(`bake frame: ${JSON.stringify(rows)} is a reflection, not a rotation`);
+  if (f.yaw_deg != null) {
+    const y = fromYaw(f.yaw_deg);
+    if (rows.some((r, i) => r.some((x, j) => Math.abs(x - y[i][j]) > 1e-3))) {
+      throw new RangeError(`bake frame: ${JSON.stringify(rows)} is not R_y(${f.yaw_deg}°)ᵀ (world -> bake, row-major)`);
+    }
+  }
   return rows;
 }
 
