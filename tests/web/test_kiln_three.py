@@ -417,6 +417,25 @@ def test_the_example_reads_a_bake_from_a_kiln_server(browser, kiln_server, scene
         ctx.close()
 
 
+def test_a_mode_taken_back_from_threes_program_cache_keeps_its_gi(browser, site):
+    """mask_normalized, then the plain programs ('grid', 'off'), then mask_normalized again (its program from three's
+    cache): the same frame. three reuses the uniforms of a material's last compile with a cached program; before
+    the fix the plain compile's uniforms came back without Kiln's textures and the GI was 0."""
+    ctx, pg = _open(browser, site, "b_to_door")
+    try:
+        off = _three(pg, "off", "lambert")
+        first = _three(pg, "mask_normalized", "lambert") - off
+        _three(pg, "grid", "lambert")
+        _three(pg, "off", "lambert")
+        again = _three(pg, "mask_normalized", "lambert") - off
+        sel = first.sum(-1) > 0.02 * first.sum(-1).mean()
+        assert sel.sum() > 100 and again[sel].mean() > 0.5 * first[sel].mean()
+        np.testing.assert_allclose(again, first, atol=1e-6 * np.abs(first).max())
+        assert not pg.kiln_errors, pg.kiln_errors
+    finally:
+        ctx.close()
+
+
 def test_a_turned_bake_frame_is_applied_and_threes_grid_refuses_it(browser, site, pages):
     """grid.frame: the turned twin (scene turned by R_y(30°), probe artifacts as they were, frame = R_y(30°)ᵀ) seen
     from the turned camera gives the unturned bundle's GI through the material extension (uGiFrame · p, n, v), and

@@ -165,8 +165,11 @@ export class KilnGI {
     const previous = material.onBeforeCompile;
     material.onBeforeCompile = function onBeforeCompile(shader, renderer) {
       if (previous) previous.call(this, shader, renderer);
-      if (!gi.code) return;
+      // every program of the material gets Kiln's uniforms, the plain ones ('off', 'grid') too: three keeps the
+      // uniforms of the material's last compile and reuses them with a cached program, so a mode's program taken
+      // back from the cache after a plain one was compiled would otherwise read no Kiln textures (no GI)
       Object.assign(shader.uniforms, gi.uniforms);
+      if (!gi.code) return;
       if (!shader.fragmentShader.includes('#include <lights_fragment_maps>')) return;  // unlit material
       shader.fragmentShader = `${gi.code}\nuniform float uKilnIndirectScale;\n${shader.fragmentShader.replace(
         '#include <lights_fragment_maps>', `#include <lights_fragment_maps>\n${IRRADIANCE_HOOK}`)}`;
