@@ -17,7 +17,8 @@ ingest     scene load                                    the scene (its stored b
 place      planning rays (automatic grid) + BVH build    the scene + BVH
 relocate   iterations × N rays                           N rays (hits), chunked temporaries (up to 1 M rays)
 trace      N rays + depth moments                        N rays, hits kept (20 B a ray), P x depth texels
-light      N (shading, 8 occlusion rays a hit) × bounces N hits and radiance, chunked temporaries (1 M rays)
+light      N' (shading, 8 occlusion rays a hit) × bounces N' hits and radiance, chunked temporaries (1 M rays);
+           N' = N (1 + light.extra_rays), the adaptive rays
 visibility F × 8 corner rays × visibility.rays            F × 8 (θ) per shard; the join F × 9
 anneal     sweeps × P + F (edge loss)                    F × 9
 masks      F × K                                         F × K floats, P × K cluster SH volumes
@@ -376,10 +377,15 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     add("trace", N * TRACE_SECONDS_PER_RAY * rays_scale,
         LIB_RAYS + TRACE_FIXED_MEM + scene_mem + N * RAY_MEM["trace"] + P * dt * dt * DEPTH_MEM_PER_TEXEL,
         P * (1 + dn * dn * 4 * DEPTH_STORED) + 2 * ARTIFACT_HEADER,
-        internal=N * 20 + R * 12 + P * dt * dt * 8 + ARTIFACT_HEADER + 3 * NPY_HEADER)
+        internal=N * 20 + config.trace.ray_rotations * R * 12 + P + P * dt * dt * 8 + ARTIFACT_HEADER
+        + 4 * NPY_HEADER)
     it = config.light.irradiance_texels
-    add("light", N * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE),
-        LIB_RAYS + LIGHT_FIXED_MEM + scene_mem + N * RAY_MEM["light"] + min(N, RAY_MEM_CHUNK) * RAY_MEM_CHUNKED["light"],
+    # the adaptive rays (workers/kernels/adaptive_rays.py): at most light.extra_rays x the probes' rays more, traced,
+    # shaded and integrated as the trace's own (the budget is an upper bound; most lit scenes use all of it)
+    NL = N * (1.0 + (config.light.extra_rays if config.light.extra_sets > 0 else 0.0))
+    add("light", NL * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE)
+        + (NL - N) * TRACE_SECONDS_PER_RAY * rays_scale,
+        LIB_RAYS + LIGHT_FIXED_MEM + scene_mem + NL * RAY_MEM["light"] + min(NL, RAY_MEM_CHUNK) * RAY_MEM_CHUNKED["light"],
         P * (it * it * 4 + (56 * (nz + 2) / nz if sh_k == 9 else 0) + sh_k * 6 + 24) + 6 * ARTIFACT_HEADER,
         internal=P * 48 + ARTIFACT_HEADER)
     n_shard = F / shards

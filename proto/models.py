@@ -209,6 +209,11 @@ class TraceSection(_Strict):
     """Probe rays, relocation and classification (DDGI-P §2.3, §5 Fig 7, §6 Fig 10; stages relocate + trace)."""
 
     rays_per_probe: Int = Field(256, ge=16, le=4096, description="rays per probe, spherical Fibonacci pattern")
+    ray_rotations: Int = Field(64, ge=1, le=64,
+                               description="random rotations of the ray pattern across the probes (1: every probe "
+                                           "the same, as the DDGI runtime per frame; 8 or more: the 8 corners of "
+                                           "every grid cell differ, so the errors of a small bright opening seen "
+                                           "by few rays average out instead of adding up)")
     relocate_iterations: Int = Field(5, ge=0, le=20, description="iterations of the DDGI-P Fig 7 optimizer")
     max_offset: Float = Field(0.45, ge=0.0, le=0.5, description="relocation limit, fraction of the spacing per axis")
     rescue_offset: Float = Field(0.95, ge=0.0, lt=1.0,
@@ -246,6 +251,13 @@ class LightSection(_Strict):
                                              "s·a·(the nearby surface's light), a the occluded part of the hit's "
                                              "hemisphere; a fit against the path tracer on three held-out interiors "
                                              "(docs/architecture.md, near-field occlusion)")
+    extra_rays: Float = Field(0.5, ge=0.0, le=8.0,
+                              description="adaptive probe rays: extra sets of trace.rays_per_probe rays, this "
+                                          "fraction of the live probes' count in all, to the probes whose few rays "
+                                          "see a small bright thing (a lit room through a door), in proportion to "
+                                          "the noise of their first-bounce light (workers/kernels/adaptive_rays.py; "
+                                          "0 = off)")
+    extra_sets: Int = Field(3, ge=0, le=15, description="the most extra ray sets one probe gets")
 
     @field_validator("sh_order", mode="before")
     @classmethod

@@ -48,14 +48,16 @@ STAGES: tuple[StageDef, ...] = (
     StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
     # 3: depth_moments' far texels clamped to the probe's reach (workers/kernels/depth_moments.py clamp_far), which
-    # reads the runtime's self-shadow bias; OFF probes' moments 0; stored without the tile borders (proto/atlas.py)
-    StageDef("trace", 3, ("trace", "light.self_shadow_bias", "seed"), ("ingest", "place", "relocate"), timeout=3600),
+    # reads the runtime's self-shadow bias; OFF probes' moments 0; stored without the tile borders (proto/atlas.py);
+    # 4: trace.ray_rotations patterns across the probes (ray_directions (K, R, 3), ray_pattern; kernels/sampling.py)
+    StageDef("trace", 4, ("trace", "light.self_shadow_bias", "seed"), ("ingest", "place", "relocate"), timeout=3600),
     # light 3: point lights' hot spots sampled from the light (workers/kernels/light_spots.py); 4: L2 deringing
     # against the probe's own map (workers/kernels/sh.py sh_l2_floor); 5: irradiance and SH volumes RGBA16F,
     # probe_sh a KTX2 table (issue 17); 6: irradiance E5B9G9R9_UFLOAT_PACK32 without the tile borders,
     # probe_sh a half-float table; 7: bent shading normals shaded as Cycles 3.4 does (workers/kernels/shading.py);
-    # 8: near-field occlusion at the probe-ray hits (workers/kernels/probe_hits.py near_occlusion)
-    StageDef("light", 8, ("light",), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # 8: near-field occlusion at the probe-ray hits (workers/kernels/probe_hits.py near_occlusion); 9: adaptive rays
+    # (workers/kernels/adaptive_rays.py: extra rays traced here, their rotations seeded, so the key holds the seed)
+    StageDef("light", 9, ("light", "seed"), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)

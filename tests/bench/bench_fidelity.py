@@ -460,7 +460,8 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
     default_probes = None if rotate else default_grid_probes(name, recs, cfg, dirs)
     place = recs["place"].stats
     lit = recs["ingest"]["lights"]
-    out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times,
+    light_seconds = {k: v for k, v in recs["light"].stats.items() if k.endswith("_seconds")}
+    out = {"scene": name, "bake_seconds": bake_seconds, "stage_seconds": times, "light_seconds": light_seconds,
            "config": "default (BakeConfig())" + (f" + {json.dumps(scene_config)}" if scene_config else "")
            + (f" + EXPERIMENT {json.dumps(overrides)}" if overrides else "")
            + (f" (scene, lights and receivers rotated {rotate:g} deg about +Y)" if rotate else ""),

@@ -43,6 +43,7 @@ from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels.grid import OFF, ACTIVE, SLEEPING  # noqa: E402
+from workers.stages.trace import probe_rays_of  # noqa: E402
 
 SCENES = Path(os.environ.get("KILN_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
 SCENE = SCENES / "zdm2-sauerbraten" / "zdm2.glb"
@@ -68,7 +69,7 @@ def _exits_in_cells(p: int, base, pos, hits, dirs, spacing, past: float = 0.0) -
     """(E, 3) the back-face exits of probe ``p``'s rays (``hits`` (P, R, 4): t, u, v, back), ``past`` metres beyond
     the face, within its 8 cells around the grid position ``base[p]``."""
     b = (hits[p, :, 3] > 0.5) & np.isfinite(hits[p, :, 0])
-    e = pos[p] + dirs[b] * (hits[p, b, 0][:, None] + past)
+    e = pos[p] + dirs.of_probes(p, p + 1)[0][b] * (hits[p, b, 0][:, None] + past)
     return e[np.all(np.abs(e - base[p]) < np.where(spacing > 0, spacing, np.inf), axis=1)]
 
 
@@ -83,7 +84,8 @@ def orphan_free_space(states: np.ndarray, base: np.ndarray, pos: np.ndarray, hit
     """(free-space points, of them in a cell with no live corner probe): the back-face exits (2 cm past the face)
     of the OFF probes' rays within their 8 cells and the grid's box, i.e. free space next to an OFF probe, and
     whether any of the 8 probes of the cell holding it is live (ACTIVE or SLEEPING) to shade it. ``states``
-    (nz, ny, nx); ``base``, ``pos`` (P, 3) grid and relocated positions; ``hits`` (P, R, 4); ``dirs`` (R, 3)."""
+    (nz, ny, nx); ``base``, ``pos`` (P, 3) grid and relocated positions; ``hits`` (P, R, 4); ``dirs`` the probes' rays
+    (:class:`workers.kernels.sampling.ProbeRays`)."""
     nz, ny, nx = states.shape
     live = states != OFF
     lo, hi = base.min(axis=0), base.max(axis=0)
@@ -134,11 +136,11 @@ def run(scene_path: Path, overrides: dict, full: bool) -> dict:
         pos = np.asarray(recs["relocate"]["probe_positions_relocated"], np.float64).reshape(-1, 3)
         kinds = off_kinds(states)
         kinds["free_in_cells"] = off_free_in_cells(states.ravel() == OFF, base, pos, np.asarray(recs["trace"]["ray_hits"]),
-                                                   np.asarray(recs["trace"]["ray_directions"], np.float64), spacing)
+                                                   probe_rays_of(recs["trace"]), spacing)
         kinds["solid_cells"] = kinds["off"] - kinds["free_in_cells"]
         kinds["free_points"], kinds["free_points_unserved"] = orphan_free_space(
             states, base, pos, np.asarray(recs["trace"]["ray_hits"]),
-            np.asarray(recs["trace"]["ray_directions"], np.float64), spacing)
+            probe_rays_of(recs["trace"]), spacing)
         out = {
             "scene": scene_path.name, "triangles": scene.n_triangles, "overrides": overrides,
             "counts": place["counts"], "probes": place["probes"], "spacing": spacing.tolist(),

@@ -55,6 +55,7 @@ from persist.store import Store  # noqa: E402
 from workers import pipeline  # noqa: E402
 from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels.visibility import field_shape, sample_positions  # noqa: E402
+from workers.stages.trace import probe_rays_of  # noqa: E402
 
 SCENE = ROOT.parent / "shared" / "scenes" / "zdm2-sauerbraten" / "zdm2.glb"
 SUN = {"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 3.0, "color": [1.0, 0.95, 0.9]}
@@ -109,9 +110,8 @@ def run_grid(scene, counts, rays, S, raw: RawEmbree) -> dict:
         tr = recs["trace"]
         P = int(np.prod(counts))
         pos = recs["relocate"]["probe_positions_relocated"].reshape(-1, 3)
-        dirs = tr["ray_directions"]
         o = np.repeat(pos, rays, axis=0)
-        d = np.tile(dirs, (P, 1))
+        d = probe_rays_of(tr).of_probes(0, P).reshape(-1, 3)
         out = {"probes": P, "rays_per_probe": rays, "stages": {}}
         raw_trace = raw.rays_per_second(o, d)
         n_rel = recs["relocate"].stats["rays"]

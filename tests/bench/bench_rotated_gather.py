@@ -56,6 +56,7 @@ from workers.kernels.octahedral import bilinear_sample  # noqa: E402
 from workers.kernels.pathtrace import indirect_irradiance  # noqa: E402
 from workers.kernels.probe_hits import hit_surfaces, probe_visibility  # noqa: E402
 from workers.raycast import caster_for_scene  # noqa: E402
+from workers.stages.trace import probe_rays_of  # noqa: E402
 
 AXES = np.array([[1, 0, 0], [-1, 0, 0], [0, 1, 0], [0, -1, 0], [0, 0, 1], [0, 0, -1]], np.float64)
 DARK = {  # the dark room (unrotated frame: min, max corners, metres), the dividing wall's mid-plane x, the door's z range
@@ -108,10 +109,10 @@ def measure(name: str, deg: float, spp: int, n_hits: int, work: Path) -> dict:
         "all": face >= 0, "< 5 cm from a face": face < 0.05, "5-15 cm": (face >= 0.05) & (face < 0.15),
         ">= 15 cm": face >= 0.15, "grid point in a wall": in_wall}.items() if c.any()}
     # 2. the gather at the dark room's probe-ray hits
-    dirs = np.asarray(tr["ray_directions"])
+    dirs = probe_rays_of(tr)
     surf = hit_surfaces(scene, dirs, np.asarray(tr["ray_hits"]), np.asarray(tr["ray_tri"]))
     hit_u = surf.position.astype(np.float64) @ rot
-    keep = np.isin(surf.index // dirs.shape[0], dk) & np.all((hit_u > lo_b - 0.01) & (hit_u < hi_b + 0.01), axis=1)
+    keep = np.isin(surf.index // dirs.rays, dk) & np.all((hit_u > lo_b - 0.01) & (hit_u < hi_b + 0.01), axis=1)
     P_, N_, V_ = surf.position[keep], surf.normal[keep], surf.view[keep]
     full = "depth_moments_full" if "depth_moments_full" in tr.names() else "depth_moments"
     depth = unpack_atlas(np.asarray(tr[full], np.float32), list(counts), cfg.trace.depth_texels + 2)

@@ -51,6 +51,7 @@ from workers.kernels.probe_hits import hit_surfaces, near_occlusion, probe_visib
 from workers.kernels.shading import direct_irradiance  # noqa: E402
 from workers.procedural_glb import Light, SceneSpec, encode_glb, solid_mesh  # noqa: E402
 from workers.raycast import caster_for_scene  # noqa: E402
+from workers.stages.trace import probe_rays_of  # noqa: E402
 
 XW = 4.5            # the divider plane of plane-wall (workers/procedural_interiors.py); the dark room is x > XW
 ROOM_B = ((XW, 0.0, 0.0), (8.0, 2.8, 4.0))
@@ -106,9 +107,9 @@ def measure(label: str, glb: bytes, work: Path, config: dict, spp: int, probe_sp
     out["probes"] = {k: {"n": int(c.sum()), "stored_over_pt": float(stored[c].mean() / pv[c].mean())}
                      for k, c in bands.items()}
     # 3. the gather at dark probes' ray hits: weight on lit-side probes
-    dirs_r = np.asarray(tr["ray_directions"])
+    dirs_r = probe_rays_of(tr)
     surf = hit_surfaces(scene, dirs_r, np.asarray(tr["ray_hits"]), np.asarray(tr["ray_tri"]))
-    R = dirs_r.shape[0]
+    R = dirs_r.rays
     keep = np.isin(surf.index // R, dk) & (surf.position[:, 0] > XW - 1e-3)
     P_, N_, V_ = surf.position[keep], surf.normal[keep], surf.view[keep]
     m = cfg.trace.depth_texels + 2

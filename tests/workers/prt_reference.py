@@ -13,7 +13,7 @@ from workers.kernels.bounce import integrate_one
 from workers.kernels.ddgi import sample_irradiance
 from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF
-from workers.kernels.sh import sh_project
+from workers.kernels.sh import sh_project_probes
 from workers.kernels.shading import direct_irradiance
 
 
@@ -36,7 +36,7 @@ def light_stage_reference(ds, lights: list[dict], light_section, lightmap: bool 
                                         gather, bounces=light_section.bounces, max_bounces=light_section.max_bounces,
                                         tolerance=light_section.tolerance, indirect_scale=pr.get("horizon"),
                                         near=pr.get("near"))
-    sh = sh_project(pr["dirs"], radiance, order=light_section.sh_order).astype(np.float32)
+    sh = sh_project_probes(pr["dirs"], radiance, order=light_section.sh_order).astype(np.float32)
     sh[pr["states"] == OFF] = 0.0
     tex = None
     if lightmap and ds.lightmap is not None:

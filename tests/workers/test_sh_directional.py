@@ -64,8 +64,9 @@ def test_open_floor_closed_form(tmp_path):
     ratio = {k: v[..., 1] / exact for k, v in ev.items()}                    # (P, 6), green channel
     for k, r in ratio.items():
         print(f"{k:14s} E / exact per axis (+x -x +y -y +z -z):", np.round(r.mean(axis=0), 3))
-    assert np.abs(ratio["L2"] - 1).max() < 0.015
-    assert np.abs(ratio["L1 linear"] - 1).max() < 0.015
+    # each probe its own rotation of the 1024 rays (trace.ray_rotations): per probe within 2%, the mean within 1%
+    for k in ("L2", "L1 linear"):
+        assert np.abs(ratio[k] - 1).max() < 0.02 and np.abs(ratio[k].mean(axis=0) - 1).max() < 0.01
     nl = ratio["L1 non-linear"].mean(axis=0)
     assert nl[2] > 1.1 and nl[[0, 1, 4, 5]].max() < 0.97                   # up high, the sides low
     # the runtime path (sh_l2 volume, 7 trilinear fetches) between the probes: the same

@@ -32,9 +32,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from numba import njit
 
+from workers.kernels.adaptive_rays import merge_rows
 from workers.kernels.convergence import relative_tail
 from workers.kernels.grid import OFF
 from workers.kernels.octahedral import _cosine_power, accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.sampling import probe_rays
 
 __all__ = ["irradiance_maps", "integrate", "integrate_one", "BounceLog"]
 
@@ -44,8 +46,8 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
 
     Parameters
     ----------
-    dirs : (R, 3) float32
-        Unit ray directions (the same for every probe), world space.
+    dirs : (R, 3) float32 or :class:`workers.kernels.sampling.ProbeRays`
+        Unit ray directions, world space: the same for every probe, or each probe's pattern.
     radiance : (P, R, C) float32
         Radiance arriving along each ray, C channels (3 per configuration).
     n : int
@@ -56,7 +58,13 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
     Returns (P, n+2, n+2, C) float32: DDGI-I eq 1 with α = 0 (each texel the cosine-weighted mean radiance
     times π), 1-texel octahedral border (:func:`workers.kernels.octahedral.add_border`).
     """
-    maps = math.pi * accumulate_octahedral(dirs, radiance, oct_texel_directions(n), 1.0)   # DDGI-I eq 1, α = 0
+    rays = probe_rays(dirs, radiance.shape[0])
+    texels = oct_texel_directions(n)
+    maps = None
+    for k, idx in rays.groups():            # each probe's own pattern
+        m = math.pi * accumulate_octahedral(rays.patterns[k], radiance[idx], texels, 1.0)   # DDGI-I eq 1, α = 0
+        maps = np.empty((radiance.shape[0],) + m.shape[1:], m.dtype) if maps is None else maps
+        maps[idx] = m
     maps[states == OFF] = 0.0
     return add_border(maps).astype(np.float32)
 
@@ -64,23 +72,44 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
 class _RayMajorMaps:
     """:func:`irradiance_maps` of ray-major radiance (R, P, C): the same arithmetic (the cosine weights (T, R) and
     their sums, then one product with the radiance as it lies, no transposed copy of it), float32 rounding apart
-    (the product's summation order)."""
+    (the product's summation order).
 
-    def __init__(self, dirs: np.ndarray, n: int, states: np.ndarray):
+    With several ray patterns (:class:`workers.kernels.sampling.ProbeRays`) the radiance's probe columns are held
+    grouped by pattern, column j being probe ``perm[j]`` (``inv`` the inverse): each pattern's product then reads a
+    contiguous block of columns in place. One pattern: ``perm`` and ``inv`` None (the probes' own order)."""
+
+    def __init__(self, dirs, n: int, states: np.ndarray):
         self.n, self.off = n, states == OFF
-        self.w = _cosine_power(oct_texel_directions(n).reshape(-1, 3).astype(np.float32) @
-                               np.asarray(dirs, np.float32).T, 1.0)                     # (T, R) max(0, n·ω)
-        self.den = self.w.sum(axis=-1)
+        rays = probe_rays(dirs, states.shape[0])
+        groups = rays.groups()
+        texels = oct_texel_directions(n).reshape(-1, 3).astype(np.float32)
+        self.w = [_cosine_power(texels @ rays.patterns[k].T, 1.0) for k, _ in groups]   # (T, R) max(0, n·ω)
+        self.den = np.stack([w.sum(axis=-1) for w in self.w])                          # (G, T)
         self.ok = self.den > 0
+        sizes = np.array([idx.size for _, idx in groups], np.int64)
+        self.bounds = np.concatenate([[0], np.cumsum(sizes)])                           # group g: columns [b_g, b_g+1)
+        self.slot = np.repeat(np.arange(len(groups), dtype=np.int64), sizes)           # column -> group
+        if len(groups) == 1:
+            self.perm = self.inv = None
+            self.cols = np.arange(states.shape[0], dtype=np.int64)
+        else:
+            self.perm = np.concatenate([idx for _, idx in groups])
+            self.inv = np.empty_like(self.perm)
+            self.inv[self.perm] = np.arange(self.perm.size)
+            self.cols = self.perm
 
     def __call__(self, radiance_rm: np.ndarray) -> np.ndarray:
+        """``radiance_rm`` (R, P, C), its columns in this object's order; returns (P, n+2, n+2, C) in probe order."""
         R, P, C = radiance_rm.shape
-        num = (self.w @ radiance_rm.reshape(R, P * C)).reshape(-1, P, C)               # Σ_r w · L: (T, P, C)
+        num = np.empty((self.w[0].shape[0], P, C), np.float32)
+        for g, w in enumerate(self.w):                      # Σ_r w · L: (T, P, C), each pattern's block in place
+            a, b = self.bounds[g], self.bounds[g + 1]
+            num[:, a:b] = (w @ radiance_rm[:, a:b].reshape(R, (b - a) * C)).reshape(-1, b - a, C)
         out = np.empty((P, self.n + 2, self.n + 2, C), np.float32)
         bounds = np.linspace(0, P, _MAP_THREADS + 1).astype(np.int64)
         with ThreadPoolExecutor(_MAP_THREADS) as pool:      # π · num / den, OFF = 0, the border: one pass
-            list(pool.map(lambda i: _finish_maps(num, self.den, self.ok, self.off, bounds[i], bounds[i + 1], out),
-                          range(_MAP_THREADS)))
+            list(pool.map(lambda i: _finish_maps(num, self.den, self.ok, self.slot, self.cols, self.off, bounds[i],
+                                                 bounds[i + 1], out), range(_MAP_THREADS)))
         return out
 
 
@@ -88,19 +117,21 @@ _MAP_THREADS = 2
 
 
 @njit(cache=True, nogil=True)
-def _finish_maps(num, den, ok, off, p0, p1, out):
-    """Probes p0..p1 of :class:`_RayMajorMaps`: ``out[p]`` (n+2, n+2, C) = π·num[:, p]/den in the interior (0 where
-    den = 0 or the probe is OFF), float32 as numpy computes it, with :func:`workers.kernels.octahedral.add_border`'s
-    border."""
+def _finish_maps(num, den, ok, slot, cols, off, p0, p1, out):
+    """Columns p0..p1 of :class:`_RayMajorMaps`: ``out[q]`` (n+2, n+2, C), q = cols[col], = π·num[:, col]/den[slot[col]]
+    in the interior (0 where den = 0 or the probe is OFF; ``den``, ``ok`` (G, T) per pattern group, ``slot`` each
+    column's group), float32 as numpy computes it, with :func:`workers.kernels.octahedral.add_border`'s border."""
     n = out.shape[1] - 2
     C = out.shape[3]
     pi = np.float32(math.pi)
-    for p in range(p0, p1):
+    for col in range(p0, p1):
+        p = cols[col]
+        g = slot[col]
         for i in range(n):
             for j in range(n):
                 t = i * n + j
                 for c in range(C):
-                    out[p, i + 1, j + 1, c] = pi * (num[t, p, c] / den[t]) if ok[t] and not off[p] else 0.0
+                    out[p, i + 1, j + 1, c] = pi * (num[t, col, c] / den[g, t]) if ok[g, t] and not off[p] else 0.0
         for k in range(1, n + 1):
             for c in range(C):
                 out[p, 0, k, c] = out[p, 1, n + 1 - k, c]              # top: first row, columns flipped
@@ -139,7 +170,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
               states: np.ndarray, n: int, gather, retire, *, emission: np.ndarray | None = None, sky=None,
               bounces: int | None, max_bounces: int, tolerance: float, report=None,
               correction: np.ndarray | None = None, indirect_scale: np.ndarray | None = None,
-              near=None) -> BounceLog:
+              near=None, parents: np.ndarray | None = None) -> BounceLog:
     """Sum the bounce series of B lighting configurations (module doc) over the same cached probe-ray hits.
 
     Parameters
@@ -152,7 +183,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         Diffuse albedo at the hits (linear RGB).
     e_direct : (B, H, 3) float32
         Direct irradiance at the hits per configuration (lux × colour).
-    dirs : (R, 3) float32; states : (P,) int; n : int
+    dirs : (R, 3) float32 or :class:`workers.kernels.sampling.ProbeRays`; states : (P,) int; n : int
         As :func:`irradiance_maps`.
     gather : callable
         ``gather(maps (P, n+2, n+2, 3k) float32) -> (H, 3k)``: E_indirect at the hits from the live
@@ -184,8 +215,15 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         stand up to a cell away and report the far field in those directions; the hit sees the nearby surface, whose irradiance the hit's own stands in for (multi-bounce
         ambient occlusion): ``E_indirect = (1 − a)·G + a·(π·L'_e + ρ'·(E_direct + E_indirect'))``, G the gathered
         irradiance and E_indirect' the hit's previous bounce. None, or hits not in it: ``E_indirect = G`` exactly.
+    parents : (E,) int or None
+        Extra ray rows (:mod:`workers.kernels.adaptive_rays`): the last E of the ``miss.shape[0]`` rows of ``miss``,
+        ``index``, ``dirs`` and ``states`` are more rays of probes ``parents``; each bounce's map of a probe is the mean
+        of its rows' maps (:func:`workers.kernels.adaptive_rays.merge_rows`), so the maps, ``gather``, ``correction``
+        and ``retire``'s maps have P = rows − E probes, and ``retire``'s radiance all the rows.
     """
-    P, R = miss.shape
+    rows_all, R = miss.shape
+    parents = np.zeros(0, np.int64) if parents is None else np.asarray(parents, np.int64)
+    P = rows_all - parents.size
     B, H = e_direct.shape[0], index.size
     t = n + 2
     alb = albedo / np.float32(math.pi)                                        # albedo/π, (H, 3)
@@ -193,11 +231,15 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     if emission is not None:
         base = np.tile(emission, (1, B)) + base                               # + emission
     rho = np.tile(alb if indirect_scale is None else alb * np.asarray(indirect_scale, np.float32)[:, None], (1, B))
-    # radiance ray-major, (R·P, 3B): row r·P + p is probe p's ray r (the octahedral sums read it without a copy)
-    radiance = np.zeros((R * P, 3 * B), np.float32)
-    rows = (index % R) * P + index // R
+    # radiance ray-major, (R·P, 3B): row r·P + j is ray r of the probe in column j (the octahedral sums read it
+    # without a copy; columns grouped by ray pattern, _RayMajorMaps)
+    accumulate = _RayMajorMaps(dirs, n, states)          # its column order: probes grouped by ray pattern
+    radiance = np.zeros((R * rows_all, 3 * B), np.float32)
+    col = index // R if accumulate.inv is None else accumulate.inv[index // R]
+    rows = (index % R) * rows_all + col
     if sky is not None:
-        radiance[miss.T.ravel()] = np.tile(np.asarray(sky, np.float32), B)
+        held = miss if accumulate.perm is None else miss[accumulate.perm]
+        radiance[held.T.ravel()] = np.tile(np.asarray(sky, np.float32), B)
     if near is not None and near.index.size:   # the near-field hits (parameter ``near``), (k, ·) each
         sel = near.index
         near_a = near.a[:, None].astype(np.float32)
@@ -207,7 +249,6 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         near_prev = np.zeros_like(near_base)
     else:
         near = None
-    accumulate = _RayMajorMaps(dirs, n, states)
     maps = np.zeros((P, t, t, 3 * B), np.float32)
     live = np.arange(B)
     log = BounceLog(bounces=np.zeros(B, np.int64), change=[[] for _ in range(B)], residual=[[] for _ in range(B)])
@@ -222,7 +263,9 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
                 near_prev = (1 - near_a) * e_ind[sel] + near_base + near_rho * near_prev
                 e_ind[sel] = near_prev
             _shade_hits(radiance, rows, base, rho, e_ind)
-        new = accumulate(radiance.reshape(R, P, -1))                          # DDGI-I eq 1, α = 0
+        new = accumulate(radiance.reshape(R, rows_all, -1))                   # DDGI-I eq 1, α = 0
+        if parents.size:
+            new = merge_rows(new, parents)                                     # a probe's rows: their mean
         if correction is not None:
             new += correction                                                  # the fixed term over more rays
         nb = live.size
@@ -250,7 +293,9 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
         log.bounces[live[done]] = b
         picked = radiance if done.all() else radiance[:, cols]               # no copy when all stop together
-        retire(live[done], picked.reshape(R, P, -1).transpose(1, 0, 2), new[..., cols], b)
+        held = picked.reshape(R, rows_all, -1)
+        held = held if accumulate.inv is None else held[:, accumulate.inv]                # probe order
+        retire(live[done], held.transpose(1, 0, 2), new[..., cols], b)
         keep = ~done
         if not keep.any():
             break
@@ -269,9 +314,10 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
 
 def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emission=None, sky=None,
                   bounces: int | None, max_bounces: int, tolerance: float, report=None, correction=None,
-                  indirect_scale=None, near=None):
+                  indirect_scale=None, near=None, parents=None):
     """:func:`integrate` for one configuration: ``e_direct`` (H, 3). Returns ``(irradiance (P, n+2, n+2, 3),
-    radiance (P, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float)."""
+    radiance (rows, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float; rows = P + E
+    with ``parents``)."""
     out = {}
 
     def retire(ids, radiance, maps, b):     # C order, as the arrays the loop holds (column picks are not)
@@ -279,5 +325,5 @@ def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emi
 
     log = integrate(index, miss, albedo, e_direct[None], dirs, states, n, gather, retire, emission=emission,
                     sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report,
-                    correction=correction, indirect_scale=indirect_scale, near=near)
+                    correction=correction, indirect_scale=indirect_scale, near=near, parents=parents)
     return out["maps"], out["radiance"], log.change[0], log.residual[0]

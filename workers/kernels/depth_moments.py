@@ -26,6 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from workers.kernels.octahedral import accumulate_octahedral, add_border, oct_texel_directions
+from workers.kernels.sampling import probe_rays
 
 __all__ = ["BACKFACE_SHORTEN", "depth_moments", "max_ray_distance", "reach", "clamp_far"]
 
@@ -50,12 +51,22 @@ def depth_moments(t: np.ndarray, back: np.ndarray, dirs: np.ndarray, n: int, sha
     """(P, n+2, n+2, 2) float32 mean distance and mean squared distance per octahedral texel, with border.
 
     t : (P, R) hit distances, metres (inf = miss); back : (P, R) bool back-face hits; dirs : (R, 3) unit ray
-    directions; n : texels per side (without border); sharpness : the cosine exponent; max_distance : metres.
+    directions or each probe's (:class:`workers.kernels.sampling.ProbeRays`); n : texels per side (without border); sharpness : the cosine exponent; max_distance : metres.
     """
     d = np.where(np.isfinite(t), t, max_distance)                             # misses at max_distance
     d = np.minimum(np.where(back, d * BACKFACE_SHORTEN, d), max_distance)     # DDGI-P §4.1: back faces −80%
     values = np.stack([d, d * d], axis=-1).astype(np.float32)               # DDGI-I eq 2: l and l²
-    maps = accumulate_octahedral(dirs, values, oct_texel_directions(n), sharpness)
+    rays = probe_rays(dirs, t.shape[0])
+    texels = oct_texel_directions(n)
+    groups = rays.groups()
+    if len(groups) == 1:
+        maps = accumulate_octahedral(rays.patterns[groups[0][0]], values, texels, sharpness)
+    else:                                   # each probe's own pattern (workers.kernels.sampling.ProbeRays)
+        maps = None
+        for k, idx in groups:
+            m = accumulate_octahedral(rays.patterns[k], values[idx], texels, sharpness)
+            maps = np.empty((t.shape[0],) + m.shape[1:], m.dtype) if maps is None else maps
+            maps[idx] = m
     return add_border(maps).astype(np.float32)
 
 

@@ -22,9 +22,10 @@ from numba import njit
 
 from workers.kernels.ddgi import cage_probes, cage_rays
 from workers.kernels.path_rng import _cosine_dir, _uniform
+from workers.kernels.sampling import probe_rays
 from workers.kernels.shading import ensure_valid_reflection, surface_at_hits
 
-__all__ = ["HitSurfaces", "hit_surfaces", "probe_visibility", "near_occlusion", "NearField", "VISIBILITY_CHUNK", "HIT_CHUNK"]
+__all__ = ["HitSurfaces", "hit_surfaces", "concat_hits", "probe_visibility", "near_occlusion", "NearField", "VISIBILITY_CHUNK", "HIT_CHUNK"]
 
 HIT_CHUNK = 1 << 21
 """Hits shaded per :func:`workers.kernels.shading.surface_at_hits` call in :func:`hit_surfaces` (memory bound)."""
@@ -67,8 +68,8 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     ----------
     scene : NormalizedScene
         Triangles, normals and materials (:func:`workers.kernels.shading.surface_at_hits`).
-    dirs : (R, 3) float32
-        Unit ray directions, the same for every probe, world space.
+    dirs : (R, 3) float32 or :class:`workers.kernels.sampling.ProbeRays`
+        Unit ray directions, world space: the same for every probe, or each probe's pattern.
     hits : (P, R, 4) float32
         t (metres), barycentric u, v, backface (1.0 when the ray hit a triangle's back).
     tri : (P, R) int32
@@ -87,7 +88,7 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     P, R = tri.shape
     flat = hits.reshape(-1, hits.shape[-1])               # (P·R, 4): t, u, v, backface
     index = np.flatnonzero((tri >= 0) & ~(hits[..., 3] > 0.5))
-    d = np.asarray(dirs)[index % R]                       # ray index·R + r: direction r (no (P·R, 3) tile)
+    d = probe_rays(dirs, P).of_rays(index)                # probe p's ray r at p·R + r (no (P·R, 3) tile)
     H = index.size
     pos, n, alb, emi, geo, smooth = (np.empty((H, 3), np.float32) for _ in range(6))
     bent = np.zeros(H, bool)
@@ -121,6 +122,22 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     geo, smooth, bent = geo[order], smooth[order], bent[order]
     return HitSurfaces(index=index, position=pos, normal=n, view=view, albedo=alb, emission=emi, miss=tri < 0, P=P,
                        R=R, geo_normal=geo, smooth_normal=smooth, bent=bent)
+
+
+def concat_hits(a: HitSurfaces, b: HitSurfaces) -> HitSurfaces:
+    """The hits of ``a``'s P_a probes then ``b``'s P_b rows (the same R) as one :class:`HitSurfaces` of P_a + P_b rows:
+    ``b``'s flat ray indices shifted by P_a·R. Fields None in either are None."""
+    if a.R != b.R:
+        raise ValueError(f"concat_hits: {a.R} and {b.R} rays per row")
+
+    def cat(x, y):
+        return None if x is None or y is None else np.concatenate([x, y])
+
+    return HitSurfaces(index=np.concatenate([a.index, b.index + a.P * a.R]), position=cat(a.position, b.position),
+                       normal=cat(a.normal, b.normal), view=cat(a.view, b.view), albedo=cat(a.albedo, b.albedo),
+                       emission=cat(a.emission, b.emission), miss=np.concatenate([a.miss, b.miss]), P=a.P + b.P, R=a.R,
+                       geo_normal=cat(a.geo_normal, b.geo_normal), smooth_normal=cat(a.smooth_normal, b.smooth_normal),
+                       bent=cat(a.bent, b.bent))
 
 
 @njit(cache=True, nogil=True)

@@ -50,7 +50,7 @@ from workers.kernels.lightmap import DILATE_TEXELS, dilate, lightmap_texels
 from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, near_occlusion, probe_visibility
 from workers.kernels.prt_scenario import (measurement_direct, measurement_points, near_surface_sampler,
                                          random_light_configurations)
-from workers.kernels.sh import sh_count, sh_project
+from workers.kernels.sh import sh_count, sh_project_probes
 from workers.kernels.shading import direct_irradiance, horizon_factor
 
 __all__ = ["PrtDataset", "PrtTooLarge", "build_dataset", "solve_batch", "fit_targets"]
@@ -111,7 +111,7 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
     off = states == OFF
 
     def retire(ids, radiance, maps, b):
-        sh = sh_project(dirs, radiance, order=sh_order).astype(np.float32)
+        sh = sh_project_probes(dirs, radiance, order=sh_order).astype(np.float32)
         sh[off] = 0.0
         sh_out[ids] = sh.reshape(P, K, -1, 3).transpose(2, 0, 1, 3)
         maps_out[ids] = maps.reshape(P, t, t, -1, 3).transpose(3, 0, 1, 2, 4)
@@ -133,7 +133,7 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
     ----------
     scene : NormalizedScene; caster : ``occluded``, ``inside_parity`` (:mod:`workers.raycast`); rng : the
         stage's random stream.
-    grid : ``counts``, ``origin``, ``spacing``; dirs (R, 3), hits (P, R, 4), tri (P, R): the trace stage's
+    grid : ``counts``, ``origin``, ``spacing``; dirs (R, 3) or ProbeRays, hits (P, R, 4), tri (P, R): the trace stage's
         cached probe rays; states (P,); depth (P, m+2, m+2, 2) depth moments with border; positions (P, 3)
         relocated probes, metres.
     bounds : (2, 3) float64 scene bounds, metres (spot targets; the shadow offset eps = 1e-4 x diagonal, as

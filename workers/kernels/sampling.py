@@ -1,8 +1,11 @@
 """Ray direction patterns for probe tracing (DDGI-I §3.2, DDGI-P §2.3).
 
-Each probe casts the same spherical Fibonacci pattern (Keinert et al. 2015, DDGI-I ref [9]),
-rotated by one uniformly random rotation per iteration so that successive iterations sample
-different directions (DDGI-P §2.3: "rotating the pattern randomly every frame").
+Each probe casts a spherical Fibonacci pattern (Keinert et al. 2015, DDGI-I ref [9]) under a uniformly random
+rotation (DDGI-P §2.3: "rotating the pattern randomly every frame", so that successive frames sample different
+directions). Offline there is one frame: a rotation shared by every probe makes every probe miss, or catch, the same
+small bright openings in the same way, an error that interpolation and the bounces then add up instead of averaging
+out. :class:`ProbeRays` gives neighbouring probes different rotations instead (:func:`pattern_of_grid`: the 8
+corners of every grid cell differ).
 
 Frames: directions are unit vectors in world space (glTF frame, +Y up); the pattern itself
 has its polar axis along +Z, which does not matter once it is randomly rotated.
@@ -12,9 +15,12 @@ Consumers: stages/trace (probe rays), kernels/octahedral and kernels/sh (Monte C
 """
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
-__all__ = ["fibonacci_sphere", "random_rotation", "rotated_directions"]
+__all__ = ["fibonacci_sphere", "random_rotation", "rotated_directions", "ProbeRays", "probe_rays",
+           "rotated_patterns", "pattern_of_grid"]
 
 _GOLDEN_RATIO = (1.0 + np.sqrt(5.0)) / 2.0  # φ = 1.618034
 
@@ -121,3 +127,73 @@ def rotated_directions(n: int, rotation: np.ndarray) -> np.ndarray:
     d = fibonacci_sphere(n).astype(np.float64) @ r.T
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
     return d.astype(np.float32)
+
+
+@dataclass
+class ProbeRays:
+    """The ray directions of every probe: K rotated copies of one pattern, probe p casting ``patterns[pattern[p]]``.
+
+    ``patterns`` (K, R, 3) float32 unit directions, world space (the bake frame in a turned bake); ``pattern`` (P,)
+    integer, each probe's pattern. K = 1 is the DDGI runtime's one rotation for all probes. Flat ray index
+    ``p·R + r`` (the trace stage's (P, R) arrays, raveled) is probe p's ray r.
+    """
+
+    patterns: np.ndarray
+    pattern: np.ndarray
+
+    @property
+    def rays(self) -> int:
+        """R, rays per probe."""
+        return int(self.patterns.shape[1])
+
+    def groups(self) -> list[tuple[int, np.ndarray]]:
+        """``[(k, probe indices (n_k,) int64)]`` for every pattern some probe casts, k ascending."""
+        order = np.argsort(self.pattern, kind="stable")
+        ks, starts = np.unique(self.pattern[order], return_index=True)
+        bounds = list(starts[1:]) + [order.size]
+        return [(int(k), order[a:b]) for k, a, b in zip(ks, starts, bounds)]
+
+    def of_rays(self, index) -> np.ndarray:
+        """(H, 3) float32 directions of the flat ray indices ``index`` (H,) (``p·R + r``)."""
+        index = np.asarray(index, np.int64)
+        R = self.rays
+        if self.patterns.shape[0] == 1:
+            return self.patterns[0][index % R]
+        return self.patterns[self.pattern[index // R], index % R]
+
+    def of_probes(self, a: int, b: int) -> np.ndarray:
+        """(b − a, R, 3) float32 directions of probes a..b."""
+        return self.patterns[self.pattern[a:b]]
+
+
+def probe_rays(dirs, probes: int) -> ProbeRays:
+    """``dirs`` as :class:`ProbeRays` for ``probes`` probes: a ProbeRays as it is, an (R, 3) array as the one
+    pattern of every probe."""
+    if isinstance(dirs, ProbeRays):
+        if dirs.pattern.shape != (probes,):
+            raise ValueError(f"probe_rays: {dirs.pattern.shape[0]} probe patterns for {probes} probes")
+        return dirs
+    d = np.asarray(dirs, np.float32)
+    if d.ndim != 2 or d.shape[1] != 3:
+        raise ValueError(f"probe_rays: dirs must have shape (R, 3), got {d.shape}")
+    return ProbeRays(d[None], np.zeros(int(probes), np.int64))
+
+
+def rotated_patterns(n: int, k: int, rng: np.random.Generator) -> np.ndarray:
+    """(k, n, 3) float32: the Fibonacci pattern of ``n`` directions under ``k`` independent uniformly random
+    rotations (:func:`random_rotation` of ``rng``, in order; :func:`rotated_directions`)."""
+    return np.stack([rotated_directions(n, random_rotation(rng)) for _ in range(int(k))])
+
+
+def pattern_of_grid(counts, k: int) -> np.ndarray:
+    """(P,) int64 pattern of each probe of a grid of ``counts`` (nx, ny, nz) probes (flattened C order from (nz, ny,
+    nx)) among ``k`` patterns: the parity of its grid index, ``(i & 1) + 2 (j & 1) + 4 (k & 1)``, so that the 8
+    corners of every cell cast 8 different patterns (k ≥ 8), plus 8 × a hash of the 2×2×2 block the probe is in
+    (k ≥ 16), modulo k."""
+    nx, ny, nz = (int(c) for c in counts)
+    kk, jj, ii = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
+    ii, jj, kk = (x.ravel().astype(np.int64) for x in (ii, jj, kk))
+    parity = (ii & 1) + 2 * (jj & 1) + 4 * (kk & 1)
+    blocks = max(int(k) // 8, 1)
+    h = ((ii >> 1) * 73856093) ^ ((jj >> 1) * 19349663) ^ ((kk >> 1) * 83492791)
+    return (parity + 8 * (h % blocks)) % max(int(k), 1)

@@ -46,6 +46,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from workers.kernels.sampling import probe_rays
+
 __all__ = [
     "SH_C0",
     "SH_C1",
@@ -56,6 +58,7 @@ __all__ = [
     "sh_count",
     "sh_basis",
     "sh_project",
+    "sh_project_probes",
     "sh_irradiance",
     "sh_irradiance_l1_nonlinear",
     "sh_irradiance_l2",
@@ -161,6 +164,22 @@ def sh_project(dirs, values, weights=None, order: int = 2) -> np.ndarray:
         if w.shape[-1:] != (r_count,):
             raise ValueError(f"sh_project: weights must be a scalar or have shape (..., {r_count}), got {w.shape}")
     return _sh_project(d, v, w, sh_count(order))
+
+
+def sh_project_probes(dirs, values, order: int = 2) -> np.ndarray:
+    """:func:`sh_project` of each probe's radiance samples on its own direction pattern (uniform weights 4π/R).
+
+    ``dirs``: (R, 3) (every probe the same) or :class:`workers.kernels.sampling.ProbeRays`; ``values`` (P, R, C).
+    Returns (P, 4 | 9, C) float64."""
+    v = np.asarray(values)
+    rays = probe_rays(dirs, v.shape[0])
+    groups = rays.groups()
+    if len(groups) == 1:
+        return sh_project(rays.patterns[groups[0][0]], v, order=order)
+    out = np.empty((v.shape[0], sh_count(order), v.shape[-1]), np.float64)
+    for k, idx in groups:
+        out[idx] = sh_project(rays.patterns[k], v[idx], order=order)
+    return out
 
 
 def _sh_project(d, v, w, count):

@@ -30,6 +30,11 @@ the hits) are sampled from the light (:mod:`workers.kernels.light_spots`): the r
 point lights the excess, added to every bounce's maps and to the SH (stats ``spot_lights``, ``spot_rays``).
 L2 deringing (:func:`workers.kernels.sh.sh_l2_floor`): each probe's L2 SH changed as little as possible so that its
 L2 irradiance is at least 0.75 of its own octahedral map at every texel direction (no change where L2 does not ring).
+Adaptive rays (:mod:`workers.kernels.adaptive_rays`): before any bounce, the probes whose few rays see a small
+bright thing (the relative noise of their first-bounce light, pooled over their neighbours) get up to
+``light.extra_sets`` more sets of the trace's R rays, ``light.extra_rays`` × the live probes' count in all, traced here
+under fresh rotations (seeded by the bake's seed) and shaded as the trace's own; a probe's maps and SH are the mean
+of its sets (stats ``extra_rays``, ``extra_probes``, ``extra_noise_max``, ``extra_seconds``).
 Bounces: a fixed count (``light.bounces``) or until the estimated light still to come
 (:mod:`workers.kernels.convergence`) is below ``light.tolerance`` at every probe that matters (capped at
 ``light.max_bounces``; a bake that stops short carries the warning ``not_converged``). OFF probes stay at 0 in
@@ -53,21 +58,58 @@ import time
 import numpy as np
 
 from workers.kernels import precision
+from workers.kernels.adaptive_rays import allocate_sets, extra_rows, first_bounce_noise, merge_rows, pooled
 from workers.kernels.bounce import integrate_one
 from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
 from workers.kernels.light_spots import split_direct, spot_correction, spot_thresholds
 from workers.kernels.materials import albedo_warnings, double_sided_triangles
-from workers.kernels.probe_hits import hit_surfaces, near_occlusion, probe_visibility
 from workers.kernels.octahedral import oct_texel_directions
-from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project
+from workers.kernels.probe_hits import concat_hits, hit_surfaces, near_occlusion, probe_visibility
+from workers.kernels.sampling import ProbeRays, rotated_patterns
+from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project_probes
 from workers.kernels.shading import direct_irradiance, horizon_factor
 from workers.raycast import caster_for_scene
+from workers.raycast.probes import trace_probes
 from workers.stages.base import Artifact, StageContext, StageOutput
+from workers.stages.trace import probe_rays_of
 
 ZSTD_LEVEL = 9
+EXTRA_SEED_TAG = 0xE7A5
+EXTRA_PATTERNS = 64
+"""Fresh rotations of the ray pattern for the extra rows, cycled over them (consecutive rows of a probe differ)."""
 """Zstandard level of the stored probe data: the irradiance atlas is a third of a DDGI bundle; level 9 stores it
 about 8% smaller than the default 3 for about 0.05 s per MB of raw texels (zdm2 at 32x16x32)."""
+
+
+def _extra_rays(ctx, scene, caster, eps, surf, per_light, c_spot, dirs, states, positions, counts):
+    """The adaptive rays (:mod:`workers.kernels.adaptive_rays`): ``(surf, per_light, dirs, states, parents, q_max)``
+    with the extra rows' hits, direct light, patterns and states after the probes' own (``parents`` (E,) their
+    probes; E = 0: the inputs unchanged). The extra patterns are fresh rotations, seeded by the bake's seed."""
+    sec, lit = ctx.config.light, ctx.inputs["ingest"]["lights"]
+    none = np.zeros(0, np.int64)
+    if sec.extra_rays <= 0 or sec.extra_sets <= 0:
+        return surf, per_light, dirs, states, none, 0.0
+    e_first = split_direct(per_light, c_spot) if per_light else np.zeros_like(surf.position)
+    first = surf.emission + surf.albedo / np.float32(math.pi) * e_first              # the first bounce (module doc)
+    q = pooled(first_bounce_noise(surf.index, surf.miss, first, lit["sky"], dirs.rays), counts)
+    parents = extra_rows(allocate_sets(q, states, sec.extra_rays, sec.extra_sets))
+    q_max = float(q.max(initial=0.0))
+    if parents.size == 0:
+        return surf, per_light, dirs, states, none, q_max
+    rng = np.random.default_rng([ctx.config.seed, EXTRA_SEED_TAG])
+    K = dirs.patterns.shape[0]
+    extra = rotated_patterns(dirs.rays, EXTRA_PATTERNS, rng)
+    rows = ProbeRays(extra, np.arange(parents.size, dtype=np.int64) % EXTRA_PATTERNS)
+    t, tri, u, v, back, _ = trace_probes(caster, positions[parents], rows, double_sided_triangles(scene))
+    hx = np.stack([t, u, v, back.astype(np.float32)], axis=-1)
+    sx = hit_surfaces(scene, rows, hx, tri)
+    del hx, t, tri, u, v, back
+    fx = dict(geo_normals=sx.geo_normal, smooth_normals=sx.smooth_normal, bent=sx.bent)
+    px = [direct_irradiance(sx.position, sx.normal, [lt], caster, eps, **fx) for lt in lit["lights"]]
+    per_light = [np.concatenate([a, b]) for a, b in zip(per_light, px)]
+    all_rays = ProbeRays(np.concatenate([dirs.patterns, extra]), np.concatenate([dirs.pattern, K + rows.pattern]))
+    return (concat_hits(surf, sx), per_light, all_rays, np.concatenate([states, states[parents]]), parents, q_max)
 
 
 def run_light(ctx: StageContext) -> StageOutput:
@@ -78,7 +120,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     counts = grid["counts"]
     nx, ny, nz = counts
     tr = ctx.inputs["trace"]
-    dirs = tr["ray_directions"]
+    dirs = probe_rays_of(tr)
     hits, tri = tr["ray_hits"], tr["ray_tri"]
     states = tr["probe_states"].reshape(-1)
     m = ctx.config.trace.depth_texels + 2
@@ -98,11 +140,19 @@ def run_light(ctx: StageContext) -> StageOutput:
     # lights below the geometric plane rejected and the bump term on bent hits; E_indirect x the horizon factor
     frame = dict(geo_normals=surf.geo_normal, smooth_normals=surf.smooth_normal, bent=surf.bent)
     per_light = [direct_irradiance(surf.position, surf.normal, [lt], caster, eps, **frame) for lt in lit["lights"]]
+    c_spot = spot_thresholds(per_light, lit["lights"])      # from the trace's own rays (the hot spots, below)
+    t_direct = time.perf_counter() - t0
+    t0 = time.perf_counter()        # adaptive rays (workers.kernels.adaptive_rays): more where few see bright things
+    surf, per_light, dirs, states_all, parents, q_max = _extra_rays(ctx, scene, caster, eps, surf, per_light, c_spot,
+                                                                    dirs, states, positions, counts)
+    t_extra = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    frame = dict(geo_normals=surf.geo_normal, smooth_normals=surf.smooth_normal, bent=surf.bent)
     e_direct = sum(per_light[1:], per_light[0]) if per_light else np.zeros_like(surf.position)
     horizon = horizon_factor(surf.normal, surf.geo_normal, surf.smooth_normal, surf.bent).astype(np.float32)
     n_bent, n_horizon = int(surf.bent.sum()), int((horizon < 1).sum())
     horizon = None if n_horizon == 0 else horizon          # flat shading: 1 everywhere, bit-identical to no factor
-    t_direct = time.perf_counter() - t0
+    t_direct += time.perf_counter() - t0
     t0 = time.perf_counter()        # near-field occlusion (workers.kernels.probe_hits.near_occlusion)
     near, near_mean = None, 0.0
     if sec.near_radius > 0 and sec.near_rays > 0:
@@ -117,7 +167,6 @@ def run_light(ctx: StageContext) -> StageOutput:
     t_vis = time.perf_counter() - t0
     ctx.report(0.1)
     t0 = time.perf_counter()        # point lights' hot spots sampled from the light (workers.kernels.light_spots)
-    c_spot = spot_thresholds(per_light, lit["lights"])
     e_direct = split_direct(per_light, c_spot) if per_light else e_direct
     dmaps, dsh, n_spots, spot_rays = spot_correction(
         scene, caster, positions, states != OFF, lit["lights"], c_spot, double_sided_triangles(scene),
@@ -129,12 +178,12 @@ def run_light(ctx: StageContext) -> StageOutput:
     surf.position = surf.normal = surf.view = visible = depth = None                  # in the weights now
     t_weights = time.perf_counter() - t1
     irr, radiance, history, residuals = integrate_one(
-        surf.index, surf.miss, surf.albedo, e_direct, dirs, states, sec.irradiance_texels, gather,
+        surf.index, surf.miss, surf.albedo, e_direct, dirs, states_all, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
         tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps,
-        indirect_scale=horizon, near=near)
+        indirect_scale=horizon, near=near, parents=parents)
     t_bounces = time.perf_counter() - t1
-    sh = sh_project(dirs, radiance, order=sec.sh_order) + dsh                        # (P, 9|4, 3)
+    sh = merge_rows(sh_project_probes(dirs, radiance, order=sec.sh_order), parents) + dsh   # (P, 9|4, 3)
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
         n = sec.irradiance_texels
         sh = sh_l2_floor(sh, oct_texel_directions(n).reshape(-1, 3), irr[:, 1:-1, 1:-1].reshape(len(sh), n * n, 3))
@@ -159,6 +208,8 @@ def run_light(ctx: StageContext) -> StageOutput:
         "near_rays": near.rays if near is not None else 0, "near_seconds": t_near,
         "near_hits": int(near.index.size) if near is not None else 0,
         "near_mean": near_mean,
+        "extra_rays": int(parents.size) * int(dirs.rays), "extra_probes": int(np.unique(parents).size),
+        "extra_noise_max": q_max, "extra_seconds": t_extra,
         "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
     }

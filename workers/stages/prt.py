@@ -38,6 +38,7 @@ from workers.kernels.prt_dataset import PrtDataset, PrtTooLarge, build_dataset, 
 from workers.kernels.prt_scenario import triangle_areas
 from workers.raycast import caster_for_scene
 from workers.stages.base import Artifact, StageContext, StageError, StageOutput
+from workers.stages.trace import probe_rays_of
 
 PRT_SEED_SALT = 0x505254
 """Mixed with the bake seed for the stage's random stream ("PRT")."""
@@ -71,7 +72,7 @@ def prt_dataset(ctx: StageContext) -> PrtDataset:
     try:
         return build_dataset(
             scene, caster_for_scene(scene), np.random.default_rng([ctx.config.seed, PRT_SEED_SALT]), grid=grid,
-            dirs=tr["ray_directions"], hits=tr["ray_hits"], tri=tr["ray_tri"], states=tr["probe_states"].reshape(-1),
+            dirs=probe_rays_of(tr), hits=tr["ray_hits"], tri=tr["ray_tri"], states=tr["probe_states"].reshape(-1),
             depth=unpack_atlas(np.asarray(tr[_full_depth(tr)], np.float32), grid["counts"],
                                ctx.config.trace.depth_texels + 2),
             positions=ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float32),

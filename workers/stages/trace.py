@@ -1,7 +1,11 @@
 """Stage ``trace``: the final probe rays — classification, depth moments, and cached hits.
 
-From the relocated positions, ``rays_per_probe`` rays per probe on a spherical Fibonacci pattern
-under a seeded random rotation (DDGI-I §3.2; one rotation for all probes, as DDGI per frame).
+From the relocated positions, ``rays_per_probe`` rays per probe on a spherical Fibonacci pattern under seeded random
+rotations (DDGI-I §3.2): ``trace.ray_rotations`` of them, spread so that the 8 corners of every grid cell cast
+different ones (:func:`workers.kernels.sampling.pattern_of_grid`). One rotation for all probes (1, DDGI's per
+frame) makes every probe see a small bright opening through the same few directions: offline, with one "frame",
+that error is the same at neighbouring probes, and interpolation and the bounces add it up (sun-window turned 90°:
+the dark room read 1.10-1.15 of Cycles, 1.00-1.07 at 1024 rays).
 
 - **Classification** (DDGI-P §6.1-6.2, Fig 10, offline subset; :mod:`workers.kernels.classification`):
   OFF inside geometry, ACTIVE with a front face within one cell diagonal, SLEEPING otherwise.
@@ -19,7 +23,9 @@ probe's reach (the farthest any shading point can be from it, with the runtime's
 ``light.self_shadow_bias``) clamped to it (:func:`workers.kernels.depth_moments.clamp_far`, ``meta.far_clamp``) and
 the OFF probes' maps 0 (no reader reads them: the DDGI sampler and mode_ddgi.glsl skip OFF probes first); internal
 ``depth_moments_full``, the float32 atlas the light and PRT stages integrate with;
-``ray_directions`` (R, 3) float32, ``ray_hits`` (P, R, 4) float32 (t (inf on miss), u, v, backface)
+``ray_directions`` (K, R, 3) float32 patterns and ``ray_pattern`` (P,) uint8 (probe p's rays are
+``ray_directions[ray_pattern[p]]``; :class:`workers.kernels.sampling.ProbeRays`), ``ray_hits`` (P, R, 4) float32 (t
+(inf on miss), u, v, backface)
 and ``ray_tri`` (P, R) int32.
 """
 from __future__ import annotations
@@ -32,7 +38,7 @@ from workers.kernels.depth_moments import clamp_far, depth_moments, max_ray_dist
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
 from workers.kernels import precision
 from workers.kernels.materials import double_sided_triangles
-from workers.kernels.sampling import fibonacci_sphere, random_rotation
+from workers.kernels.sampling import ProbeRays, fibonacci_sphere, pattern_of_grid, random_rotation, rotated_patterns
 from workers.raycast import caster_for_scene
 from workers.raycast.probes import trace_probes
 from workers.stages.base import Artifact, StageContext, StageOutput
@@ -41,6 +47,12 @@ STAGE_SEED_TAG = 0x7ACE
 ZSTD_LEVEL = 9
 """Zstandard level of the stored depth moments (the largest artifact of a DDGI bundle): about 5% smaller than the
 default 3 for about 0.02 s per MB of raw texels (zdm2 at 32x16x32)."""
+
+
+def probe_rays_of(trace) -> ProbeRays:
+    """The probe rays of a trace stage's outputs (``trace["ray_directions"]`` (K, R, 3), ``trace["ray_pattern"]``
+    (P,)): :class:`workers.kernels.sampling.ProbeRays`."""
+    return ProbeRays(np.asarray(trace["ray_directions"], np.float32), np.asarray(trace["ray_pattern"], np.int64))
 
 
 def run_trace(ctx: StageContext) -> StageOutput:
@@ -52,7 +64,12 @@ def run_trace(ctx: StageContext) -> StageOutput:
     positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float64)
     caster = caster_for_scene(scene)
     rng = np.random.default_rng([ctx.config.seed, STAGE_SEED_TAG])
-    dirs = (fibonacci_sphere(sec.rays_per_probe).astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
+    if sec.ray_rotations == 1:      # one rotation for all probes (as stage version 3)
+        patterns = (fibonacci_sphere(sec.rays_per_probe).astype(np.float64) @
+                    random_rotation(rng).T).astype(np.float32)[None]
+    else:
+        patterns = rotated_patterns(sec.rays_per_probe, sec.ray_rotations, rng)
+    dirs = ProbeRays(patterns, pattern_of_grid(counts, sec.ray_rotations))
     t, tri, u, v, back, ray_seconds = trace_probes(caster, positions, dirs, double_sided_triangles(scene))
     ctx.report(0.5)
     diag = float(np.linalg.norm(spacing))
@@ -95,7 +112,10 @@ def run_trace(ctx: StageContext) -> StageOutput:
                          **prec}),
             Artifact("depth_moments_full", atlas, description="depth_moments in float32 (light and PRT stages)",
                      meta={"tile": n2, "texels": sec.depth_texels, "max_distance": dmax, **internal}),
-            Artifact("ray_directions", dirs, format="npy", description="final probe ray directions", meta=internal),
+            Artifact("ray_directions", patterns, format="npy", meta=internal,
+                     description="the probe rays' direction patterns (K, R, 3): probe p casts ray_pattern[p]"),
+            Artifact("ray_pattern", dirs.pattern.astype(np.uint8), format="npy", meta=internal,
+                     description="per probe, the index of its direction pattern in ray_directions"),
             Artifact("ray_hits", hits, format="npy", description="per probe ray: t, u, v, backface", meta=internal),
             Artifact("ray_tri", tri.astype(np.int32), format="npy", description="per probe ray: triangle or -1",
                      meta=internal),
