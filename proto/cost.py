@@ -86,6 +86,10 @@ SCENE_BYTES_PER_TRIANGLE = 112 # the stored normalized scene without textures (t
 SCENE_MEM_PER_TRIANGLE = 300   # the loaded scene, its Embree BVH and material tables
 SCENE_MEM_PER_BYTE = 2.0       # textures and other stored arrays, loaded (+ derived)
 RAY_MEM = {"relocate": 40, "trace": 24, "light": 185}    # per probe ray at the stage's peak (hits, per-ray arrays)
+RAY_MEM_EXTRA_CHUNKED = 450    # per adaptive ray of the light stage, up to RAY_MEM_CHUNK of them, beyond RAY_MEM: their
+#                                hits are shaded (hit_surfaces' chunked temporaries) while the trace's are held (measured
+#                                2026-12-05, bench_cost.py: medium 752 -> 1050 MB for 0.59 M extra rays, defaults 366 ->
+#                                499 MB for 0.2 M; big_room 1405 -> 1739 MB for 2.4 M: about 140 B a ray at scale)
 RAY_MEM_CHUNKED = {"relocate": 215, "light": 315}        # more per ray up to RAY_MEM_CHUNK rays: the temporaries the
 RAY_MEM_CHUNK = 1 << 20                                  # stage bounds (relocation's rescue and optimizer; the light's
                                                          # float64 chunks of 1-2 M hits, kernels.probe_hits)
@@ -385,7 +389,8 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     NL = N * (1.0 + (config.light.extra_rays if config.light.extra_sets > 0 else 0.0))
     add("light", NL * (LIGHT_SECONDS_PER_HIT * rays_scale + B * LIGHT_SECONDS_PER_HIT_BOUNCE)
         + (NL - N) * TRACE_SECONDS_PER_RAY * rays_scale,
-        LIB_RAYS + LIGHT_FIXED_MEM + scene_mem + NL * RAY_MEM["light"] + min(NL, RAY_MEM_CHUNK) * RAY_MEM_CHUNKED["light"],
+        LIB_RAYS + LIGHT_FIXED_MEM + scene_mem + NL * RAY_MEM["light"] + min(N, RAY_MEM_CHUNK) * RAY_MEM_CHUNKED["light"]
+        + min(NL - N, RAY_MEM_CHUNK) * RAY_MEM_EXTRA_CHUNKED,
         P * (it * it * 4 + (56 * (nz + 2) / nz if sh_k == 9 else 0) + sh_k * 6 + 24) + 6 * ARTIFACT_HEADER,
         internal=P * 48 + ARTIFACT_HEADER)
     n_shard = F / shards

@@ -126,18 +126,20 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
 
 def concat_hits(a: HitSurfaces, b: HitSurfaces) -> HitSurfaces:
     """The hits of ``a``'s P_a probes then ``b``'s P_b rows (the same R) as one :class:`HitSurfaces` of P_a + P_b rows:
-    ``b``'s flat ray indices shifted by P_a·R. Fields None in either are None."""
+    ``b``'s flat ray indices shifted by P_a·R. Fields None in either are None. Consumes ``a`` and ``b`` (their fields
+    are dropped one by one as they are joined, so the peak holds one field twice, not every one)."""
     if a.R != b.R:
         raise ValueError(f"concat_hits: {a.R} and {b.R} rays per row")
-
-    def cat(x, y):
-        return None if x is None or y is None else np.concatenate([x, y])
-
-    return HitSurfaces(index=np.concatenate([a.index, b.index + a.P * a.R]), position=cat(a.position, b.position),
-                       normal=cat(a.normal, b.normal), view=cat(a.view, b.view), albedo=cat(a.albedo, b.albedo),
-                       emission=cat(a.emission, b.emission), miss=np.concatenate([a.miss, b.miss]), P=a.P + b.P, R=a.R,
-                       geo_normal=cat(a.geo_normal, b.geo_normal), smooth_normal=cat(a.smooth_normal, b.smooth_normal),
-                       bent=cat(a.bent, b.bent))
+    out = {}
+    for name in ("index", "position", "normal", "view", "albedo", "emission", "miss", "geo_normal", "smooth_normal",
+                 "bent"):
+        x, y = getattr(a, name), getattr(b, name)
+        if name == "index":
+            y = y + a.P * a.R
+        out[name] = None if x is None or y is None else np.concatenate([x, y])
+        setattr(a, name, None)
+        setattr(b, name, None)
+    return HitSurfaces(P=a.P + b.P, R=a.R, **out)
 
 
 @njit(cache=True, nogil=True)

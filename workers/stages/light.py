@@ -107,7 +107,9 @@ def _extra_rays(ctx, scene, caster, eps, surf, per_light, c_spot, dirs, states, 
     del hx, t, tri, u, v, back
     fx = dict(geo_normals=sx.geo_normal, smooth_normals=sx.smooth_normal, bent=sx.bent)
     px = [direct_irradiance(sx.position, sx.normal, [lt], caster, eps, **fx) for lt in lit["lights"]]
-    per_light = [np.concatenate([a, b]) for a, b in zip(per_light, px)]
+    for i in range(len(per_light)):          # in place: the caller's list drops the trace's arrays as they are joined
+        per_light[i] = np.concatenate([per_light[i], px[i]])
+        px[i] = None
     all_rays = ProbeRays(np.concatenate([dirs.patterns, extra]), np.concatenate([dirs.pattern, K + rows.pattern]))
     return (concat_hits(surf, sx), per_light, all_rays, np.concatenate([states, states[parents]]), parents, q_max)
 
