@@ -471,7 +471,8 @@ def run_scene(name: str, work: Path, store_dir: Path | None, pt_spp: int = 16384
            "kiln_pt": {"spp": pt_spp, "bounces": PT_BOUNCES, "rr_depth": PT_RR_DEPTH, "seconds": pt_seconds},
            "grid": {k: place[k] for k in ("counts", "origin", "spacing")},
            "grid_auto": place.get("auto"),
-           "light": {k: recs["light"].stats.get(k) for k in ("bounces", "converged", "mean_irradiance")},
+           "light": {k: recs["light"].stats.get(k) for k in ("bounces", "converged", "mean_irradiance", "extra_rays",
+                                                              "extra_probes", "front_hits")},
            "probes_off": int((np.asarray(recs["trace"]["probe_states"]).reshape(-1) == OFF).sum()),
            "ingest_warnings": list(scene.warnings), "notes": notes, "probes": probe_info, "probe_bake": probe_bake,
            "default_probes": default_probes and {k: v for k, v in default_probes.items() if k != "values"},
@@ -552,7 +553,8 @@ def table(res: dict) -> list[str]:
                                f"{len(san['volumes'])} volumes)"))
     n_cmp = sum(1 for p in res["probes"] if p.get("compared"))
     lines.append(f"light stage: {res['light']['bounces']} bounces, converged {res['light']['converged']}; "
-                 f"{res['probes_off']} of {int(np.prod(res['grid']['counts']))} probes OFF")
+                 f"{res['probes_off']} of {int(np.prod(res['grid']['counts']))} probes OFF; adaptive rays: "
+                 f"{res['light'].get('extra_rays') or 0:,} more to {res['light'].get('extra_probes') or 0:,} probes")
     if res["probes"]:
         pb = res["probe_bake"] or {}
         src = "the default bake" if pb.get("config") == "default" else \

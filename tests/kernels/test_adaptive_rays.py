@@ -138,3 +138,22 @@ def test_integrator_averages_a_probes_extra_rows():
     assert np.allclose(irr[1], (each[1] + each[4] + each[5]) / 3, rtol=1e-5, atol=1e-6)
     assert np.allclose(irr[3], (each[3] + each[6]) / 2, rtol=1e-5, atol=1e-6)
     assert not np.allclose(irr[1], each[1], rtol=1e-3)
+
+
+def test_concat_hits_shifts_the_extra_rows_ray_indices():
+    from workers.kernels.probe_hits import HitSurfaces, concat_hits
+
+    def hs(P, R, index, k):
+        f = np.full((len(index), 3), k, np.float32)
+        return HitSurfaces(index=np.asarray(index, np.int64), position=f, normal=f, view=f, albedo=f, emission=f,
+                           miss=np.zeros((P, R), bool), P=P, R=R, geo_normal=f, smooth_normal=f,
+                           bent=np.zeros(len(index), bool))
+
+    a, b = hs(3, 4, [0, 5, 11], 1.0), hs(2, 4, [1, 7], 2.0)
+    c = concat_hits(a, b)
+    assert c.P == 5 and c.R == 4 and c.miss.shape == (5, 4)
+    assert np.array_equal(c.index, [0, 5, 11, 13, 19])                      # b's rows after a's 3 probes
+    assert np.array_equal(c.albedo[:, 0], [1, 1, 1, 2, 2])
+    assert a.position is None and b.position is None                        # consumed
+    with pytest.raises(ValueError):
+        concat_hits(hs(1, 4, [0], 1.0), hs(1, 8, [0], 1.0))
