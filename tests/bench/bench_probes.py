@@ -110,8 +110,9 @@ def run_grid(scene, counts, rays, S, raw: RawEmbree) -> dict:
         tr = recs["trace"]
         P = int(np.prod(counts))
         pos = recs["relocate"]["probe_positions_relocated"].reshape(-1, 3)
+        dirs = probe_rays_of(tr)
         o = np.repeat(pos, rays, axis=0)
-        d = probe_rays_of(tr).of_probes(0, P).reshape(-1, 3)
+        d = dirs.of_probes(0, P).reshape(-1, 3)
         out = {"probes": P, "rays_per_probe": rays, "stages": {}}
         raw_trace = raw.rays_per_second(o, d)
         n_rel = recs["relocate"].stats["rays"]
