@@ -76,8 +76,9 @@ def allocate_sets(q, states, budget: float, max_sets: int) -> np.ndarray:
     def sets(c: float) -> np.ndarray:
         return np.minimum(np.floor(c * q), max_sets).astype(np.int64)
 
-    if sets(1e300).sum() <= limit:                           # every probe with q > 0 at max_sets fits
-        return sets(1e300)
+    full = np.where(q > 0, int(max_sets), 0).astype(np.int64)
+    if full.sum() <= limit:                                  # every probe with q > 0 at max_sets fits
+        return full
     lo, hi = 0.0, 1.0
     while sets(hi).sum() <= limit:
         hi *= 2.0

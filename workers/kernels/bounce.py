@@ -58,13 +58,9 @@ def irradiance_maps(dirs: np.ndarray, radiance: np.ndarray, n: int, states: np.n
     Returns (P, n+2, n+2, C) float32: DDGI-I eq 1 with α = 0 (each texel the cosine-weighted mean radiance
     times π), 1-texel octahedral border (:func:`workers.kernels.octahedral.add_border`).
     """
-    rays = probe_rays(dirs, radiance.shape[0])
     texels = oct_texel_directions(n)
-    maps = None
-    for k, idx in rays.groups():            # each probe's own pattern
-        m = math.pi * accumulate_octahedral(rays.patterns[k], radiance[idx], texels, 1.0)   # DDGI-I eq 1, α = 0
-        maps = np.empty((radiance.shape[0],) + m.shape[1:], m.dtype) if maps is None else maps
-        maps[idx] = m
+    maps = probe_rays(dirs, radiance.shape[0]).per_pattern(       # DDGI-I eq 1, α = 0, each probe's own pattern
+        lambda d, v: math.pi * accumulate_octahedral(d, v, texels, 1.0), radiance)
     maps[states == OFF] = 0.0
     return add_border(maps).astype(np.float32)
 

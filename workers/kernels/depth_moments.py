@@ -56,17 +56,9 @@ def depth_moments(t: np.ndarray, back: np.ndarray, dirs: np.ndarray, n: int, sha
     d = np.where(np.isfinite(t), t, max_distance)                             # misses at max_distance
     d = np.minimum(np.where(back, d * BACKFACE_SHORTEN, d), max_distance)     # DDGI-P §4.1: back faces −80%
     values = np.stack([d, d * d], axis=-1).astype(np.float32)               # DDGI-I eq 2: l and l²
-    rays = probe_rays(dirs, t.shape[0])
     texels = oct_texel_directions(n)
-    groups = rays.groups()
-    if len(groups) == 1:
-        maps = accumulate_octahedral(rays.patterns[groups[0][0]], values, texels, sharpness)
-    else:                                   # each probe's own pattern (workers.kernels.sampling.ProbeRays)
-        maps = None
-        for k, idx in groups:
-            m = accumulate_octahedral(rays.patterns[k], values[idx], texels, sharpness)
-            maps = np.empty((t.shape[0],) + m.shape[1:], m.dtype) if maps is None else maps
-            maps[idx] = m
+    maps = probe_rays(dirs, t.shape[0]).per_pattern(              # each probe's own pattern
+        lambda d, v: accumulate_octahedral(d, v, texels, sharpness), values)
     return add_border(maps).astype(np.float32)
 
 

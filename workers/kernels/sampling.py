@@ -19,6 +19,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from workers.kernels.grid import probe_grid_indices
+
 __all__ = ["fibonacci_sphere", "random_rotation", "rotated_directions", "ProbeRays", "probe_rays",
            "rotated_patterns", "pattern_of_grid"]
 
@@ -165,6 +167,19 @@ class ProbeRays:
         """(b − a, R, 3) float32 directions of probes a..b."""
         return self.patterns[self.pattern[a:b]]
 
+    def per_pattern(self, fn, values) -> np.ndarray:
+        """``fn(directions (R, 3), values of the probes casting them (n, R, ...)) -> (n, ...)`` applied to each
+        pattern's probes, the results put back in probe order: (P, ...) of ``fn``'s dtype (one call with one pattern)."""
+        groups = self.groups()
+        if len(groups) == 1:
+            return fn(self.patterns[groups[0][0]], values)
+        out = None
+        for k, idx in groups:
+            r = fn(self.patterns[k], values[idx])
+            out = np.empty((len(self.pattern),) + r.shape[1:], r.dtype) if out is None else out
+            out[idx] = r
+        return out
+
 
 def probe_rays(dirs, probes: int) -> ProbeRays:
     """``dirs`` as :class:`ProbeRays` for ``probes`` probes: a ProbeRays as it is, an (R, 3) array as the one
@@ -190,9 +205,7 @@ def pattern_of_grid(counts, k: int) -> np.ndarray:
     nx)) among ``k`` patterns: the parity of its grid index, ``(i & 1) + 2 (j & 1) + 4 (k & 1)``, so that the 8
     corners of every cell cast 8 different patterns (k ≥ 8), plus 8 × a hash of the 2×2×2 block the probe is in
     (k ≥ 16), modulo k."""
-    nx, ny, nz = (int(c) for c in counts)
-    kk, jj, ii = np.meshgrid(np.arange(nz), np.arange(ny), np.arange(nx), indexing="ij")
-    ii, jj, kk = (x.ravel().astype(np.int64) for x in (ii, jj, kk))
+    ii, jj, kk = probe_grid_indices(counts).T
     parity = (ii & 1) + 2 * (jj & 1) + 4 * (kk & 1)
     blocks = max(int(k) // 8, 1)
     h = ((ii >> 1) * 73856093) ^ ((jj >> 1) * 19349663) ^ ((kk >> 1) * 83492791)

@@ -172,14 +172,7 @@ def sh_project_probes(dirs, values, order: int = 2) -> np.ndarray:
     ``dirs``: (R, 3) (every probe the same) or :class:`workers.kernels.sampling.ProbeRays`; ``values`` (P, R, C).
     Returns (P, 4 | 9, C) float64."""
     v = np.asarray(values)
-    rays = probe_rays(dirs, v.shape[0])
-    groups = rays.groups()
-    if len(groups) == 1:
-        return sh_project(rays.patterns[groups[0][0]], v, order=order)
-    out = np.empty((v.shape[0], sh_count(order), v.shape[-1]), np.float64)
-    for k, idx in groups:
-        out[idx] = sh_project(rays.patterns[k], v[idx], order=order)
-    return out
+    return probe_rays(dirs, v.shape[0]).per_pattern(lambda d, x: sh_project(d, x, order=order), v)
 
 
 def _sh_project(d, v, w, count):

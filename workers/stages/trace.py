@@ -38,7 +38,7 @@ from workers.kernels.depth_moments import clamp_far, depth_moments, max_ray_dist
 from workers.kernels.grid import ACTIVE, OFF, SLEEPING, pack_atlas
 from workers.kernels import precision
 from workers.kernels.materials import double_sided_triangles
-from workers.kernels.sampling import ProbeRays, fibonacci_sphere, pattern_of_grid, random_rotation, rotated_patterns
+from workers.kernels.sampling import ProbeRays, pattern_of_grid, rotated_patterns
 from workers.raycast import caster_for_scene
 from workers.raycast.probes import trace_probes
 from workers.stages.base import Artifact, StageContext, StageOutput
@@ -64,11 +64,7 @@ def run_trace(ctx: StageContext) -> StageOutput:
     positions = ctx.inputs["relocate"]["probe_positions_relocated"].reshape(-1, 3).astype(np.float64)
     caster = caster_for_scene(scene)
     rng = np.random.default_rng([ctx.config.seed, STAGE_SEED_TAG])
-    if sec.ray_rotations == 1:      # one rotation for all probes (as stage version 3)
-        patterns = (fibonacci_sphere(sec.rays_per_probe).astype(np.float64) @
-                    random_rotation(rng).T).astype(np.float32)[None]
-    else:
-        patterns = rotated_patterns(sec.rays_per_probe, sec.ray_rotations, rng)
+    patterns = rotated_patterns(sec.rays_per_probe, sec.ray_rotations, rng)
     dirs = ProbeRays(patterns, pattern_of_grid(counts, sec.ray_rotations))
     t, tri, u, v, back, ray_seconds = trace_probes(caster, positions, dirs, double_sided_triangles(scene))
     ctx.report(0.5)
