@@ -142,6 +142,20 @@ def _finish_maps(num, den, ok, slot, cols, off, p0, p1, out):
 
 
 @njit(cache=True, nogil=True)
+def _near_update(e_ind, sel, a, base, rho, prev):
+    """The near-field hits' E_indirect (:func:`integrate` ``near``), in place and float32 as numpy would compute
+    ``prev = (1 − a)·e_ind[sel] + base + rho·prev; e_ind[sel] = prev`` (``a`` (k, 1), the rest (k, C))."""
+    one = np.float32(1.0)
+    for k in range(sel.shape[0]):
+        h = sel[k]
+        free = one - a[k, 0]
+        for c in range(base.shape[1]):
+            v = (free * e_ind[h, c] + base[k, c]) + rho[k, c] * prev[k, c]
+            prev[k, c] = v
+            e_ind[h, c] = v
+
+
+@njit(cache=True, nogil=True)
 def _shade_hits(radiance, index, base, rho, e_indirect):
     """radiance[index[h]] = base[h] + rho[h]·e_indirect[h] (float32; rows of ray-major radiance)."""
     for h in range(index.shape[0]):
@@ -255,9 +269,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             radiance[rows] = base                                              # E_indirect = 0: the first bounce
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
             e_ind = np.ascontiguousarray(gather(maps), np.float32)
-            if near is not None:    # multi-bounce near-field occlusion (parameter ``near``)
-                near_prev = (1 - near_a) * e_ind[sel] + near_base + near_rho * near_prev
-                e_ind[sel] = near_prev
+            if near is not None:    # multi-bounce near-field occlusion (parameter ``near``), in place
+                _near_update(e_ind, sel, near_a, near_base, near_rho, near_prev)
             _shade_hits(radiance, rows, base, rho, e_ind)
         new = accumulate(radiance.reshape(R, rows_all, -1))                   # DDGI-I eq 1, α = 0
         if parents.size:

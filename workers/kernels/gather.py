@@ -77,6 +77,8 @@ def _apply_kernel(base, weight, texel, frac, steps, maps, out):
         c0 = texel[i] - r0 * t
         fr = float(frac[i, 0])
         fc = float(frac[i, 1])
+        w00, w01 = (1.0 - fr) * (1.0 - fc), (1.0 - fr) * fc      # the bilinear tap's four texel weights
+        w10, w11 = fr * (1.0 - fc), fr * fc
         for ch in range(C):
             acc[ch] = 0.0
         for c in range(8):
@@ -84,10 +86,10 @@ def _apply_kernel(base, weight, texel, frac, steps, maps, out):
             if w == 0.0:
                 continue
             q = base[i] + (c & 1) * steps[0] + ((c >> 1) & 1) * steps[1] + ((c >> 2) & 1) * steps[2]
+            m00, m01 = maps[q, r0, c0], maps[q, r0, c0 + 1]
+            m10, m11 = maps[q, r0 + 1, c0], maps[q, r0 + 1, c0 + 1]
             for ch in range(C):
-                top = float(maps[q, r0, c0, ch]) * (1.0 - fc) + float(maps[q, r0, c0 + 1, ch]) * fc
-                bot = float(maps[q, r0 + 1, c0, ch]) * (1.0 - fc) + float(maps[q, r0 + 1, c0 + 1, ch]) * fc
-                acc[ch] += w * (top * (1.0 - fr) + bot * fr)
+                acc[ch] += w * (w00 * m00[ch] + w01 * m01[ch] + w10 * m10[ch] + w11 * m11[ch])
         for ch in range(C):
             out[i, ch] = acc[ch]
 

@@ -57,7 +57,7 @@ from workers.kernels.sh import sh_l2_atlas
 from workers.stages.base import Artifact, StageContext, StageOutput
 
 ZSTD_LEVEL = 3
-ZSTD_PROBES = 19   # the cluster probe volumes: small, mostly 0
+ZSTD_PROBES = 9    # the cluster probe volumes (zdm2: 1.58 MB at 9 in 0.16 s, 1.45 MB at 19 in 3.2 s)
 
 
 def _rgba(channels: np.ndarray, start: int) -> np.ndarray:
