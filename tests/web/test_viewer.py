@@ -473,6 +473,9 @@ def test_dashboard_compares_evaluate_previews(page, tmp_path, kiln_server, shots
     imgs = page.locator("#compare-previews img")
     widths = imgs.evaluate_all("e => e.map(i => i.naturalWidth)")
     assert sum(w > 0 for w in widths) >= 2, widths
+    # the first row's two previews, each decoded (the wait above may have counted two images of other rows)
+    first = "[...document.querySelectorAll('#compare-previews tbody tr:first-child img')]"
+    page.wait_for_function(f"({loaded})({first}) >= 2", timeout=20000)
     row = page.locator("#compare-previews tbody tr").first
     assert row.locator("img").count() >= 2 and all(w > 0 for w in row.locator("img").evaluate_all("e => e.map(i => i.naturalWidth)"))
     assert page.locator("#compare-previews img[data-artifact$=_error]").count() >= 2  # the error heatmaps
