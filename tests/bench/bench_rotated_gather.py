@@ -17,8 +17,8 @@ against Kiln's path tracer (:func:`workers.kernels.pathtrace.indirect_irradiance
 2. at a sample of the dark room's probe-ray hits (``--hits``), the light stage's gathered E_indirect (its final maps,
    :func:`workers.kernels.gather.apply_sampler_weights`) — by distance to the room's nearest edge, near the door or
    not, and by the weighted distance h of the hit's visible cage probes in front of the hit's plane;
-3. the split of that gather's error, at up to 1,500 of those hits away from the door and edges, into the sampler's
-   own (the same weights over the path tracer's irradiance at each cage probe for the hit's normal: "gather of
+3. the split of that gather's error, at every sampled hit with a live cage and per group of 2. (until 2026-12-04: at
+   up to 1,500 hits away from the door and edges), into the sampler's own (the same weights over the path tracer's irradiance at each cage probe for the hit's normal: "gather of
    exact probe values") and the stored values' (the maps at those probes over the path tracer there).
 
 Measured (2026-12-04, light stage 8, thick-wall, 128 paths; ~1 min each):
@@ -164,7 +164,7 @@ def measure(name: str, deg: float, spp: int, n_hits: int, work: Path, bounces: i
         groups[f"  away, cage h {a:.3f}-{b:.3f} m"] = away & (hbar >= a) & (hbar <= b)
     out["hits"] = {k: {"n": int(c.sum()), "gathered_over_pt": ratio(gathered[c], at_hit[c])}
                    for k, c in groups.items() if c.any()}
-    # 3. the sampler's own error and the stored values' at up to 1,500 hits away from door and edges
+    # 3. the sampler's own error and the stored values', at every sampled hit with a live cage, and per group
     k = np.flatnonzero(w.sum(1) > 0)
     live = w[k] > 0
     nk = np.repeat(N_[k].astype(np.float64)[:, None, :], 8, 1)
@@ -207,7 +207,7 @@ def main() -> int:
     for k, v in res["hits"].items():
         print(f"  {k:<34}{v['gathered_over_pt']:>8.3f} ({v['n']})")
     s = res["split"]
-    print(f"split at {s['hits']} hits away from door and edges: sampler over exact probe values / PT "
+    print(f"split at {s['hits']} hits with a live cage: sampler over exact probe values / PT "
           f"{s['gather_of_exact_over_pt']:.3f}; stored / exact at the cage probes {s['stored_over_exact_at_cage']:.3f}; "
           f"gathered / PT {s['gathered_over_pt']:.3f}")
     print(f"{'split by group':<36}{'gather(exact)/PT':>18}{'stored/exact':>14}")
