@@ -18,8 +18,9 @@ against Kiln's path tracer (:func:`workers.kernels.pathtrace.indirect_irradiance
    :func:`workers.kernels.gather.apply_sampler_weights`) — by distance to the room's nearest edge, near the door or
    not, and by the weighted distance h of the hit's visible cage probes in front of the hit's plane;
 3. the split of that gather's error, at every sampled hit with a live cage and per group of 2. (until 2026-12-04: at
-   up to 1,500 hits away from the door and edges), into the sampler's own (the same weights over the path tracer's irradiance at each cage probe for the hit's normal: "gather of
-   exact probe values") and the stored values' (the maps at those probes over the path tracer there).
+   up to 1,500 hits away from the door and edges), into the sampler's own (the same weights over the path tracer's
+   irradiance at each cage probe for the hit's normal: "gather of exact probe values") and the stored values' (the
+   maps at those probes over the path tracer there).
 
 Measured (2026-12-04, light stage 8, thick-wall, 128 paths; ~1 min each):
 
