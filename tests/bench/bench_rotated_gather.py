@@ -55,6 +55,11 @@ texels bring thick-wall's dark room at 30° from 1.129 / 1.108 / 1.099 / 1.097 o
 (``bench_fidelity.py --rotate 30 --set place.yaw=0 --set light.irradiance_texels=16``), for a light stage 19% slower
 and 3.2x the irradiance atlas: about a third of the excess, so not the default. The rest is the sampler's own 3%
 (at both angles), fed back through the bounces.
+
+Correction (2026-12-05, later): texels least-squares fitted for the lookup, which remove most of its blur in
+``bench_octahedral_lookup.py``'s case, leave this bench's numbers where they were (``--bounces 1``: moved out of a
+wall 1.090 → 1.094, the dark hits' gather 1.110 → 1.113): the lookup's blur is not the first bounce's excess, and what
+the larger maps change here is open (docs/architecture.md, "Tried next and not kept").
 """
 from __future__ import annotations
 
