@@ -102,18 +102,32 @@ def load_config(path: str | None, preset: str | None = None):
 
 
 class Progress:
-    """A progress bar on stderr (one step per stage), silent when stderr is not wanted."""
+    """Progress on stderr, one step per stage: a live bar on a terminal; elsewhere (a CI log, a file) one line per
+    stage as it finishes, so that logs hold no redrawn bars. Silent with ``enabled=False`` (``--quiet``)."""
 
-    def __init__(self, stages: list[str], enabled: bool = True):
+    def __init__(self, stages: list[str], enabled: bool = True, interactive: bool | None = None):
         from tqdm import tqdm
 
         self.stages = stages
-        self.bar = tqdm(total=len(stages), file=sys.stderr, unit="stage", disable=not enabled,
+        self.enabled = enabled
+        self.interactive = sys.stderr.isatty() if interactive is None else interactive
+        self.total = len(stages)
+        self.bar = tqdm(total=self.total, file=sys.stderr, unit="stage", disable=not (enabled and self.interactive),
                         bar_format="{l_bar}{bar}| {n:.2f}/{total} stages [{elapsed}]")
         self.done: dict[str, float] = {}
+        self.t0 = time.monotonic()
+
+    def set_total(self, total: int) -> None:
+        self.total = total
+        self.bar.total = total
 
     def update(self, stage: str, fraction: float) -> None:
-        self.done[stage] = max(self.done.get(stage, 0.0), fraction)
+        before = self.done.get(stage, 0.0)
+        self.done[stage] = max(before, fraction)
+        if self.enabled and not self.interactive and before < 1.0 <= fraction:
+            finished = sum(1 for v in self.done.values() if v >= 1.0)
+            print(f"kiln: [{finished}/{self.total}] {stage} done ({time.monotonic() - self.t0:.1f} s)",
+                  file=sys.stderr, flush=True)
         self.bar.set_description(stage)
         self.bar.n = sum(self.done.values())
         self.bar.refresh()
@@ -303,8 +317,8 @@ def _follow(c, bake_id: str, prog: Progress) -> dict:
                     event = line[6:].strip()
                 elif line.startswith("data:") and event in ("progress", "status"):
                     snap = json.loads(line[5:])
-                    if prog.bar.total != len(snap["stages"]):
-                        prog.bar.total = len(snap["stages"])
+                    if prog.total != len(snap["stages"]):
+                        prog.set_total(len(snap["stages"]))
                     for s in snap["stages"]:
                         prog.update(s["name"], s["progress"] if s["status"] != "succeeded" else 1.0)
                     if event == "status":

@@ -46,7 +46,12 @@ def test_bake_local_json_and_cache(tmp_path, scene_files):
     manifest = json.loads(r.stdout)  # stdout is only the manifest
     assert [s["name"] for s in manifest["stages"]][:2] == ["ingest", "place"]
     assert all(s["cached"] is False for s in manifest["stages"])
-    assert "stages" in r.stderr  # the progress bar went to stderr
+    # progress went to stderr; not a terminal there (a captured pipe, as in CI): one line per finished stage, no
+    # redrawn bar
+    names = [s["name"] for s in manifest["stages"]]
+    done = [ln for ln in r.stderr.splitlines() if ln.startswith("kiln: [")]
+    assert [ln.split("] ")[1].split(" done")[0] for ln in done] == names, r.stderr
+    assert done[-1].startswith(f"kiln: [{len(names)}/{len(names)}] ") and "\r" not in r.stderr
     arts = {a["name"]: a for a in manifest["artifacts"]}
     assert arts["probe_positions"]["shape"] == [5, 3, 4, 3] and arts["probe_positions"]["format"] == "ktx2"
     m, arrays = bundle.open_bundle(tmp_path / "out")
@@ -133,6 +138,8 @@ def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):
         assert r.returncode == 0, r.stderr
         m = json.loads(r.stdout)
         assert m["bake_id"] and [s["name"] for s in m["stages"]][:2] == ["ingest", "place"]
+        n = len(m["stages"])                             # the server's progress, one line per finished stage
+        assert f"kiln: [{n}/{n}] " in r.stderr and "\r" not in r.stderr, r.stderr
         _, arrays = bundle.open_bundle(tmp_path / "out")
         counts = m["grid"]["counts"]                     # the automatic grid, as the manifest says
         assert arrays["probe_positions"].shape == (counts[2], counts[1], counts[0], 3) and "auto" in m["grid"]
@@ -217,3 +224,26 @@ def test_bake_warnings_through_the_server(tmp_path, scene_files):
         assert (tmp_path / "o2" / "manifest.json").exists()
     finally:
         stop_serve(proc)
+
+
+def test_progress_is_a_bar_on_a_terminal_and_lines_elsewhere(capsys):
+    from server.cli import Progress
+
+    for interactive in (True, False):
+        p = Progress(["ingest", "light"], interactive=interactive)
+        for stage in ("ingest", "light"):
+            p.update(stage, 0.5)
+            p.update(stage, 1.0)
+            p.update(stage, 1.0)                   # a repeated final report prints nothing more
+        p.close()
+        err = capsys.readouterr().err
+        lines = [ln for ln in err.splitlines() if ln.startswith("kiln: [")]
+        if interactive:
+            assert "stages" in err and "\r" in err and not lines     # tqdm's redrawn bar
+        else:
+            assert [ln.split(" (")[0] for ln in lines] == ["kiln: [1/2] ingest done", "kiln: [2/2] light done"]
+            assert "\r" not in err
+    p = Progress(["ingest"], enabled=False, interactive=False)    # --quiet
+    p.update("ingest", 1.0)
+    p.close()
+    assert capsys.readouterr().err == ""
