@@ -35,6 +35,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.octahedral import add_border, oct_texel_directions
 from workers.kernels.sampling import fibonacci_sphere
@@ -142,7 +143,7 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
     """
     P = positions.shape[0]
     K = (sh_order + 1) ** 2
-    dmaps = np.zeros((P, n, n, 3), np.float64)
+    dmaps = np.zeros((P, n * n, 3), np.float64)
     dsh = np.zeros((P, K, 3), np.float64)
     sp = np.asarray(spacing, np.float64)
     h = float(sp[sp > 0].min()) if np.any(sp > 0) else 1.0
@@ -173,7 +174,23 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
                 continue
             g = cos_y[ok] / np.maximum(d[ok], MIN_DISTANCE_FRACTION * h) ** 2           # cos θ_y / d²
             a = g[:, None] * pw[None]                                               # (k, 3) irradiance at normal ω
-            cosn = np.maximum(om[ok] @ texel.T, 0.0)                                # (k, n²)
-            dmaps[idx[ok]] += (cosn[..., None] * a[:, None, :]).reshape(-1, n, n, 3)   # E(n) per texel
-            dsh[idx[ok]] += _sh_basis(om[ok], K)[..., None] * a[:, None, :]         # radiance SH of a delta
-    return add_border(dmaps).astype(np.float32), dsh, n_vl, rays
+            # E(n) = a·max(0, n·ω) per texel, and the radiance SH of a delta a·Y_lm(ω), added in place
+            _add_delta(dmaps, dsh, idx[ok], om[ok], a, texel, _sh_basis(om[ok], K))
+    return add_border(dmaps.reshape(P, n, n, 3)).astype(np.float32), dsh, n_vl, rays
+
+
+@njit(cache=True, nogil=True)
+def _add_delta(dmaps, dsh, probes, om, a, texel, basis):
+    """``dmaps[p, t] += a_j·max(0, texel_t·ω_j)`` and ``dsh[p, k] += a_j·basis[j, k]`` for p = probes[j] (distinct):
+    one virtual light's E(n) per texel and radiance SH at the probes it reaches, without (k, n², 3) temporaries."""
+    for j in range(probes.size):
+        p = probes[j]
+        ox, oy, oz = om[j, 0], om[j, 1], om[j, 2]
+        for t in range(texel.shape[0]):
+            c = ox * texel[t, 0] + oy * texel[t, 1] + oz * texel[t, 2]
+            if c > 0.0:
+                for ch in range(3):
+                    dmaps[p, t, ch] += c * a[j, ch]
+        for k in range(basis.shape[1]):
+            for ch in range(3):
+                dsh[p, k, ch] += basis[j, k] * a[j, ch]
