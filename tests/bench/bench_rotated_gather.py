@@ -58,8 +58,10 @@ and 3.2x the irradiance atlas: about a third of the excess, so not the default. 
 
 Correction (2026-12-05, later): texels least-squares fitted for the lookup, which remove most of its blur in
 ``bench_octahedral_lookup.py``'s case, leave this bench's numbers where they were (``--bounces 1``: moved out of a
-wall 1.090 → 1.094, the dark hits' gather 1.110 → 1.113): the lookup's blur is not the first bounce's excess, and what
-the larger maps change here is open (docs/architecture.md, "Tried next and not kept").
+wall 1.090 → 1.094, the dark hits' gather 1.110 → 1.113): the lookup's blur is not the first bounce's excess. What the
+larger maps change is the light stage's own bounce maps, which its gather reads: 16 texels inside the stage with 8
+stored give 16's converged numbers exactly, 24 a little more, levelling off near 1.07-1.09 (docs/architecture.md,
+"Tried next and not kept").
 """
 from __future__ import annotations
 
