@@ -56,8 +56,9 @@ STAGES: tuple[StageDef, ...] = (
     # probe_sh a KTX2 table (issue 17); 6: irradiance E5B9G9R9_UFLOAT_PACK32 without the tile borders,
     # probe_sh a half-float table; 7: bent shading normals shaded as Cycles 3.4 does (workers/kernels/shading.py);
     # 8: near-field occlusion at the probe-ray hits (workers/kernels/probe_hits.py near_occlusion); 9: adaptive rays
-    # (workers/kernels/adaptive_rays.py: extra rays traced here, their rotations seeded, so the key holds the seed)
-    StageDef("light", 9, ("light", "seed"), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    # (workers/kernels/adaptive_rays.py: extra rays traced here, their rotations seeded, so the key holds the seed);
+    # 10: L2 SH windowed where it rings below 0 between the texel directions (workers/kernels/sh.py sh_l2_nonnegative)
+    StageDef("light", 10, ("light", "seed"), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)

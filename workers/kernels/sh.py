@@ -68,6 +68,8 @@ __all__ = [
     "sh_l2_atlas_depth",
     "SH_L2_FLOOR",
     "sh_l2_floor",
+    "SH_L2_MARGIN",
+    "sh_l2_nonnegative",
 ]
 
 SH_C0 = 0.5 / np.sqrt(np.pi)  # 0.282095, Y00
@@ -349,3 +351,94 @@ def sh_l2_floor(coeffs, dirs, floor, beta: float = SH_L2_FLOOR, iterations: int 
         lam = new
     flat[bad] += (lam @ A) / SH_BAND_CONVOLUTION[_BAND_OF_COEFF] ** 2         # Δc = M⁻¹ Aᵀ λ
     return flat.reshape(P, C, 9).transpose(0, 2, 1)
+
+
+SH_L2_MARGIN = 0.002
+""":func:`sh_l2_nonnegative` keeps a probe's L2 irradiance at least this fraction of its mean everywhere (room for the
+half-float rounding of the stored coefficients)."""
+
+
+def sh_l2_nonnegative(coeffs, margin: float = SH_L2_MARGIN) -> tuple[np.ndarray, int]:
+    """Window the L1 and L2 bands of each probe and channel just enough that its L2 irradiance is at least ``margin``
+    of its mean in every direction: ``c'_k = t·c_k`` for k ≥ 1, t ∈ [0, 1] (RH01 eq 7's E(n) = e0 + g(n), e0 =
+    Â_0 Y00 L00 the mean over the sphere, g the L1 and L2 terms: t = (1 − margin)·e0 / (−min_n g(n)) where e0 + min g
+    falls below margin·e0; a probe whose mean is not positive gets 0).
+
+    :func:`sh_l2_floor` lifts the L2 above its octahedral map at the 64 texel centres only; between them, where the map
+    is ~0 (a probe by a sealed wall, the dark side of a lit block), L2's truncation can still ring below 0 (sealed box:
+    −0.8% of the light outside). Every mode that blends probes with weights ≥ 0 (leaking, visibility-weighted, the
+    mask modes' selections of these SH) is then non-negative before the shaders' clamp too. The mean and the
+    direction of the light stay; only a probe that rings loses a little of its directionality.
+
+    min g over the unit sphere: g is a quadratic in n, so its minimum is the trust-region subproblem's, solved exactly
+    (:func:`_refine_min`) where the least of 512 Fibonacci directions comes near the margin.
+
+    coeffs : (P, 9, C) radiance SH (module order). Returns ``(coeffs' (P, 9, C) float64, windowed)``: the number of
+    (probe, channel) pairs changed.
+    """
+    c = np.array(coeffs, dtype=np.float64, copy=True)
+    if c.ndim != 3 or c.shape[1] != 9:
+        raise ValueError(f"sh_l2_nonnegative: coeffs must have shape (P, 9, C), got {c.shape}")
+    P, _, C = c.shape
+    flat = c.transpose(0, 2, 1).reshape(-1, 9)                                  # (P·C, 9)
+    conv = SH_BAND_CONVOLUTION[_BAND_OF_COEFF]
+    e0 = conv[0] * SH_C0 * flat[:, 0]                                           # mean irradiance
+    dirs = _fibonacci(512)
+    Yg = (_sh_basis(dirs, 9) * conv)[:, 1:]                                     # (512, 8): g's basis
+    gmin = np.empty(flat.shape[0])
+    for a in range(0, flat.shape[0], 4096):                                     # (512, chunk) at a time
+        gmin[a:a + 4096] = (Yg @ flat[a:a + 4096, 1:].T).min(axis=0)
+    low = np.flatnonzero(e0 + gmin < 2.0 * margin * np.abs(e0) + 0.05 * np.abs(gmin))   # near the margin: exactly
+    if low.size:
+        gmin[low] = np.minimum(gmin[low], _refine_min(flat[low]))
+    dark = e0 <= 0
+    lift = ~dark & (e0 + gmin < margin * e0)
+    t = np.where(lift, (1.0 - margin) * e0 / np.where(lift, -gmin, 1.0), 1.0)
+    flat[:, 1:] *= t[:, None]
+    flat[dark] = 0.0
+    changed = int(np.count_nonzero(lift) + np.count_nonzero(dark & np.any(c.transpose(0, 2, 1).reshape(-1, 9) != 0,
+                                                                             axis=1)))
+    return flat.reshape(P, C, 9).transpose(0, 2, 1), changed
+
+
+def _fibonacci(n: int) -> np.ndarray:
+    i = np.arange(n) + 0.5
+    z = 1.0 - 2.0 * i / n
+    r = np.sqrt(1.0 - z * z)
+    phi = i * np.pi * (3.0 - np.sqrt(5.0))
+    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
+
+
+def _refine_min(flat: np.ndarray) -> np.ndarray:
+    """min over the unit sphere of g(n) (the L1 + L2 terms of :func:`sh_irradiance`) for rows ``flat`` (k, 9).
+
+    g(n) = b·n + nᵀAn + const on |n| = 1 is the trust-region subproblem: in A's eigenbasis (λ_1 ≤ λ_2 ≤ λ_3, β = Qᵀb)
+    the minimiser is y_i = −β_i / (2(λ_i − μ)) with μ < λ_1 the root of Σ β_i² / (4(λ_i − μ)²) = 1 (bisection; it lies
+    in [λ_1 − |β|/2, λ_1]); where that sum stays below 1 up to μ = λ_1 (β_1 ≈ 0, the "hard case") the rest of the
+    unit length goes along the first eigenvector."""
+    conv = SH_BAND_CONVOLUTION
+    a1, a2, a3, a4 = conv[1] * SH_C1, conv[2] * SH_C2, conv[2] * SH_C3, conv[2] * SH_C4
+    b = a1 * flat[:, [3, 1, 2]]                                                 # linear part (x, y, z)
+    A = np.zeros((flat.shape[0], 3, 3))                                         # g = b·n + nᵀAn − a3·c6
+    A[:, 0, 0], A[:, 1, 1], A[:, 2, 2] = a4 * flat[:, 8], -a4 * flat[:, 8], 3.0 * a3 * flat[:, 6]
+    A[:, 0, 1] = A[:, 1, 0] = 0.5 * a2 * flat[:, 4]
+    A[:, 1, 2] = A[:, 2, 1] = 0.5 * a2 * flat[:, 5]
+    A[:, 0, 2] = A[:, 2, 0] = 0.5 * a2 * flat[:, 7]
+    const = -a3 * flat[:, 6]
+    lam, Q = np.linalg.eigh(A)                                                  # ascending
+    beta = np.einsum("kji,kj->ki", Q, b)                                        # Qᵀb
+    lo = lam[:, 0] - 0.5 * np.linalg.norm(beta, axis=1) - 1e-12
+    hi = lam[:, 0].copy()
+    for _ in range(100):                                                        # Σ β²/(4(λ−μ)²) increases in μ
+        mu = 0.5 * (lo + hi)
+        gap = np.maximum(lam - mu[:, None], 1e-150)
+        over = (beta * beta / (4.0 * gap * gap)).sum(axis=1) > 1.0
+        hi = np.where(over, mu, hi)
+        lo = np.where(over, lo, mu)
+    gap = np.maximum(lam - lo[:, None], 1e-150)
+    y = -beta / (2.0 * gap)
+    rest = 1.0 - (y[:, 1:] ** 2).sum(axis=1)                                    # the hard case: along λ_1
+    y[:, 0] = np.where(y[:, 0] ** 2 + (y[:, 1:] ** 2).sum(axis=1) < 1.0,
+                       np.where(y[:, 0] > 0, 1.0, -1.0) * np.sqrt(np.maximum(rest, 0.0)), y[:, 0])
+    y /= np.linalg.norm(y, axis=1, keepdims=True)
+    return (lam * y * y).sum(axis=1) + (beta * y).sum(axis=1) + const

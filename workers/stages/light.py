@@ -29,7 +29,10 @@ The hot spots a point / spot light makes on a surface next to it (direct irradia
 the hits) are sampled from the light (:mod:`workers.kernels.light_spots`): the rays carry the bounded part, virtual
 point lights the excess, added to every bounce's maps and to the SH (stats ``spot_lights``, ``spot_rays``).
 L2 deringing (:func:`workers.kernels.sh.sh_l2_floor`): each probe's L2 SH changed as little as possible so that its
-L2 irradiance is at least 0.75 of its own octahedral map at every texel direction (no change where L2 does not ring).
+L2 irradiance is at least 0.75 of its own octahedral map at every texel direction (no change where L2 does not ring);
+then, where it still dips below 0 between those directions, its L1 and L2 bands scaled down just enough that it is at
+least 0.2% of its mean everywhere (:func:`workers.kernels.sh.sh_l2_nonnegative`; stats ``sh_windowed``: the probe
+channels changed).
 Adaptive rays (:mod:`workers.kernels.adaptive_rays`): before any bounce, the probes whose few rays see a small
 bright thing (the relative noise of their first-bounce light, pooled over their neighbours) get up to
 ``light.extra_sets`` more sets of the trace's R rays, ``light.extra_rays`` × the live probes' count in all, traced here
@@ -67,7 +70,7 @@ from workers.kernels.materials import albedo_warnings, double_sided_triangles
 from workers.kernels.octahedral import oct_texel_directions
 from workers.kernels.probe_hits import concat_hits, hit_surfaces, near_occlusion, probe_visibility
 from workers.kernels.sampling import ProbeRays, rotated_patterns
-from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_project_probes
+from workers.kernels.sh import sh_l2_atlas, sh_l2_floor, sh_l2_nonnegative, sh_project_probes
 from workers.kernels.shading import direct_irradiance, horizon_factor
 from workers.raycast import caster_for_scene
 from workers.raycast.probes import trace_probes
@@ -189,6 +192,9 @@ def run_light(ctx: StageContext) -> StageOutput:
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
         n = sec.irradiance_texels
         sh = sh_l2_floor(sh, oct_texel_directions(n).reshape(-1, 3), irr[:, 1:-1, 1:-1].reshape(len(sh), n * n, 3))
+        sh, n_windowed = sh_l2_nonnegative(sh)  # and not below 0 between those texels (windowed where it rings)
+    else:
+        n_windowed = 0
     sh = sh.astype(np.float32)
     sh[states == OFF] = 0.0
     shv = sh.reshape(nz, ny, nx, sh.shape[1], 3)
@@ -202,7 +208,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         "residual_per_bounce": [r if math.isfinite(r) else None for r in residuals],
         "residual": (residuals[-1] if math.isfinite(residuals[-1]) else None) if residuals else 0.0,
         "converged": bool(residuals) and residuals[-1] < sec.tolerance,
-        "off_dilated": dilated,
+        "off_dilated": dilated, "sh_windowed": n_windowed,
         "front_hits": int(surf.index.size), "bent_hits": n_bent, "horizon_hits": n_horizon,
         "horizon_mean": float(horizon.mean()) if horizon is not None else 1.0, "shadow_rays": int(surf.index.size) * len(lit["lights"]),
         "direct_seconds": t_direct, "bounce_seconds": t_bounces, "weights_seconds": t_weights,
