@@ -98,6 +98,16 @@ def test_sealed_box_no_leak_with_cells_straddling_the_walls(tmp_path, scene_file
     assert inside.sum() >= 8 and s["light"].stats["bounces"] >= 2
     assert e[outside].mean() > 0.1
     assert np.all(e[inside] < 1e-3 * e[outside].mean())
+    # the stored L2 SH (half floats) is >= 0 in every direction at every probe (the exact minimum over the sphere):
+    # the probes by the box's walls ring below 0 between the texel directions without sh_l2_nonnegative
+    from workers.kernels.sh import SH_BAND_CONVOLUTION, SH_C0, _refine_min
+
+    sh = np.asarray(s["light"]["probe_sh"], np.float64).reshape(-1, 9, 3).transpose(0, 2, 1).reshape(-1, 9)
+    lowest = SH_BAND_CONVOLUTION[0] * SH_C0 * sh[:, 0] + _refine_min(sh)
+    print(f"sh_windowed {s['light'].stats['sh_windowed']}, lowest L2 irradiance / mean "
+          f"{(lowest / np.maximum(SH_BAND_CONVOLUTION[0] * SH_C0 * sh[:, 0], 1e-30)).min():.2e}")
+    assert s["light"].stats["sh_windowed"] > 0
+    assert lowest.min() >= 0.0
 
 
 def test_buried_probes_are_dilated_in_the_runtime_volumes(tmp_path, scene_files):
