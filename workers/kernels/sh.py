@@ -46,7 +46,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from workers.kernels.sampling import probe_rays
+from workers.kernels.sampling import fibonacci_sphere, probe_rays
 
 __all__ = [
     "SH_C0",
@@ -383,7 +383,7 @@ def sh_l2_nonnegative(coeffs, margin: float = SH_L2_MARGIN) -> tuple[np.ndarray,
     flat = c.transpose(0, 2, 1).reshape(-1, 9)                                  # (P·C, 9)
     conv = SH_BAND_CONVOLUTION[_BAND_OF_COEFF]
     e0 = conv[0] * SH_C0 * flat[:, 0]                                           # mean irradiance
-    dirs = _fibonacci(512)
+    dirs = fibonacci_sphere(512).astype(np.float64)
     Yg = (_sh_basis(dirs, 9) * conv)[:, 1:]                                     # (512, 8): g's basis
     gmin = np.empty(flat.shape[0])
     for a in range(0, flat.shape[0], 4096):                                     # (512, chunk) at a time
@@ -399,14 +399,6 @@ def sh_l2_nonnegative(coeffs, margin: float = SH_L2_MARGIN) -> tuple[np.ndarray,
     changed = int(np.count_nonzero(lift) + np.count_nonzero(dark & np.any(c.transpose(0, 2, 1).reshape(-1, 9) != 0,
                                                                              axis=1)))
     return flat.reshape(P, C, 9).transpose(0, 2, 1), changed
-
-
-def _fibonacci(n: int) -> np.ndarray:
-    i = np.arange(n) + 0.5
-    z = 1.0 - 2.0 * i / n
-    r = np.sqrt(1.0 - z * z)
-    phi = i * np.pi * (3.0 - np.sqrt(5.0))
-    return np.stack([r * np.cos(phi), r * np.sin(phi), z], axis=1)
 
 
 def _refine_min(flat: np.ndarray) -> np.ndarray:
