@@ -376,11 +376,12 @@ def sh_l2_nonnegative(coeffs, margin: float = SH_L2_MARGIN) -> tuple[np.ndarray,
     coeffs : (P, 9, C) radiance SH (module order). Returns ``(coeffs' (P, 9, C) float64, windowed)``: the number of
     (probe, channel) pairs changed.
     """
-    c = np.array(coeffs, dtype=np.float64, copy=True)
+    c = np.asarray(coeffs, dtype=np.float64)
     if c.ndim != 3 or c.shape[1] != 9:
         raise ValueError(f"sh_l2_nonnegative: coeffs must have shape (P, 9, C), got {c.shape}")
     P, _, C = c.shape
-    flat = c.transpose(0, 2, 1).reshape(-1, 9)                                  # (P·C, 9)
+    flat = c.transpose(0, 2, 1).reshape(-1, 9).copy()                           # (P·C, 9), ours to change
+    was_set = np.any(flat != 0.0, axis=1)
     conv = SH_BAND_CONVOLUTION[_BAND_OF_COEFF]
     e0 = conv[0] * SH_C0 * flat[:, 0]                                           # mean irradiance
     dirs = fibonacci_sphere(512).astype(np.float64)
@@ -396,8 +397,7 @@ def sh_l2_nonnegative(coeffs, margin: float = SH_L2_MARGIN) -> tuple[np.ndarray,
     t = np.where(lift, (1.0 - margin) * e0 / np.where(lift, -gmin, 1.0), 1.0)
     flat[:, 1:] *= t[:, None]
     flat[dark] = 0.0
-    changed = int(np.count_nonzero(lift) + np.count_nonzero(dark & np.any(c.transpose(0, 2, 1).reshape(-1, 9) != 0,
-                                                                             axis=1)))
+    changed = int(np.count_nonzero(lift) + np.count_nonzero(dark & was_set))
     return flat.reshape(P, C, 9).transpose(0, 2, 1), changed
 
 
