@@ -33,6 +33,7 @@ References
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
@@ -54,6 +55,10 @@ MAX_VIRTUAL_LIGHTS = 1024
 """Virtual lights per light at most (each costs a shadow ray per probe): the cells double until they fit."""
 MIN_DISTANCE_FRACTION = 0.25
 """A virtual light's distance to a probe is clamped below at this fraction of the smallest probe spacing."""
+DELTA_THREADS = 2
+"""Threads adding the virtual lights to the probes (:func:`_add_deltas`; numba without the GIL)."""
+SPOT_BATCH_RAYS = 1 << 18
+"""Shadow rays of several virtual lights cast in one caster call (several chunks, so its threads share them)."""
 _LUMA = np.array([0.2126, 0.7152, 0.0722])
 
 
@@ -151,6 +156,28 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
     idx = np.flatnonzero(live)
     x = positions[idx].astype(np.float64)
     n_vl = rays = 0
+    batch: list[tuple] = []        # virtual lights whose shadow rays go to the caster together (module doc)
+    held = 0
+
+    def flush():
+        # one caster call for the batch: about SPOT_BATCH_RAYS rays, so the caster's threads share them (a virtual
+        # light's own ~P rays are one chunk, one thread); the same rays and sums as one call per virtual light
+        nonlocal held
+        if not batch:
+            return
+        o = np.concatenate([b[0] for b in batch])
+        back = np.concatenate([b[1] for b in batch])
+        dist = np.sqrt(np.einsum("ij,ij->i", back, back))
+        blocked = np.asarray(caster.occluded(o, back / dist[:, None], tfar=np.maximum(dist - 2 * eps, 0.0)), bool)
+        free = ~blocked
+        pr = np.concatenate([idx[b[2]] for b in batch])[free]
+        om_f = np.concatenate([b[3] for b in batch])[free]
+        a = np.concatenate([b[4][:, None] * b[5][None] for b in batch])[free]     # (k, 3) irradiance at normal ω
+        # E(n) = a·max(0, n·ω) per texel, and the radiance SH of a delta a·Y_lm(ω), added in place
+        _add_deltas(dmaps, dsh, pr, om_f, a, texel, _sh_basis(om_f, K))
+        batch.clear()
+        held = 0
+
     for light, c in zip(lights, thresholds):
         if light["type"] not in ("point", "spot") or not math.isfinite(c):
             continue
@@ -158,33 +185,45 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
         n_vl += len(pos)
         for y, ny, pw in zip(pos, nrm, power):
             w = y - x                                                               # probe -> virtual light
-            d = np.linalg.norm(w, axis=1)
+            d = np.sqrt(np.einsum("ij,ij->i", w, w))
             om = w / np.maximum(d, 1e-12)[:, None]
             cos_y = -(om @ ny)                                                      # at y, toward the probe
             ok = np.flatnonzero(cos_y > 0)
             if ok.size == 0:
                 continue
             o = (y + eps * ny)[None].repeat(ok.size, 0)
-            back = x[ok] - o
-            dist = np.linalg.norm(back, axis=1)
-            blocked = np.asarray(caster.occluded(o, back / dist[:, None], tfar=np.maximum(dist - 2 * eps, 0.0)), bool)
-            rays += ok.size
-            ok = ok[~blocked]
-            if ok.size == 0:
-                continue
             g = cos_y[ok] / np.maximum(d[ok], MIN_DISTANCE_FRACTION * h) ** 2           # cos θ_y / d²
-            a = g[:, None] * pw[None]                                               # (k, 3) irradiance at normal ω
-            # E(n) = a·max(0, n·ω) per texel, and the radiance SH of a delta a·Y_lm(ω), added in place
-            _add_delta(dmaps, dsh, idx[ok], om[ok], a, texel, _sh_basis(om[ok], K))
+            batch.append((o, x[ok] - o, ok, om[ok], g, pw))
+            rays += ok.size
+            held += ok.size
+            if held >= SPOT_BATCH_RAYS:
+                flush()
+    flush()
     return add_border(dmaps.reshape(P, n, n, 3)).astype(np.float32), dsh, n_vl, rays
 
 
+def _add_deltas(dmaps, dsh, probes, om, a, texel, basis) -> None:
+    """``dmaps[p, t] += a_j·max(0, texel_t·ω_j)`` and ``dsh[p, k] += a_j·basis[j, k]`` for p = probes[j], in the
+    order of j (a batch of virtual lights, each one's probes distinct): :data:`DELTA_THREADS` threads, each over a
+    range of probes, so every probe's sum has the same terms in the same order as one pass."""
+    if probes.size == 0:
+        return
+    cuts = np.linspace(0, dmaps.shape[0], DELTA_THREADS + 1).astype(np.int64)
+    if DELTA_THREADS == 1 or probes.size < 4096:
+        _add_delta(dmaps, dsh, probes, om, a, texel, basis, 0, dmaps.shape[0])
+        return
+    with ThreadPoolExecutor(DELTA_THREADS) as pool:
+        list(pool.map(lambda i: _add_delta(dmaps, dsh, probes, om, a, texel, basis, cuts[i], cuts[i + 1]),
+                      range(DELTA_THREADS)))
+
+
 @njit(cache=True, nogil=True)
-def _add_delta(dmaps, dsh, probes, om, a, texel, basis):
-    """``dmaps[p, t] += a_j·max(0, texel_t·ω_j)`` and ``dsh[p, k] += a_j·basis[j, k]`` for p = probes[j] (distinct):
-    one virtual light's E(n) per texel and radiance SH at the probes it reaches, without (k, n², 3) temporaries."""
+def _add_delta(dmaps, dsh, probes, om, a, texel, basis, lo, hi):
+    """:func:`_add_deltas` for the probes in [lo, hi), without (k, n², 3) temporaries."""
     for j in range(probes.size):
         p = probes[j]
+        if p < lo or p >= hi:
+            continue
         ox, oy, oz = om[j, 0], om[j, 1], om[j, 2]
         for t in range(texel.shape[0]):
             c = ox * texel[t, 0] + oy * texel[t, 1] + oz * texel[t, 2]
