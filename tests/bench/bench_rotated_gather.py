@@ -62,6 +62,12 @@ wall 1.090 → 1.094, the dark hits' gather 1.110 → 1.113): the lookup's blur 
 larger maps change is the light stage's own bounce maps, which its gather reads: 16 texels inside the stage with 8
 stored give 16's converged numbers exactly, 24 a little more, levelling off near 1.07-1.09 (docs/architecture.md,
 "Tried next and not kept").
+
+Correction (2026-12-05, last): the ``--bounces 1`` excess itself is the trace's draw of 64 ray rotations, not a bias:
+at the dark probes 5-15 cm from a face, the estimate from the probes' own rays without any map reads 1.046 of an
+8,192-direction estimate (which reads 0.997 of the path tracer), the same pattern under fresh rotations 0.98, and
+bakes with seeds 1 and 2 converge to the same turned excess as seed 0 (docs/architecture.md, "What the turned excess
+is not"). The converged excess is made in the bounces.
 """
 from __future__ import annotations
 
