@@ -1,7 +1,8 @@
 // @kiln/three (web/kiln-three): the pure parts — the Kiln grid -> three.js LightProbeGrid mapping (box, resolution,
 // padding), the stacking of volumes, and the GLSL handed to three's onBeforeCompile.
 import { describe, expect, it } from 'vitest';
-import { cellSize, frameMatrix, isIdentityFrame, padShL2, probeGridBox, threeTexelCoord, SH_L2_TEXELS } from '../kiln-three/src/grid.js';
+import { DataUtils } from 'three';
+import { cellSize, frameMatrix, isIdentityFrame, padShL2, probeGridBox, resampleShL2, shRotationL2, threeTexelCoord, SH_L2_TEXELS } from '../kiln-three/src/grid.js';
 import { GLSL_SOURCES } from '../src/renderer/shaders.js';
 import { KilnBundle } from '../kiln-three/src/bundle.js';
 import { IRRADIANCE_HOOK, modeGLSL, stackRecords } from '../kiln-three/src/gi.js';
@@ -237,5 +238,101 @@ describe('bake frame (grid.frame)', () => {
     expect(() => frameMatrix({ ...GRID, frame: { matrix: [[-1, 0, 0], [0, 1, 0], [0, 0, 1]] } })).toThrow(/reflection/);
     expect(() => frameMatrix({ ...GRID, frame: { matrix: [[2, 0, 0], [0, 1, 0], [0, 0, 1]] } })).toThrow(/not a rotation/);
     expect(() => frameMatrix({ ...GRID, frame: { matrix: [[1, 0], [0, 1]] } })).toThrow(RangeError);
+  });
+});
+
+describe('a turned bake resampled for three\'s LightProbeGrid (resampleShL2)', () => {
+  const yaw = (deg) => {   // M = R_y(θ)ᵀ, world -> bake
+    const t = (deg * Math.PI) / 180;
+    return [[Math.cos(t), 0, -Math.sin(t)], [0, 1, 0], [Math.sin(t), 0, Math.cos(t)]];
+  };
+  const basis = (x, y, z) => [0.282095, 0.488603 * y, 0.488603 * z, 0.488603 * x, 1.092548 * x * y, 1.092548 * y * z,
+    0.315392 * (3 * z * z - 1), 1.092548 * x * z, 0.546274 * (x * x - y * y)];
+  const unit = (r) => { const v = [r() - 0.5, r() - 0.5, r() - 0.5]; const n = Math.hypot(...v); return v.map((x) => x / n); };
+  const mul = (M, v) => M.map((row) => row[0] * v[0] + row[1] * v[1] + row[2] * v[2]);
+
+  it('turns L2 SH exactly: f_world(d) = f_bake(M·d), an orthogonal 9 x 9 matrix, the identity for no turn', () => {
+    const r = rng(11);
+    for (const deg of [30, -17.5, 90]) {
+      const M = yaw(deg);
+      const R = shRotationL2(M);
+      const c = [...Array(9)].map(() => r() - 0.5);
+      const cw = R.map((row) => row.reduce((acc, x, k) => acc + x * c[k], 0));
+      for (let n = 0; n < 20; n++) {
+        const d = unit(r);
+        const world = basis(...d).reduce((acc, y, k) => acc + y * cw[k], 0);
+        const bake = basis(...mul(M, d)).reduce((acc, y, k) => acc + y * c[k], 0);
+        expect(world).toBeCloseTo(bake, 9);
+      }
+      // orthogonal up to the basis constants' 6 digits (three's, rounded)
+      R.forEach((a, i) => R.forEach((b, j) => expect(a.reduce((acc, x, k) => acc + x * b[k], 0)).toBeCloseTo(i === j ? 1 : 0, 5)));
+    }
+    shRotationL2(yaw(0)).forEach((row, i) => row.forEach((x, j) => expect(x).toBeCloseTo(i === j ? 1 : 0, 12)));
+  });
+
+  // SH that varies linearly with the bake-frame position: coefficient t of the probe at q is A[t] + B[t]·q
+  const g = { origin: [-1.2, 0.1, 0.4], spacing: [0.5, 0.4, 0.45], counts: [9, 5, 8] };
+  const r0 = rng(5);
+  const A = [...Array(27)].map(() => r0());
+  const B = [...Array(27)].map(() => [r0() - 0.5, r0() - 0.5, r0() - 0.5]);
+  const field = (q) => A.map((a, t) => a + B[t][0] * q[0] + B[t][1] * q[1] + B[t][2] * q[2]);
+  function linearAtlas() {
+    const [nx, ny, nz] = g.counts;
+    const data = new Float32Array(SH_L2_TEXELS * (nz + 2) * ny * nx * 4);
+    for (let z = 0; z < nz + 2; z++) {
+      const k = Math.min(nz - 1, Math.max(0, z - 1));
+      for (let j = 0; j < ny; j++) {
+        for (let i = 0; i < nx; i++) {
+          const c = field([0, 1, 2].map((a) => g.origin[a] + [i, j, k][a] * g.spacing[a]));
+          for (let t = 0; t < 27; t++) data[((((t >> 2) * (nz + 2) + z) * ny + j) * nx + i) * 4 + (t & 3)] = c[t];
+        }
+      }
+    }
+    return data;
+  }
+
+  it('gives three\'s lookup Kiln\'s light turned into the world (exact for light linear in space)', () => {
+    const M = yaw(30);
+    const { data, box, depth } = resampleShL2(linearAtlas(), g, M, 1);
+    const [mx, my, mz] = box.resolution;
+    expect(data).toBeInstanceOf(Float32Array);
+    expect(depth).toBe(SH_L2_TEXELS * (mz + 2));
+    expect(data.length).toBe(depth * my * mx * 4);
+    expect(Math.min(...box.size.map((x, a) => x / box.resolution[a]))).toBeGreaterThan(0.38);   // about the spacing
+    const R = shRotationL2(M);
+    const r = rng(9);
+    let checked = 0;
+    for (let n = 0; n < 400 && checked < 60; n++) {
+      // world points whose bake-frame point and every world cell around them lie a cell inside the probes
+      const q = g.origin.map((o, a) => o + (1.6 + r() * (g.counts[a] - 4.2)) * g.spacing[a]);
+      const p = [0, 1, 2].map((i) => M[0][i] * q[0] + M[1][i] * q[1] + M[2][i] * q[2]);
+      const cb = field(q);
+      const got = [...Array(27)].map((_, t) => threeSample(data.subarray(t & 3), box, p, t >> 2));
+      for (let ch = 0; ch < 3; ch++) {
+        for (let k = 0; k < 9; k++) {
+          const want = R[k].reduce((acc, x, j) => acc + x * cb[3 * j + ch], 0);
+          expect(got[3 * k + ch]).toBeCloseTo(want, 4);
+        }
+      }
+      checked += 1;
+    }
+    expect(checked).toBe(60);
+    // the same atlas put in the world box unturned (what three would read without the resampling) is far off
+    const plain = threeSample(padShL2(linearAtlas(), g.counts, 1).data.subarray(3), probeGridBox(g, 1), [0.9, 0.9, 1.9], 0);
+    const right = R[1].reduce((acc, x, j) => acc + x * field(mul(M, [0.9, 0.9, 1.9]))[3 * j], 0);
+    expect(Math.abs(plain - right)).toBeGreaterThan(0.05);
+  });
+
+  it('covers the turned probes and keeps half floats as half floats', () => {
+    const M = yaw(-33);
+    const half = Uint16Array.from(linearAtlas(), (x) => DataUtils.toHalfFloat(x));
+    const { data, box } = resampleShL2(half, g, M, 1);
+    expect(data).toBeInstanceOf(Uint16Array);
+    for (let c = 0; c < 8; c++) {
+      const q = [0, 1, 2].map((a) => g.origin[a] + ((c >> a) & 1) * (g.counts[a] - 1) * g.spacing[a]);
+      const p = [0, 1, 2].map((i) => M[0][i] * q[0] + M[1][i] * q[1] + M[2][i] * q[2]);
+      p.forEach((x, a) => { expect(x).toBeGreaterThan(box.min[a]); expect(x).toBeLessThan(box.max[a]); });
+    }
+    expect(() => resampleShL2(half.subarray(4), g, M)).toThrow(RangeError);
   });
 });

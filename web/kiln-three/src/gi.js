@@ -15,8 +15,8 @@
  *   by a yaw fitted to the walls. The extension hands the mode uGiFrame·p, uGiFrame·n and giViewDir = uGiFrame·v
  *   (`uniform mat3 uGiFrame`, world -> bake; the identity for a bake without a frame). three's LightProbeGrid is an
  *   axis-aligned world box that ignores any rotation (its shader compares the world position with a world box and
- *   evaluates the SH at the world normal; the box follows `position` only): createProbeGrid and setMode('grid')
- *   refuse a turned bake.
+ *   evaluates the SH at the world normal; the box follows `position` only): for a turned bake createProbeGrid
+ *   resamples the SH onto a world-aligned grid (grid.js resampleShL2: Kiln's lookup at M·p, the SH turned to the world).
  */
 import { Matrix3 } from 'three';
 import { LightProbeGridWebGL } from 'three/addons/lighting/LightProbeGridWebGL.js';
@@ -25,7 +25,7 @@ import { GLSL_SOURCES, hasShader } from '../../src/renderer/shaders.js';
 import { preprocess } from '../../src/renderer/preprocess.js';
 import { probeDataTexture, textureFromKTX2, wrapAtlas } from '../../src/renderer/textures.js';
 import { atlasColumns } from '../../src/math/atlas.js';
-import { frameMatrix, isIdentityFrame, padShL2, probeGridBox } from './grid.js';
+import { frameMatrix, isIdentityFrame, padShL2, probeGridBox, resampleShL2 } from './grid.js';
 
 /** Modes `setMode` takes: 'off', 'grid' (leaking through three's LightProbeGrid) and Kiln's GLSL modes. */
 export const EXTENSION_MODES = ['leaking', 'ddgi', 'mask', 'mask_normalized'];
@@ -113,19 +113,12 @@ export class KilnGI {
     for (const name of MODE_SAMPLERS) this.uniforms[name] = { value: null };
   }
 
-  /** Whether three's LightProbeGrid can hold this bake: its bake frame is the world (no grid.frame, or yaw 0). */
+  /** Whether three's LightProbeGrid holds this bake's probes as they are: its bake frame is the world (no grid.frame,
+   * or yaw 0). A turned bake's grid is resampled onto a world grid instead (probeGridResampled). */
   get probeGridFits() { return isIdentityFrame(this.frame); }
 
-  /** Why three's LightProbeGrid cannot hold this bake (a turned bake frame), or null when it can. */
-  get probeGridRefusal() {
-    if (this.probeGridFits) return null;
-    const f = this.bundle.grid.frame || {};
-    const yaw = f.yaw_deg ?? (Math.atan2(this.frame[2][0], this.frame[0][0]) * 180) / Math.PI;
-    return `the bake's probe grid is turned ${Number(yaw).toFixed(2)}° about +Y (grid.frame, source ${f.source ?? '?'}): `
-      + "three's LightProbeGrid is an axis-aligned world box that cannot be rotated, so its light would be wrong. "
-      + "Use the material extension's 'leaking' mode (the same SH, the frame applied), or bake with place.yaw = 0 "
-      + '(an axis-aligned grid) for the LightProbeGrid';
-  }
+  /** Whether createProbeGrid resamples the SH onto an axis-aligned world grid (a turned bake frame: grid.js resampleShL2). */
+  get probeGridResampled() { return !this.probeGridFits; }
 
   /** Kiln modes this bundle can shade: [{id, label, available, reason}] (web/src/state/modes.js availability). */
   modes() {
@@ -136,17 +129,19 @@ export class KilnGI {
   /**
    * The bundle's leaking GI as a three.js LightProbeGrid (add it to the scene; it lights every lit material).
    * Needs the `sh_l2` artifact (light.sh_order 2, the default). Float32 atlases are sampled LINEAR where the device
-   * has OES_texture_float_linear, else converted to half floats (textures.js).
+   * has OES_texture_float_linear, else converted to half floats (textures.js). A turned bake (grid.frame, yaw ≠ 0) gets
+   * its SH resampled onto an axis-aligned world grid about the bake's spacing (grid.js resampleShL2; userData.kilnResampled).
    */
   async createProbeGrid() {
     if (!this.bundle.has('sh_l2')) throw new Error('the bundle has no sh_l2 (an L1 bake, light.sh_order = 1): no LightProbeGrid');
-    if (!this.probeGridFits) throw new Error(`no LightProbeGrid: ${this.probeGridRefusal}`);
     const rec = await this.bundle.artifact('sh_l2');
     const grid = this.bundle.grid;
-    const box = probeGridBox(grid, this.pad);
-    const padded = this.pad ? padShL2(rec.data, grid.counts, this.pad) : { data: rec.data, depth: rec.depth };
-    const tex = textureFromKTX2({ ...rec, data: padded.data, width: box.resolution[0], height: box.resolution[1],
-      depth: padded.depth, is3D: true }, { filter: 'linear', floatLinear: this.floatLinear });
+    // three's box is axis-aligned in the world: a turned bake's SH resampled onto a world grid (grid.js resampleShL2)
+    const { box, data, depth } = this.probeGridFits
+      ? { box: probeGridBox(grid, this.pad), ...(this.pad ? padShL2(rec.data, grid.counts, this.pad) : { data: rec.data, depth: rec.depth }) }
+      : resampleShL2(rec.data, grid, this.frame, this.pad);
+    const tex = textureFromKTX2({ ...rec, data, width: box.resolution[0], height: box.resolution[1],
+      depth, is3D: true }, { filter: 'linear', floatLinear: this.floatLinear });
     const pg = new LightProbeGridWebGL(...box.size, ...box.resolution);
     pg.name = 'kiln:probe-grid';
     pg.position.fromArray(box.center);
@@ -154,6 +149,7 @@ export class KilnGI {
     pg.updateBoundingBox();
     pg.texture = tex;
     pg.userData.kilnBox = box;
+    pg.userData.kilnResampled = this.probeGridResampled;
     pg.visible = this.mode === 'grid';
     this.probeGrid = pg;
     return pg;
@@ -200,7 +196,6 @@ export class KilnGI {
    */
   async setMode(id) {
     if (id === 'off' || id === 'grid') {
-      if (id === 'grid' && !this.probeGridFits) throw new Error(`mode 'grid': ${this.probeGridRefusal}`);
       if (id === 'grid' && !this.probeGrid) throw new Error('createProbeGrid() first');
       this._setCode(id, '');
     } else {

@@ -14,6 +14,7 @@
  * side, copies of the border layer, so three's box grows by a cell per side and, inside the old box plus one cell,
  * three reads exactly what Kiln's clamped lookup reads.
  */
+import { DataUtils } from 'three';
 
 /** Sub-volumes of the L2 layout (9 coefficients × rgb + one 0 = 28 numbers = 7 RGBA texels per probe). */
 export const SH_L2_TEXELS = 7;
@@ -100,6 +101,142 @@ export function padShL2(data, counts, pad = 1) {
     }
   }
   return { data: out, counts: [mx, my, mz], depth: SH_L2_TEXELS * (mz + 2) };
+}
+
+/** three's SH basis (SphericalHarmonics3.getBasisAt: its order and constants, = Kiln's, workers/kernels/sh.py) at unit d. */
+function shBasis(x, y, z) {
+  return [0.282095, 0.488603 * y, 0.488603 * z, 0.488603 * x, 1.092548 * x * y, 1.092548 * y * z,
+    0.315392 * (3 * z * z - 1), 1.092548 * x * z, 0.546274 * (x * x - y * y)];
+}
+
+/** x of A x = b (n × n, row-major arrays; Gaussian elimination with partial pivoting). */
+function solve(A, b) {
+  const n = b.length;
+  const m = A.map((r, i) => [...r, b[i]]);
+  for (let c = 0; c < n; c++) {
+    let p = c;
+    for (let r = c + 1; r < n; r++) if (Math.abs(m[r][c]) > Math.abs(m[p][c])) p = r;
+    [m[c], m[p]] = [m[p], m[c]];
+    for (let r = c + 1; r < n; r++) {
+      const f = m[r][c] / m[c][c];
+      for (let k = c; k <= n; k++) m[r][k] -= f * m[c][k];
+    }
+  }
+  const x = new Array(n).fill(0);
+  for (let r = n - 1; r >= 0; r--) {
+    let v = m[r][n];
+    for (let k = r + 1; k < n; k++) v -= m[r][k] * x[k];
+    x[r] = v / m[r][r];
+  }
+  return x;
+}
+
+/**
+ * The 9 × 9 matrix R (rows of 9) that turns L2 SH coefficients of the bake frame into the world's: for a function
+ * f_bake on directions of the bake frame, f_world(d) = f_bake(M·d) has coefficients c_world = R·c_bake (each
+ * colour channel alike). M: world -> bake, 3 rows (frameMatrix). Exact (each band is closed under rotation): the
+ * least-squares fit over 64 Fibonacci directions, R = (AᵀA)⁻¹AᵀB with A = Y(d_i), B = Y(M·d_i).
+ * @param {number[][]} M
+ * @returns {number[][]}
+ */
+export function shRotationL2(M) {
+  const N = 64, A = [], B = [];
+  for (let i = 0; i < N; i++) {
+    const z = 1 - (2 * i + 1) / N, r = Math.sqrt(Math.max(0, 1 - z * z)), phi = 2 * Math.PI * ((i * 0.6180339887498949) % 1);
+    const d = [Math.cos(phi) * r, Math.sin(phi) * r, z];
+    const e = M.map((row) => row[0] * d[0] + row[1] * d[1] + row[2] * d[2]);
+    A.push(shBasis(...d));
+    B.push(shBasis(...e));
+  }
+  const AtA = [...Array(9)].map((_, j) => [...Array(9)].map((__, k) => A.reduce((s, a) => s + a[j] * a[k], 0)));
+  const cols = [...Array(9)].map((_, k) => solve(AtA, [...Array(9)].map((__, j) => A.reduce((s, a, i) => s + a[j] * B[i][k], 0))));
+  return [...Array(9)].map((_, j) => cols.map((c) => c[j]));
+}
+
+/**
+ * A turned bake's `sh_l2` resampled onto an axis-aligned world grid, for three's LightProbeGrid (which cannot turn:
+ * README "The bake frame"). The world box is the axis-aligned box around the turned probes' box (each side `pad`
+ * cells past the outer probes, as probeGridBox), cut into cells about the bake's spacing (x and z: the smaller of its
+ * x and z spacing). At each world cell centre p the value is Kiln's leaking lookup of the bake at M·p (trilinear over
+ * the 8 probes around it, clamped to the outer probes, proto/bundle.md 5.1), its SH turned into the world frame
+ * (shRotationL2). So three's lookup of the result is Kiln's leaking lookup filtered once more by a trilinear
+ * interpolation over the world cells: exact for light that varies linearly in space, a little softer elsewhere.
+ * @param {ArrayLike<number>} data  the `sh_l2` atlas as stored ((7·(nz + 2), ny, nx, 4): Float32Array, or
+ *   Uint16Array of half-float bits, read and written as half floats)
+ * @param {{origin: number[], spacing: number[], counts: number[]}} grid  manifest.grid (bake frame)
+ * @param {number[][]} M  world -> bake (frameMatrix(grid))
+ * @param {number} [pad=1]
+ * @returns {{data: ArrayLike<number>, box: ReturnType<typeof probeGridBox>, depth: number}}  the world grid's atlas in
+ *   the same layout and typed-array type, and its box (the arguments of LightProbeGridWebGL)
+ */
+export function resampleShL2(data, grid, M, pad = 1) {
+  const [nx, ny, nz] = vec(grid.counts);
+  const o = vec(grid.origin);
+  const s = cellSize(grid);
+  const expected = SH_L2_TEXELS * (nz + 2) * ny * nx * 4;
+  if (data.length !== expected) throw new RangeError(`sh_l2 of ${data.length} values, expected 7·(nz+2)·ny·nx·4 = ${expected}`);
+  const half = data instanceof Uint16Array;
+  const read = half ? (i) => DataUtils.fromHalfFloat(data[i]) : (i) => data[i];
+  // the turned box (bake frame, pad cells past the outer probes) and the world box around it
+  const bmin = o.map((x, a) => x - s[a] * (0.5 + pad));
+  const bmax = o.map((x, a) => x + s[a] * ([nx, ny, nz][a] - 0.5 + pad));
+  const min = [Infinity, Infinity, Infinity], max = [-Infinity, -Infinity, -Infinity];
+  for (let c = 0; c < 8; c++) {
+    const q = [c & 1 ? bmax[0] : bmin[0], c & 2 ? bmax[1] : bmin[1], c & 4 ? bmax[2] : bmin[2]];
+    const w = [0, 1, 2].map((i) => M[0][i] * q[0] + M[1][i] * q[1] + M[2][i] * q[2]);   // Mᵀ·q: bake -> world
+    for (let a = 0; a < 3; a++) { min[a] = Math.min(min[a], w[a]); max[a] = Math.max(max[a], w[a]); }
+  }
+  const h = [Math.min(s[0], s[2]), s[1], Math.min(s[0], s[2])];
+  const size = max.map((x, a) => x - min[a]);
+  const res = size.map((x, a) => Math.max(1, Math.round(x / h[a])));
+  const [mx, my, mz] = res;
+  const R = shRotationL2(M);
+  const out = new (half ? Uint16Array : Float32Array)(SH_L2_TEXELS * (mz + 2) * my * mx * 4);
+  const cb = new Float64Array(27);
+  const cw = new Float64Array(28);
+  const n = [nx, ny, nz];
+  for (let z = 0; z < mz; z++) {
+    for (let y = 0; y < my; y++) {
+      for (let x = 0; x < mx; x++) {
+        const p = [min[0] + ((x + 0.5) * size[0]) / mx, min[1] + ((y + 0.5) * size[1]) / my, min[2] + ((z + 0.5) * size[2]) / mz];
+        const q = M.map((row) => row[0] * p[0] + row[1] * p[1] + row[2] * p[2]);
+        const i0 = [0, 0, 0], f = [0, 0, 0];
+        for (let a = 0; a < 3; a++) {   // Kiln's leaking lookup: clamped to the outer probes, trilinear
+          const u = Math.min(n[a] - 1, Math.max(0, (q[a] - o[a]) / s[a]));
+          i0[a] = Math.min(n[a] - 2, Math.floor(u));
+          if (n[a] === 1) i0[a] = 0;
+          f[a] = n[a] === 1 ? 0 : u - i0[a];
+        }
+        cb.fill(0);
+        for (let c = 0; c < 8; c++) {
+          const di = c & 1, dj = (c >> 1) & 1, dk = (c >> 2) & 1;
+          const w = (di ? f[0] : 1 - f[0]) * (dj ? f[1] : 1 - f[1]) * (dk ? f[2] : 1 - f[2]);
+          if (w === 0) continue;
+          const i = i0[0] + di, j = i0[1] + dj, k = i0[2] + dk;
+          for (let t = 0; t < 27; t++) {
+            const sub = t >> 2;
+            cb[t] += w * read((((sub * (nz + 2) + 1 + k) * ny + j) * nx + i) * 4 + (t & 3));
+          }
+        }
+        for (let ch = 0; ch < 3; ch++) {   // cb[3·coefficient + channel]
+          for (let r = 0; r < 9; r++) {
+            let v = 0;
+            for (let c = 0; c < 9; c++) v += R[r][c] * cb[3 * c + ch];
+            cw[3 * r + ch] = v;
+          }
+        }
+        for (let t = 0; t < 28; t++) {
+          const sub = t >> 2, v = t < 27 ? cw[t] : 0;
+          const val = half ? DataUtils.toHalfFloat(v) : v;
+          for (const zz of z === 0 ? (mz === 1 ? [0, 1, 2] : [0, 1]) : z === mz - 1 ? [z + 1, z + 2] : [z + 1]) {
+            out[(((sub * (mz + 2) + zz) * my + y) * mx + x) * 4 + (t & 3)] = val;
+          }
+        }
+      }
+    }
+  }
+  return { data: out, depth: SH_L2_TEXELS * (mz + 2),
+    box: { min, max, size, center: max.map((x, a) => (x + min[a]) / 2), resolution: res } };
 }
 
 /**
