@@ -156,7 +156,7 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
     idx = np.flatnonzero(live)
     x = positions[idx].astype(np.float64)
     n_vl = rays = 0
-    batch: list[tuple] = []        # virtual lights whose shadow rays go to the caster together (module doc)
+    batch: list[tuple] = []        # virtual lights whose shadow rays go to the caster together (SPOT_BATCH_RAYS)
     held = 0
 
     def flush():
