@@ -251,6 +251,11 @@ class LightSection(_Strict):
                                              "s·a·(the nearby surface's light), a the occluded part of the hit's "
                                              "hemisphere; a fit against the path tracer on three held-out interiors "
                                              "(docs/architecture.md, near-field occlusion)")
+    gather: Literal["sh", "octahedral"] = Field(
+        "sh", description="what each probe reports at a probe-ray hit in the bounces: 'sh' its L2 SH irradiance at "
+                          "the hit's normal (projected from the bounce's own rays), 'octahedral' its irradiance map "
+                          "(bilinear, as DDGI's runtime reads it; at an angle to a wall an 8-texel map reads the "
+                          "dim side of a door high and a room lit through it 10-20% bright: docs/architecture.md)")
     extra_rays: Float = Field(0.5, ge=0.0, le=8.0,
                               description="adaptive probe rays: extra sets of trace.rays_per_probe rays, this "
                                           "fraction of the live probes' count in all, to the probes whose few rays "

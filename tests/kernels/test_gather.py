@@ -86,3 +86,45 @@ def test_sampler_gather_weights_once_equal_the_sampler(counts):
             assert np.all(got[3:5] == 0) and np.any(ref != 0)
     with pytest.raises(ValueError):
         SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3, n=N)(maps[:, 1:, 1:])   # built for n = 6
+
+
+def test_sh_read_is_the_samplers_weights_over_each_cage_probes_clamped_sh_irradiance():
+    """read='sh' (the light stage's gather, light.gather): the same weights as the map read, each cage probe's L2 SH
+    irradiance at the point's normal (RH01 eq 7-8), clamped at 0 where the SH rings below it; constant radiance L
+    gives π·L at any normal."""
+    from workers.kernels.sh import sh_irradiance, sh_project
+    from workers.kernels.sampling import fibonacci_sphere
+
+    rng = np.random.default_rng(4)
+    counts = (3, 2, 4)
+    g, pos, states, depth = _probes(counts, off=(2,))
+    pts, nrm, view = _points(rng, 400, counts)
+    vis = rng.integers(0, 2, (400, 8)).astype(np.uint8)
+    P = pos.shape[0]
+    sh = rng.normal(size=(P, 9, 6)).astype(np.float32)           # two configurations: 6 columns
+    maps = np.zeros((P, N + 2, N + 2, 6), np.float32)
+    octa = SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3, vis, n=N)
+    gsh = SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3, vis, n=N, read="sh")
+    assert gsh.reads_sh and not octa.reads_sh
+    got = gsh(maps, sh)
+    w = octa.weights
+    want = np.zeros((400, 6))
+    for c in range(8):
+        q = w.base + (c & 1) * w.steps[0] + ((c >> 1) & 1) * w.steps[1] + ((c >> 2) & 1) * w.steps[2]
+        e = sh_irradiance(sh[q].astype(np.float64), nrm.astype(np.float64))
+        want += w.weight[:, c, None] * np.maximum(e, 0.0)
+    np.testing.assert_allclose(got, want, rtol=2e-5, atol=2e-5 * np.abs(want).max())
+    assert (want[:, 0] > 0).sum() > 100 and (got >= 0).all()
+    # constant radiance: π·L wherever the weights sum to 1
+    L = np.array([0.5, 1.0, 2.0])
+    dirs = fibonacci_sphere(4096)
+    c = sh_project(dirs, np.tile(L, (4096, 1)), order=2).astype(np.float32)      # (9, 3)
+    flat = np.broadcast_to(c, (P, 9, 3)).copy()
+    e = gsh(maps[..., :3], flat)
+    ok = w.weight.sum(1) > 0.5
+    assert ok.sum() > 100
+    np.testing.assert_allclose(e[ok], np.pi * L[None].repeat(ok.sum(), 0), rtol=2e-3)
+    with pytest.raises(ValueError):
+        gsh(maps)                                                  # the SH read needs the SH
+    with pytest.raises(ValueError):
+        SamplerGather(pts, nrm, view, g, pos, states, depth, 0.3, read="maps")

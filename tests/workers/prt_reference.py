@@ -2,8 +2,9 @@
 
 A test helper (tests/workers/test_prt_stage.py, tests/render/test_artifacts.py, tests/bench/bench_prt.py): it
 runs the bounce integrator one configuration at a time with the DDGI sampler itself
-(:class:`workers.kernels.gather.SamplerGather`), as the light stage does, where the PRT stage solves batches
-through the sampler's sparse matrix (:class:`workers.kernels.gather.MatrixGather`).
+(:class:`workers.kernels.gather.SamplerGather`, reading what ``light.gather`` says), as the light stage does, where
+the PRT stage solves batches (through the sampler's sparse matrix, :class:`workers.kernels.gather.MatrixGather`,
+with ``light.gather = "octahedral"``).
 """
 from __future__ import annotations
 
@@ -31,7 +32,7 @@ def light_stage_reference(ds, lights: list[dict], light_section, lightmap: bool 
     surf = pr["surf"]
     e = direct_irradiance(surf.position, surf.normal, lights, pr["caster"], pr["eps"], **(pr.get("shading") or {}))
     gather = SamplerGather(surf.position, surf.normal, surf.view, pr["grid"], pr["positions"], pr["states"],
-                           pr["depth"], pr["bias"], pr["visible"])
+                           pr["depth"], pr["bias"], pr["visible"], read=light_section.gather)
     irr, radiance, _, _ = integrate_one(surf.index, surf.miss, surf.albedo, e, pr["dirs"], pr["states"], pr["n"],
                                         gather, bounces=light_section.bounces, max_bounces=light_section.max_bounces,
                                         tolerance=light_section.tolerance, indirect_scale=pr.get("horizon"),

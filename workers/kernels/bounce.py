@@ -80,6 +80,8 @@ class _RayMajorMaps:
         groups = rays.groups()
         texels = oct_texel_directions(n).reshape(-1, 3).astype(np.float32)
         self.w = [_cosine_power(texels @ rays.patterns[k].T, 1.0) for k, _ in groups]   # (T, R) max(0, n·ω)
+        self._patterns = [rays.patterns[k] for k, _ in groups]
+        self._sh_basis = None
         self.den = np.stack([w.sum(axis=-1) for w in self.w])                          # (G, T)
         self.ok = self.den > 0
         sizes = np.array([idx.size for _, idx in groups], np.int64)
@@ -106,6 +108,25 @@ class _RayMajorMaps:
         with ThreadPoolExecutor(_MAP_THREADS) as pool:      # π · num / den, OFF = 0, the border: one pass
             list(pool.map(lambda i: _finish_maps(num, self.den, self.ok, self.slot, self.cols, self.off, bounds[i],
                                                  bounds[i + 1], out), range(_MAP_THREADS)))
+        return out
+
+
+    def sh(self, radiance_rm: np.ndarray, K: int = 9) -> np.ndarray:
+        """Radiance SH of each probe's rays (:func:`workers.kernels.sh.sh_project_probes`' sums, uniform weights
+        4π/R, float32): ``radiance_rm`` (R, P, C) in this object's column order; returns (P, K, C) in probe order,
+        OFF probes 0."""
+        from workers.kernels.sh import _sh_basis
+
+        R, P, C = radiance_rm.shape
+        if self._sh_basis is None or self._sh_basis[0].shape[1] != K:
+            self._sh_basis = [(_sh_basis(np.asarray(d, np.float64), K) * (4.0 * math.pi / R)).astype(np.float32)
+                              for d in self._patterns]                        # (R, K) each
+        out = np.empty((P, K, C), np.float32)
+        for g, y in enumerate(self._sh_basis):
+            a, b = self.bounds[g], self.bounds[g + 1]
+            out[self.cols[a:b]] = (y.T @ radiance_rm[:, a:b].reshape(R, (b - a) * C)).reshape(K, b - a, C) \
+                .transpose(1, 0, 2)
+        out[self.off] = 0.0
         return out
 
 
@@ -180,7 +201,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
               states: np.ndarray, n: int, gather, retire, *, emission: np.ndarray | None = None, sky=None,
               bounces: int | None, max_bounces: int, tolerance: float, report=None,
               correction: np.ndarray | None = None, indirect_scale: np.ndarray | None = None,
-              near=None, parents: np.ndarray | None = None) -> BounceLog:
+              near=None, parents: np.ndarray | None = None, correction_sh: np.ndarray | None = None) -> BounceLog:
     """Sum the bounce series of B lighting configurations (module doc) over the same cached probe-ray hits.
 
     Parameters
@@ -197,7 +218,10 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         As :func:`irradiance_maps`.
     gather : callable
         ``gather(maps (P, n+2, n+2, 3k) float32) -> (H, 3k)``: E_indirect at the hits from the live
-        configurations' maps (:mod:`workers.kernels.gather`).
+        configurations' maps (:mod:`workers.kernels.gather`). A gather with ``reads_sh`` True is called
+        ``gather(maps, sh)`` with each probe's L2 radiance SH (P, 9, 3k) float32 of the same bounce, projected from
+        its rays here (rows merged with ``parents``, ``correction_sh`` added): the light stage's default
+        (``light.gather = "sh"``, :class:`workers.kernels.gather.SamplerGather`).
     retire : callable
         ``retire(ids (k,) int, radiance (P, R, 3k) float32, maps (P, n+2, n+2, 3k) float32, bounces int)``,
         called when configurations ``ids`` stop, with their final per-ray radiance and irradiance maps
@@ -214,6 +238,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         Added to every bounce's maps: light the cached rays do not carry (the point lights' hot spots sampled
         from the light, :func:`workers.kernels.light_spots.spot_correction`); the radiance handed to ``retire``
         does not hold it.
+    correction_sh : (P, 9, 3·B) float32 or None
+        The same light as radiance SH, added to every bounce's SH when the gather reads SH.
     indirect_scale : (H,) float32 or None
         Multiplies E_indirect at each hit (the light stage's horizon factor of bent shading normals,
         :func:`workers.kernels.shading.horizon_factor`): ``L = emission + albedo/π · (E_direct + h·E_indirect)``.
@@ -260,6 +286,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     else:
         near = None
     maps = np.zeros((P, t, t, 3 * B), np.float32)
+    reads_sh = bool(getattr(gather, "reads_sh", False))     # the gather reads the probes' L2 SH (parameter gather)
+    sh = None
     live = np.arange(B)
     log = BounceLog(bounces=np.zeros(B, np.int64), change=[[] for _ in range(B)], residual=[[] for _ in range(B)])
     deltas: list[np.ndarray] = []
@@ -268,7 +296,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         if b == 1:
             radiance[rows] = base                                              # E_indirect = 0: the first bounce
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
-            e_ind = np.ascontiguousarray(gather(maps), np.float32)
+            e_ind = np.ascontiguousarray(gather(maps, sh) if reads_sh else gather(maps), np.float32)
             if near is not None:    # multi-bounce near-field occlusion (parameter ``near``), in place
                 _near_update(e_ind, sel, near_a, near_base, near_rho, near_prev)
             _shade_hits(radiance, rows, base, rho, e_ind)
@@ -277,6 +305,12 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             new = merge_rows(new, parents)                                     # a probe's rows: their mean
         if correction is not None:
             new += correction                                                  # the fixed term over more rays
+        if reads_sh:    # the same bounce's radiance as L2 SH, as the maps: rows merged, the fixed term added
+            sh = accumulate.sh(radiance.reshape(R, rows_all, -1))
+            if parents.size:
+                sh = merge_rows(sh, parents)
+            if correction_sh is not None:
+                sh += correction_sh
         nb = live.size
         step = np.abs(new - maps)
         # per probe and configuration: the light still to come (workers.kernels.convergence)
@@ -318,12 +352,16 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         maps = np.ascontiguousarray(maps[..., kc])
         if correction is not None:
             correction = np.ascontiguousarray(correction[..., kc])
+        if reads_sh:
+            sh = np.ascontiguousarray(sh[..., kc])
+            if correction_sh is not None:
+                correction_sh = np.ascontiguousarray(correction_sh[..., kc])
     return log
 
 
 def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emission=None, sky=None,
                   bounces: int | None, max_bounces: int, tolerance: float, report=None, correction=None,
-                  indirect_scale=None, near=None, parents=None):
+                  indirect_scale=None, near=None, parents=None, correction_sh=None):
     """:func:`integrate` for one configuration: ``e_direct`` (H, 3). Returns ``(irradiance (P, n+2, n+2, 3),
     radiance (rows, R, 3), change per bounce, residual per bounce)`` (float32 arrays, lists of float; rows = P + E
     with ``parents``)."""
@@ -334,5 +372,6 @@ def integrate_one(index, miss, albedo, e_direct, dirs, states, n, gather, *, emi
 
     log = integrate(index, miss, albedo, e_direct[None], dirs, states, n, gather, retire, emission=emission,
                     sky=sky, bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, report=report,
-                    correction=correction, indirect_scale=indirect_scale, near=near, parents=parents)
+                    correction=correction, indirect_scale=indirect_scale, near=near, parents=parents,
+                    correction_sh=correction_sh)
     return out["maps"], out["radiance"], log.change[0], log.residual[0]

@@ -27,7 +27,7 @@ from numba import njit
 from workers.kernels.ddgi import point_weights, cage_probes, sample_irradiance, sampler_inputs
 
 __all__ = ["SamplerGather", "MatrixGather", "ddgi_weights", "SamplerWeights", "sampler_weights",
-           "apply_sampler_weights", "SAMPLE_THREADS"]
+           "apply_sampler_weights", "apply_sampler_weights_sh", "sh_irradiance_basis", "SAMPLE_THREADS"]
 
 SAMPLE_THREADS = 2
 """Threads for the probe sampler (its numba kernel releases the GIL)."""
@@ -94,6 +94,26 @@ def _apply_kernel(base, weight, texel, frac, steps, maps, out):
             out[i, ch] = acc[ch]
 
 
+@njit(cache=True, nogil=True)
+def _apply_sh_kernel(base, weight, basis, steps, sh, out):
+    C = sh.shape[2]
+    K = basis.shape[1]
+    for i in range(base.shape[0]):
+        for ch in range(C):
+            acc = 0.0
+            for c in range(8):
+                w = float(weight[i, c])
+                if w == 0.0:
+                    continue
+                q = base[i] + (c & 1) * steps[0] + ((c >> 1) & 1) * steps[1] + ((c >> 2) & 1) * steps[2]
+                e = 0.0
+                for k in range(K):
+                    e += float(basis[i, k]) * float(sh[q, k, ch])
+                if e > 0.0:                     # a probe's L2 irradiance, clamped where it rings below 0
+                    acc += w * e
+            out[i, ch] = acc
+
+
 def _chunks(n: int):
     bounds = np.linspace(0, n, SAMPLE_THREADS + 1).astype(int)
     return [(int(bounds[i]), int(bounds[i + 1])) for i in range(SAMPLE_THREADS)]
@@ -152,8 +172,35 @@ def apply_sampler_weights(weights: SamplerWeights, maps: np.ndarray) -> np.ndarr
     return out
 
 
+def apply_sampler_weights_sh(weights: SamplerWeights, basis: np.ndarray, sh: np.ndarray) -> np.ndarray:
+    """(N, C) float32: ``Σ_c weight_c · max(0, Σ_k basis_k · sh[probe_c, k])``: the sampler's weights over each cage
+    probe's SH irradiance at the point's normal. basis : (N, K) float32, ``Â_l · Y_k(n)`` at the normal
+    (:func:`sh_irradiance_basis`); sh : (P, K, C) float32 radiance SH (any C), on SAMPLE_THREADS threads."""
+    sh = np.ascontiguousarray(sh, np.float32)
+    N = weights.base.shape[0]
+    out = np.empty((N, sh.shape[2]), np.float32)
+
+    def work(ab):
+        a, e = ab
+        if e > a:
+            _apply_sh_kernel(weights.base[a:e], weights.weight[a:e], basis[a:e], weights.steps, sh, out[a:e])
+
+    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
+        list(pool.map(work, _chunks(N)))
+    return out
+
+
+def sh_irradiance_basis(normals, K: int = 9) -> np.ndarray:
+    """(N, K) float32 ``Â_l · Y_k(n)`` (RH01 eq 7-8, :func:`workers.kernels.sh.sh_irradiance`'s kernel): E(n) of
+    radiance SH c is ``basis · c``."""
+    from workers.kernels.sh import _BAND_OF_COEFF, SH_BAND_CONVOLUTION, _sh_basis
+
+    n = np.asarray(normals, np.float64)
+    return (_sh_basis(n, K) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:K]]).astype(np.float32)
+
+
 class SamplerGather:
-    """``gather(maps) -> (H, C) float32``: DDGI irradiance (:func:`sample_irradiance`) at the points, from
+    """``gather(maps[, sh]) -> (H, C) float32``: DDGI irradiance (:func:`sample_irradiance`) at the points, from
     weights computed once (:func:`sampler_weights`; the points, normals and views are not kept).
 
     points, normals, views : (H, 3) float32 (world space, metres; unit normal; unit direction toward the
@@ -161,24 +208,41 @@ class SamplerGather:
     depth : (P, m+2, m+2, 2) depth moments with border; bias : DDGI-P eq 2's B; visible : (H, 8) uint8
     ray-traced cage visibility (:func:`workers.kernels.probe_hits.probe_visibility`) or None; n : interior texels
     of the maps to come (None: the first call's; the inputs are kept until then, and dropped after).
+
+    ``read``: what each cage probe reports at the point's normal. ``"octahedral"``: its irradiance map, bilinear
+    (the sampler as the runtime reads it). ``"sh"``: its L2 radiance SH evaluated as irradiance
+    (:func:`apply_sampler_weights_sh`; ``reads_sh`` True: the bounce integrator passes the SH it projects each
+    bounce, (P, 9, C)); the same weights. The light stage's gather (``light.gather``, docs/architecture.md): an
+    8-texel map's bilinear read of a normal at an angle to the map's axes reads the dim side of a small bright
+    source high, and in a room lit through a door the bounces multiply it; SH irradiance does not depend on the
+    direction's place on a map.
     """
 
     def __init__(self, points, normals, views, grid: dict, positions, states, depth, bias: float, visible=None,
-                 n: int | None = None):
+                 n: int | None = None, read: str = "octahedral"):
+        if read not in ("octahedral", "sh"):
+            raise ValueError(f"SamplerGather: read must be 'octahedral' or 'sh', got {read!r}")
         self._inputs = (points, normals, views, grid, positions, states, depth)
         self.bias, self.visible, self.n, self.weights = bias, visible, None, None
+        self.reads_sh, self.basis = read == "sh", None
         if n is not None:
             self._build(int(n))
 
     def _build(self, n: int) -> None:
+        if self.reads_sh:
+            self.basis = sh_irradiance_basis(self._inputs[1])              # (H, 9) float32, 36 bytes a point
         self.weights = sampler_weights(*self._inputs, n, self.bias, self.visible)
         self.n, self._inputs, self.visible = n, None, None
 
-    def __call__(self, maps: np.ndarray) -> np.ndarray:
+    def __call__(self, maps: np.ndarray, sh: np.ndarray | None = None) -> np.ndarray:
         if self.weights is None:
             self._build(maps.shape[1] - 2)
         elif maps.shape[1] != self.n + 2:
             raise ValueError(f"SamplerGather: built for ({self.n}+2)² maps, got {maps.shape}")
+        if self.reads_sh:
+            if sh is None or sh.shape[1] != self.basis.shape[1]:
+                raise ValueError("SamplerGather(read='sh'): needs the probes' (P, 9, C) SH")
+            return apply_sampler_weights_sh(self.weights, self.basis, sh)
         return apply_sampler_weights(self.weights, maps)
 
 

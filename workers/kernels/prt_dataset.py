@@ -44,7 +44,7 @@ import scipy.sparse as sp
 
 from workers.kernels import prt as kprt
 from workers.kernels.bounce import integrate
-from workers.kernels.gather import MatrixGather, ddgi_weights
+from workers.kernels.gather import MatrixGather, SamplerGather, ddgi_weights
 from workers.kernels.grid import OFF
 from workers.kernels.lightmap import DILATE_TEXELS, dilate, lightmap_texels
 from workers.kernels.probe_hits import HitSurfaces, hit_surfaces, near_occlusion, probe_visibility
@@ -94,7 +94,8 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
                 n: int, *, bounces: int | None, max_bounces: int, tolerance: float, sh_order: int,
                 W_texels: sp.csr_matrix | None = None, indirect_scale: np.ndarray | None = None, near=None):
     """The light stage's bounce integrator (:func:`workers.kernels.bounce.integrate`, emission 0, sky 0) for B
-    lighting configurations at once, E_indirect by the sparse DDGI matrix ``W``.
+    lighting configurations at once, E_indirect by the sparse DDGI matrix ``W`` (or ``W`` a gather callable: the
+    light stage's SH gather, :class:`workers.kernels.gather.SamplerGather` ``read="sh"``).
 
     e_direct : (B, H, 3) direct irradiance at the front-face hits per configuration.
     Returns ``(sh (B, P, K, 3) float32, texels (B, T, 3) float32 or None, bounces (B,) int,
@@ -118,7 +119,8 @@ def solve_batch(surf: HitSurfaces, W: sp.csr_matrix, e_direct: np.ndarray, dirs:
         if W_texels is not None:
             tex_out[ids] = (W_texels @ maps.reshape(P * t * t, -1)).reshape(-1, len(ids), 3).transpose(1, 0, 2)
 
-    log = integrate(surf.index, surf.miss, surf.albedo, e_direct, dirs, states, n, MatrixGather(W), retire,
+    gather = MatrixGather(W) if sp.issparse(W) else W
+    log = integrate(surf.index, surf.miss, surf.albedo, e_direct, dirs, states, n, gather, retire,
                     bounces=bounces, max_bounces=max_bounces, tolerance=tolerance, indirect_scale=indirect_scale,
                     near=near)
     return sh_out, tex_out, log.bounces, maps_out
@@ -183,7 +185,11 @@ def build_dataset(scene, caster, rng: np.random.Generator, *, grid: dict, dirs, 
         near.a *= np.float32(light.near_strength)
         near.emission = np.zeros_like(near.emission)
     visible, _ = probe_visibility(surf, grid, positions, states, caster, bias)   # as the light stage
-    W = ddgi_weights(surf.position, surf.normal, surf.view, grid, positions, states, depth, n_irr, bias, visible)
+    if light.gather == "sh":    # the light stage's gather (light.gather): each cage probe's L2 SH at the hit's normal
+        W = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth, bias, visible,
+                          n=n_irr, read="sh")
+    else:
+        W = ddgi_weights(surf.position, surf.normal, surf.view, grid, positions, states, depth, n_irr, bias, visible)
     lm = None
     W_lm = None
     N = configurations

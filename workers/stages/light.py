@@ -173,20 +173,23 @@ def run_light(ctx: StageContext) -> StageOutput:
     ctx.report(0.1)
     t0 = time.perf_counter()        # point lights' hot spots sampled from the light (workers.kernels.light_spots)
     e_direct = split_direct(per_light, c_spot) if per_light else e_direct
-    dmaps, dsh, n_spots, spot_rays = spot_correction(
+    dmaps, dsh_l2, n_spots, spot_rays = spot_correction(     # L2 for the SH gather, whatever the stored order
         scene, caster, positions, states != OFF, lit["lights"], c_spot, double_sided_triangles(scene),
-        grid["spacing"], sec.irradiance_texels, eps, sec.sh_order)
+        grid["spacing"], sec.irradiance_texels, eps, 2 if sec.gather == "sh" else sec.sh_order)
+    dsh = dsh_l2[:, :(sec.sh_order + 1) ** 2]
     del per_light
     t_spots, t1 = time.perf_counter() - t0, time.perf_counter()
     gather = SamplerGather(surf.position, surf.normal, surf.view, grid, positions, states, depth,
-                           sec.self_shadow_bias, visible, n=sec.irradiance_texels)   # the sampler's weights, once
+                           sec.self_shadow_bias, visible, n=sec.irradiance_texels,
+                           read=sec.gather)                                      # the sampler's weights, once
     surf.position = surf.normal = surf.view = visible = depth = None                  # in the weights now
     t_weights = time.perf_counter() - t1
     irr, radiance, history, residuals = integrate_one(
         surf.index, surf.miss, surf.albedo, e_direct, dirs, states_all, sec.irradiance_texels, gather,
         emission=surf.emission, sky=lit["sky"], bounces=sec.bounces, max_bounces=sec.max_bounces,
         tolerance=sec.tolerance, report=lambda f: ctx.report(0.1 + 0.85 * f), correction=dmaps,
-        indirect_scale=horizon, near=near, parents=parents)
+        indirect_scale=horizon, near=near, parents=parents,
+        correction_sh=dsh_l2.astype(np.float32) if gather.reads_sh else None)
     t_bounces = time.perf_counter() - t1
     sh = merge_rows(sh_project_probes(dirs, radiance, order=sec.sh_order), parents) + dsh   # (P, 9|4, 3)
     if sh.shape[1] == 9:        # deringing: L2 not below β of the probe's own map (workers.kernels.sh.sh_l2_floor)
@@ -218,7 +221,7 @@ def run_light(ctx: StageContext) -> StageOutput:
         "near_mean": near_mean,
         "extra_rays": int(parents.size) * int(dirs.rays), "extra_probes": int(np.unique(parents).size),
         "extra_noise_max": q_max, "extra_seconds": t_extra,
-        "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots,
+        "spot_lights": int(n_spots), "spot_rays": int(spot_rays), "spot_seconds": t_spots, "gather": sec.gather,
         "mean_irradiance": irr[active][:, 1:-1, 1:-1].mean(axis=(0, 1, 2)).tolist() if active.any() else [0, 0, 0],
     }
     warnings = albedo_warnings(scene, getattr(scene, "max_albedo", None), getattr(scene, "specular_gi", "metals"))
