@@ -154,21 +154,20 @@ def sampler_weights(points, normals, views, grid: dict, positions, states, depth
     return out
 
 
+def _on_threads(N: int, run) -> None:
+    """``run(a, e)`` over SAMPLE_THREADS contiguous row ranges [a, e) of N rows, on as many threads."""
+    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
+        list(pool.map(lambda ab: run(*ab) if ab[1] > ab[0] else None, _chunks(N)))
+
+
 def apply_sampler_weights(weights: SamplerWeights, maps: np.ndarray) -> np.ndarray:
     """(N, C) float32: ``Σ_c weight_c · bilinear(maps[probe_c], normal)`` with maps (P, n+2, n+2, C) float32 (any C:
     every configuration of a batch at once), on SAMPLE_THREADS threads; float64 sums, as the sampler."""
     maps = np.ascontiguousarray(maps, np.float32)
-    N = weights.base.shape[0]
-    out = np.empty((N, maps.shape[3]), np.float32)
-
-    def work(ab):
-        a, e = ab
-        if e > a:
-            _apply_kernel(weights.base[a:e], weights.weight[a:e], weights.texel[a:e], weights.frac[a:e],
-                          weights.steps, maps, out[a:e])
-
-    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
-        list(pool.map(work, _chunks(N)))
+    w = weights
+    out = np.empty((w.base.shape[0], maps.shape[3]), np.float32)
+    _on_threads(w.base.shape[0], lambda a, e: _apply_kernel(w.base[a:e], w.weight[a:e], w.texel[a:e], w.frac[a:e],
+                                                           w.steps, maps, out[a:e]))
     return out
 
 
@@ -177,16 +176,10 @@ def apply_sampler_weights_sh(weights: SamplerWeights, basis: np.ndarray, sh: np.
     probe's SH irradiance at the point's normal. basis : (N, K) float32, ``Â_l · Y_k(n)`` at the normal
     (:func:`sh_irradiance_basis`); sh : (P, K, C) float32 radiance SH (any C), on SAMPLE_THREADS threads."""
     sh = np.ascontiguousarray(sh, np.float32)
-    N = weights.base.shape[0]
-    out = np.empty((N, sh.shape[2]), np.float32)
-
-    def work(ab):
-        a, e = ab
-        if e > a:
-            _apply_sh_kernel(weights.base[a:e], weights.weight[a:e], basis[a:e], weights.steps, sh, out[a:e])
-
-    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
-        list(pool.map(work, _chunks(N)))
+    w = weights
+    out = np.empty((w.base.shape[0], sh.shape[2]), np.float32)
+    _on_threads(w.base.shape[0], lambda a, e: _apply_sh_kernel(w.base[a:e], w.weight[a:e], basis[a:e], w.steps, sh,
+                                                              out[a:e]))
     return out
 
 
