@@ -6,7 +6,11 @@ An adapter: it reads the trace, relocate, place and ingest outputs and calls the
 :func:`workers.kernels.probe_hits.probe_visibility` (ray-traced cage visibility, once: Chebyshev alone leaks a
 few % through thin walls) and the bounce integrator :func:`workers.kernels.bounce.integrate_one` (radiance
 ``emission + albedo/π · (E_direct + E_indirect)`` at front-face hits, the sky at misses, 0 at back faces;
-DDGI-I eq 1 with α = 0 per bounce; E_indirect by the DDGI sampler, :class:`workers.kernels.gather.SamplerGather`).
+DDGI-I eq 1 with α = 0 per bounce; E_indirect by the DDGI sampler, :class:`workers.kernels.gather.SamplerGather`:
+its weights over each cage probe's L2 SH irradiance at the hit's normal, the SH projected from the bounce's own rays
+(``light.gather = "sh"``, light stage 11; ``"octahedral"`` reads the probes' 8-texel maps as DDGI's runtime does,
+which reads a room lit through a door 10-20% bright where its walls stand at an angle to the grid:
+docs/architecture.md, "The gather reads the probes' SH")).
 Bent shading normals: each hit is shaded as Cycles 3.4 would for a viewer at the probe
 (:func:`workers.kernels.probe_hits.hit_surfaces`): closure normal ``N' = ensure_valid_reflection(Ng, view, N)``;
 E_direct about N' with lights below the geometric plane rejected and, where N' was bent, Cycles' bump shadowing
