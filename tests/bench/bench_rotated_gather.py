@@ -68,6 +68,12 @@ at the dark probes 5-15 cm from a face, the estimate from the probes' own rays w
 8,192-direction estimate (which reads 0.997 of the path tracer), the same pattern under fresh rotations 0.98, and
 bakes with seeds 1 and 2 converge to the same turned excess as seed 0 (docs/architecture.md, "What the turned excess
 is not"). The converged excess is made in the bounces.
+
+Since light stage 11 (2026-12-05, last) the bounces' gather reads each cage probe's L2 SH instead of its 8-texel map
+(``light.gather``), and most of the turned excess is gone (``bench_fidelity.py --rotate 30 --set place.yaw=0``:
+thick-wall's dark room 1.042 / 1.023 / 1.016 / 1.052 of Cycles, was 1.129 / 1.108 / 1.099 / 1.097). This bench's
+split still reads the octahedral maps (what the runtime's DDGI sampler reads); ``--set`` is not offered here: bake
+with ``light.gather = "octahedral"`` through bench_fidelity to compare.
 """
 from __future__ import annotations
 
