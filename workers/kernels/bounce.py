@@ -110,7 +110,6 @@ class _RayMajorMaps:
                                                  bounds[i + 1], out), range(_MAP_THREADS)))
         return out
 
-
     def sh(self, radiance_rm: np.ndarray, K: int = 9) -> np.ndarray:
         """Radiance SH of each probe's rays (:func:`workers.kernels.sh.sh_project_probes`' sums, uniform weights
         4π/R, float32): ``radiance_rm`` (R, P, C) in this object's column order; returns (P, K, C) in probe order,
