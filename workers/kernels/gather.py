@@ -9,7 +9,9 @@ with C = 3·k (k configurations, RGB interleaved):
   (:func:`sampler_weights`: they depend on geometry, probes, depth and visibility, not on the maps), then each
   bounce only blends the maps with them (:func:`apply_sampler_weights`), on SAMPLE_THREADS threads, every
   configuration of a batch in one pass (the light stage). It equals the sampler to float32 rounding of the
-  normalized weights (about 1e-7 relative), at about 48 bytes a point;
+  normalized weights (about 1e-7 relative), at about 48 bytes a point. With ``read="sh"`` (the light stage's and
+  PRT's default, ``light.gather``) the same weights blend each cage probe's clamped L2 SH irradiance at the
+  point's normal instead of its map (:func:`apply_sampler_weights_sh`; +36 bytes a point);
 - :class:`MatrixGather`: the sampler as a sparse matrix (:func:`ddgi_weights`, built once), one sparse product
   for every configuration of a batch (PRT's dataset). It equals the sampler to float32 rounding.
 
