@@ -4,7 +4,8 @@ Why: the probe grid is axis-aligned, and every fidelity number of the light stag
 are parallel to its cells. Turned 30° about +Y, the same interiors read 1.07-1.26 of Cycles in their dark rooms
 (``tests/bench/bench_fidelity.py --rotate 30``; docs/architecture.md "The same interiors rotated"): the walls cut the
 cells at every angle, the probes stand at every distance in front of them, and the light stage's bounces feed the
-gather's excess back into the stored values. A building is rarely aligned with the world axes of the file it comes
+gather's excess back into the stored values (with light stage 10's map-reading gather; light stage 11's gather reads
+the probes' SH and takes most of it: 1.02-1.09 on thick-wall and plane-wall turned without a frame). A building is rarely aligned with the world axes of the file it comes
 in; RTXGI's volumes carry a rotation for this reason. Kiln fits the rotation instead of asking for it.
 
 **The frame.** ``yaw`` θ (degrees) turns the grid about the world's +Y: the grid's x, y, z axes are the columns of
