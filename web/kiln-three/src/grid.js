@@ -15,6 +15,7 @@
  * three reads exactly what Kiln's clamped lookup reads.
  */
 import { DataUtils } from 'three';
+import { sampleShL2, shBasisL2 } from '../../src/math/sh.js';
 
 /** Sub-volumes of the L2 layout (9 coefficients × rgb + one 0 = 28 numbers = 7 RGBA texels per probe). */
 export const SH_L2_TEXELS = 7;
@@ -103,12 +104,6 @@ export function padShL2(data, counts, pad = 1) {
   return { data: out, counts: [mx, my, mz], depth: SH_L2_TEXELS * (mz + 2) };
 }
 
-/** three's SH basis (SphericalHarmonics3.getBasisAt: its order and constants, = Kiln's, workers/kernels/sh.py) at unit d. */
-function shBasis(x, y, z) {
-  return [0.282095, 0.488603 * y, 0.488603 * z, 0.488603 * x, 1.092548 * x * y, 1.092548 * y * z,
-    0.315392 * (3 * z * z - 1), 1.092548 * x * z, 0.546274 * (x * x - y * y)];
-}
-
 /** x of A x = b (n × n, row-major arrays; Gaussian elimination with partial pivoting). */
 function solve(A, b) {
   const n = b.length;
@@ -145,8 +140,8 @@ export function shRotationL2(M) {
     const z = 1 - (2 * i + 1) / N, r = Math.sqrt(Math.max(0, 1 - z * z)), phi = 2 * Math.PI * ((i * 0.6180339887498949) % 1);
     const d = [Math.cos(phi) * r, Math.sin(phi) * r, z];
     const e = M.map((row) => row[0] * d[0] + row[1] * d[1] + row[2] * d[2]);
-    A.push(shBasis(...d));
-    B.push(shBasis(...e));
+    A.push(shBasisL2(d));
+    B.push(shBasisL2(e));
   }
   const AtA = [...Array(9)].map((_, j) => [...Array(9)].map((__, k) => A.reduce((s, a) => s + a[j] * a[k], 0)));
   const cols = [...Array(9)].map((_, k) => solve(AtA, [...Array(9)].map((__, j) => A.reduce((s, a, i) => s + a[j] * B[i][k], 0))));
@@ -176,7 +171,9 @@ export function resampleShL2(data, grid, M, pad = 1) {
   const expected = SH_L2_TEXELS * (nz + 2) * ny * nx * 4;
   if (data.length !== expected) throw new RangeError(`sh_l2 of ${data.length} values, expected 7·(nz+2)·ny·nx·4 = ${expected}`);
   const half = data instanceof Uint16Array;
-  const read = half ? (i) => DataUtils.fromHalfFloat(data[i]) : (i) => data[i];
+  // Kiln's leaking lookup (math/sh.js sampleShL2: trilinear, clamped to the outer probes) over a float copy
+  const volume = { width: nx, height: ny, depth: SH_L2_TEXELS * (nz + 2), components: 4,
+    data: half ? Float32Array.from(data, (x) => DataUtils.fromHalfFloat(x)) : data };
   // the turned box (bake frame, pad cells past the outer probes) and the world box around it
   const bmin = o.map((x, a) => x - s[a] * (0.5 + pad));
   const bmax = o.map((x, a) => x + s[a] * ([nx, ny, nz][a] - 0.5 + pad));
@@ -192,42 +189,17 @@ export function resampleShL2(data, grid, M, pad = 1) {
   const [mx, my, mz] = res;
   const R = shRotationL2(M);
   const out = new (half ? Uint16Array : Float32Array)(SH_L2_TEXELS * (mz + 2) * my * mx * 4);
-  const cb = new Float64Array(27);
-  const cw = new Float64Array(28);
-  const n = [nx, ny, nz];
+  const lookup = { origin: o, spacing: s, counts: [nx, ny, nz] };
   for (let z = 0; z < mz; z++) {
     for (let y = 0; y < my; y++) {
       for (let x = 0; x < mx; x++) {
         const p = [min[0] + ((x + 0.5) * size[0]) / mx, min[1] + ((y + 0.5) * size[1]) / my, min[2] + ((z + 0.5) * size[2]) / mz];
-        const q = M.map((row) => row[0] * p[0] + row[1] * p[1] + row[2] * p[2]);
-        const i0 = [0, 0, 0], f = [0, 0, 0];
-        for (let a = 0; a < 3; a++) {   // Kiln's leaking lookup: clamped to the outer probes, trilinear
-          const u = Math.min(n[a] - 1, Math.max(0, (q[a] - o[a]) / s[a]));
-          i0[a] = Math.min(n[a] - 2, Math.floor(u));
-          if (n[a] === 1) i0[a] = 0;
-          f[a] = n[a] === 1 ? 0 : u - i0[a];
-        }
-        cb.fill(0);
-        for (let c = 0; c < 8; c++) {
-          const di = c & 1, dj = (c >> 1) & 1, dk = (c >> 2) & 1;
-          const w = (di ? f[0] : 1 - f[0]) * (dj ? f[1] : 1 - f[1]) * (dk ? f[2] : 1 - f[2]);
-          if (w === 0) continue;
-          const i = i0[0] + di, j = i0[1] + dj, k = i0[2] + dk;
-          for (let t = 0; t < 27; t++) {
-            const sub = t >> 2;
-            cb[t] += w * read((((sub * (nz + 2) + 1 + k) * ny + j) * nx + i) * 4 + (t & 3));
-          }
-        }
-        for (let ch = 0; ch < 3; ch++) {   // cb[3·coefficient + channel]
-          for (let r = 0; r < 9; r++) {
-            let v = 0;
-            for (let c = 0; c < 9; c++) v += R[r][c] * cb[3 * c + ch];
-            cw[3 * r + ch] = v;
-          }
-        }
-        for (let t = 0; t < 28; t++) {
-          const sub = t >> 2, v = t < 27 ? cw[t] : 0;
+        const cb = sampleShL2(volume, M.map((row) => row[0] * p[0] + row[1] * p[1] + row[2] * p[2]), lookup);
+        for (let t = 0; t < 28; t++) {      // the world SH R·c per channel, in the stored order c0.rgb, ..., c8.rgb, 0
+          const k = Math.floor(t / 3), ch = t % 3;
+          const v = t < 27 ? R[k].reduce((acc, r, j) => acc + r * cb[j][ch], 0) : 0;
           const val = half ? DataUtils.toHalfFloat(v) : v;
+          const sub = t >> 2;
           for (const zz of z === 0 ? (mz === 1 ? [0, 1, 2] : [0, 1]) : z === mz - 1 ? [z + 1, z + 2] : [z + 1]) {
             out[(((sub * (mz + 2) + zz) * my + y) * mx + x) * 4 + (t & 3)] = val;
           }

@@ -14,6 +14,12 @@ export const SH_IRR_C3 = 0.247708; // (π/4) · c3, c3 = ¼√(5/π) = 0.315392 
 export const SH_IRR_C4 = 0.429043; // (π/4) · c4, c4 = ¼√(15/π) = 0.546274 (x² − y²)
 export const SH_L2_TEXELS = 7;     // RGBA texels (padded sub-volumes) per probe of an sh_l2 volume
 
+/** The 9 real SH basis values at unit d = [x, y, z] (three.js order and constants, workers/kernels/sh.py _sh_basis). */
+export function shBasisL2([x, y, z]) {
+  return [SH_C0, SH_C1 * y, SH_C1 * z, SH_C1 * x, 1.092548 * x * y, 1.092548 * y * z, 0.315392 * (3 * z * z - 1),
+    1.092548 * x * z, 0.546274 * (x * x - y * y)];
+}
+
 /**
  * Irradiance of one colour channel from its L1 coefficients [L0, L1(y), L1(z), L1(x)] (bundle.md 5.1)
  * for a unit normal n = [x, y, z]. Constant radiance L gives π·L.
