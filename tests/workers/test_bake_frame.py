@@ -204,7 +204,8 @@ def test_a_grid_at_an_angle_to_the_walls_lights_a_room_behind_a_door_as_an_align
 
     base = {"trace": {"rays_per_probe": 256}}
     r0 = _light_only(tmp_path, data, "aligned", small_bake(place={"spacing": 0.25}, **base))
-    r30 = _light_only(tmp_path, rotated_glb(data, 30.0), "turned", small_bake(place={"spacing": 0.25, "yaw": 0.0}, **base))
+    r30 = _light_only(tmp_path, rotated_glb(data, 30.0), "turned",
+                      small_bake(place={"spacing": 0.25, "yaw": 0.0}, **base))
     assert r30["light"].stats["gather"] == "sh"
     assert "frame" not in r30["place"].stats or r30["place"].stats["frame"]["yaw_deg"] == 0.0
     ratio = dark(r30, R) / dark(r0, np.eye(3))

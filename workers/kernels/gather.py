@@ -27,9 +27,10 @@ import scipy.sparse as sp
 from numba import njit
 
 from workers.kernels.ddgi import point_weights, cage_probes, sample_irradiance, sampler_inputs
+from workers.kernels.sh import sh_irradiance_basis
 
 __all__ = ["SamplerGather", "MatrixGather", "ddgi_weights", "SamplerWeights", "sampler_weights",
-           "apply_sampler_weights", "apply_sampler_weights_sh", "sh_irradiance_basis", "SAMPLE_THREADS"]
+           "apply_sampler_weights", "apply_sampler_weights_sh", "SAMPLE_THREADS"]
 
 SAMPLE_THREADS = 2
 """Threads for the probe sampler (its numba kernel releases the GIL)."""
@@ -176,22 +177,14 @@ def apply_sampler_weights(weights: SamplerWeights, maps: np.ndarray) -> np.ndarr
 def apply_sampler_weights_sh(weights: SamplerWeights, basis: np.ndarray, sh: np.ndarray) -> np.ndarray:
     """(N, C) float32: ``Σ_c weight_c · max(0, Σ_k basis_k · sh[probe_c, k])``: the sampler's weights over each cage
     probe's SH irradiance at the point's normal. basis : (N, K) float32, ``Â_l · Y_k(n)`` at the normal
-    (:func:`sh_irradiance_basis`); sh : (P, K, C) float32 radiance SH (any C), on SAMPLE_THREADS threads."""
+    (:func:`workers.kernels.sh.sh_irradiance_basis`); sh : (P, K, C) float32 radiance SH (any C); on SAMPLE_THREADS
+    threads."""
     sh = np.ascontiguousarray(sh, np.float32)
     w = weights
     out = np.empty((w.base.shape[0], sh.shape[2]), np.float32)
     _on_threads(w.base.shape[0], lambda a, e: _apply_sh_kernel(w.base[a:e], w.weight[a:e], basis[a:e], w.steps, sh,
                                                               out[a:e]))
     return out
-
-
-def sh_irradiance_basis(normals, K: int = 9) -> np.ndarray:
-    """(N, K) float32 ``Â_l · Y_k(n)`` (RH01 eq 7-8, :func:`workers.kernels.sh.sh_irradiance`'s kernel): E(n) of
-    radiance SH c is ``basis · c``."""
-    from workers.kernels.sh import _BAND_OF_COEFF, SH_BAND_CONVOLUTION, _sh_basis
-
-    n = np.asarray(normals, np.float64)
-    return (_sh_basis(n, K) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:K]]).astype(np.float32)
 
 
 class SamplerGather:
@@ -225,7 +218,7 @@ class SamplerGather:
 
     def _build(self, n: int) -> None:
         if self.reads_sh:
-            self.basis = sh_irradiance_basis(self._inputs[1])              # (H, 9) float32, 36 bytes a point
+            self.basis = sh_irradiance_basis(self._inputs[1]).astype(np.float32)   # (H, 9), 36 bytes a point
         self.weights = sampler_weights(*self._inputs, n, self.bias, self.visible)
         self.n, self._inputs, self.visible = n, None, None
 

@@ -60,6 +60,7 @@ __all__ = [
     "sh_project",
     "sh_project_probes",
     "sh_irradiance",
+    "sh_irradiance_basis",
     "sh_irradiance_l1_nonlinear",
     "sh_irradiance_l2",
     "SH_L2_TEXELS",
@@ -207,9 +208,14 @@ def sh_irradiance(coeffs, normals) -> np.ndarray:
     _order_of(count)  # validates 4 or 9
     if n.shape[-1:] != (3,):
         raise ValueError(f"sh_irradiance: normals must have shape (..., 3), got {n.shape}")
-    # RH01 eq 7: E(n) = Σ_lm Â_l L_lm Y_lm(n), with eq 8's clamped-cosine kernel Â_l = π, 2π/3, π/4
-    y = _sh_basis(n, count) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:count]]  # Â_l · Y_k(n)
-    return np.einsum("...k,...kc->...c", y, c)
+    return np.einsum("...k,...kc->...c", sh_irradiance_basis(n, count), c)
+
+
+def sh_irradiance_basis(normals, count: int = 9) -> np.ndarray:
+    """(..., count) float64 ``Â_l · Y_k(n)`` at unit normals (..., 3): E(n) of radiance SH c is ``basis · c``
+    (RH01 eq 7, with eq 8's clamped-cosine kernel Â_l = π, 2π/3, π/4). :func:`sh_irradiance`'s kernel; the light
+    stage's SH gather keeps it per hit (:mod:`workers.kernels.gather`)."""
+    return _sh_basis(np.asarray(normals, np.float64), count) * SH_BAND_CONVOLUTION[_BAND_OF_COEFF[:count]]
 
 
 def sh_irradiance_l1_nonlinear(coeffs, normals) -> np.ndarray:
