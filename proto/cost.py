@@ -85,8 +85,9 @@ LIB_EVAL = 250 * MB            # moderngl on EGL (Mesa llvmpipe) + the path trac
 SCENE_BYTES_PER_TRIANGLE = 112 # the stored normalized scene without textures (triangles, normals, uv0, material)
 SCENE_MEM_PER_TRIANGLE = 300   # the loaded scene, its Embree BVH and material tables
 SCENE_MEM_PER_BYTE = 2.0       # textures and other stored arrays, loaded (+ derived)
-RAY_MEM = {"relocate": 40, "trace": 24, "light": 221}    # per probe ray at the stage's peak (hits, per-ray arrays;
-#                                light: 185 measured, + 36 for the SH gather's (9,) float32 basis per hit, light stage 11)
+RAY_MEM = {"relocate": 40, "trace": 24, "light": 233}    # per probe ray at the stage's peak (hits, per-ray arrays;
+#                                light: 185 measured, + 36 for the SH gather's (9,) float32 basis per hit, light stage 11,
+#                                + 12 for the previous bounce's E_indirect per hit (the tail added at the stop, stage 12)
 RAY_MEM_EXTRA_CHUNKED = 450    # per adaptive ray of the light stage, up to RAY_MEM_CHUNK of them, beyond RAY_MEM: their
 #                                hits are shaded (hit_surfaces' chunked temporaries) while the trace's are held (measured
 #                                2026-12-05, bench_cost.py: medium 752 -> 1050 MB for 0.59 M extra rays, defaults 366 ->

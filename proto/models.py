@@ -233,9 +233,10 @@ class LightSection(_Strict):
     bounces: Int | None = Field(None, ge=1, le=256, description="a fixed number of bounces; default: until converged")
     max_bounces: Int = Field(128, ge=1, le=1024, description="cap when iterating to convergence")
     tolerance: Float = Field(0.005, gt=0.0, le=0.5,
-                             description="stop when the light still to come (the geometric tail of each probe's "
-                                         "per-bounce change) is below this fraction of the probe's light, at "
-                                         "every probe")
+                             description="stop when the light unaccounted for (the uncertainty of each probe's "
+                                         "geometric tail, which is then added; the tail itself while it exceeds "
+                                         "a quarter of the light) is below this fraction of the probe's light, "
+                                         "at every probe")
     irradiance_texels: Int = Field(8, ge=4, le=32, description="octahedral irradiance map size per probe (+1 border)")
     sh_order: Literal[1, 2] = Field(2, description="spherical-harmonics order of the per-probe SH output")
     self_shadow_bias: Float = Field(SELF_SHADOW_BIAS, ge=0.0, le=2.0,

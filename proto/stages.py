@@ -59,7 +59,7 @@ STAGES: tuple[StageDef, ...] = (
     # (workers/kernels/adaptive_rays.py: extra rays traced here, their rotations seeded, so the key holds the seed);
     # 10: L2 SH windowed where it rings below 0 between the texel directions (workers/kernels/sh.py sh_l2_nonnegative);
     # 11: the bounces' gather reads each probe's L2 SH, not its 8-texel map (light.gather, workers/kernels/gather.py)
-    StageDef("light", 11, ("light", "seed"), ("ingest", "place", "relocate", "trace"), timeout=3600),
+    StageDef("light", 12, ("light", "seed"), ("ingest", "place", "relocate", "trace"), timeout=3600),
     StageDef("visibility", 1, ("visibility.samples_per_cell", "visibility.rays", "visibility.jitter", "seed"),
              ("place", "relocate", "trace"), timeout=3600, shards_from="visibility.slabs"),
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)
@@ -74,7 +74,7 @@ STAGES: tuple[StageDef, ...] = (
     # surfaces in the scenario, the L1 norm, cross-validated ridge (issue 14, artifact 5); 4: hits shaded as the light
     # stage shades them (bent normals, horizon factor, near-field occlusion: workers/kernels/prt_dataset.py)
     # 5: the light stage's SH gather (light.gather) in the dataset's bounces
-    StageDef("prt", 5, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
+    StageDef("prt", 6, ("prt", "light", "seed"), ("ingest", "place", "relocate", "trace", "light"), timeout=3600),
     # the path-traced reference, cached per scene and lighting: reads no probe stage (workers/stages/reference.py);
     # 2: noisy surface points refined too (kernels/reference.refine_points), not only dark ones; 3: which points are
     # refined is chosen on an independent pilot pass (the choice on the first pass biased values and errors low);

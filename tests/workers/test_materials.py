@@ -216,7 +216,7 @@ def test_not_converged_and_albedo_warnings(tmp_path):
     codes = [w["code"] for w in st["warnings"]]
     assert codes == ["albedo_high", "not_converged"], st["warnings"]
     assert not st["converged"] and st["residual"] > 0.5
-    # the residual is the light still to come: E_4 + tail ≈ E_∞ = π / (1 - 0.97)
+    # the residual is the light still to come (a tail that large is not added): E_4 + tail ≈ E_∞ = π / (1 - 0.97)
     assert e.mean() < 0.2 * math.pi / 0.03
     # clamped to 0.9: converges (E = π / 0.1) and says it clamped
     e, st = enclosure_irradiance(tmp_path / "clamp", path, {"scene": {"max_albedo": 0.9}})

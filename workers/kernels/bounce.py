@@ -33,7 +33,7 @@ import numpy as np
 from numba import njit
 
 from workers.kernels.adaptive_rays import merge_rows
-from workers.kernels.convergence import relative_tail
+from workers.kernels.convergence import extrapolated_tail, relative_tail
 from workers.kernels.grid import OFF
 from workers.kernels.octahedral import _cosine_power, accumulate_octahedral, add_border, oct_texel_directions
 from workers.kernels.sampling import probe_rays
@@ -187,9 +187,10 @@ def _shade_hits(radiance, index, base, rho, e_indirect):
 @dataclass
 class BounceLog:
     """What each configuration's series did. ``bounces`` (B,) int64; per configuration, per bounce:
-    ``change`` the whole grid's relative change ``Σ|E_b − E_{b−1}| / Σ|E_b|`` and ``residual`` the light still
-    to come at the worst probe that matters (:func:`workers.kernels.convergence.relative_tail`, ∞ before the
-    third bounce)."""
+    ``change`` the whole grid's relative change ``Σ|E_b − E_{b−1}| / Σ|E_b|`` and ``residual``: iterating to
+    convergence (``bounces`` None) the light unaccounted for at the worst probe that matters once the series' tail
+    is added (:func:`workers.kernels.convergence.extrapolated_tail`, ∞ before the fourth bounce); with a fixed
+    count the light still to come there (:func:`workers.kernels.convergence.relative_tail`, ∞ before the third)."""
 
     bounces: np.ndarray
     change: list = field(default_factory=list)
@@ -230,7 +231,9 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     sky : (3,) float or None
         Radiance of the misses (None: 0).
     bounces : int or None
-        A fixed count; None: until the residual is below ``tolerance``, at most ``max_bounces``.
+        A fixed count; None: until the residual is below ``tolerance``, at most ``max_bounces``, and then the
+        series' tail is added to the maps and rays handed to ``retire`` (per probe and channel, the geometric
+        tail of :func:`workers.kernels.convergence.extrapolated_tail`; not for probes whose tail is still large).
     report : callable or None
         ``report(fraction)`` after each bounce.
     correction : (P, n+2, n+2, 3·B) float32 or None
@@ -291,10 +294,18 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     log = BounceLog(bounces=np.zeros(B, np.int64), change=[[] for _ in range(B)], residual=[[] for _ in range(B)])
     deltas: list[np.ndarray] = []
     cap = bounces if bounces is not None else max_bounces
+    extrapolate = bounces is None       # iterating to convergence: the tail is added at the stop (convergence doc)
+    e_ind = e_prev = None               # E_indirect at the hits of this bounce and the one before (None: 0)
+    if extrapolate and parents.size:    # the probe of each hit's row (extra rows: their parent's)
+        hit_row = index // R
+        hit_probe = np.where(hit_row < P, hit_row, parents[np.maximum(hit_row - P, 0)])
+    elif extrapolate:
+        hit_probe = index // R
     for b in range(1, cap + 1):
         if b == 1:
             radiance[rows] = base                                              # E_indirect = 0: the first bounce
         else:   # DDGI-I §3.4: L = emission + albedo/π·(E_direct + E_indirect), E_indirect gathered (§3.4.1)
+            e_prev = e_ind
             e_ind = np.ascontiguousarray(gather(maps, sh) if reads_sh else gather(maps), np.float32)
             if near is not None:    # multi-bounce near-field occlusion (parameter ``near``), in place
                 _near_update(e_ind, sel, near_a, near_base, near_rho, near_prev)
@@ -311,11 +322,15 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             if correction_sh is not None:
                 sh += correction_sh
         nb = live.size
-        step = np.abs(new - maps)
-        # per probe and configuration: the light still to come (workers.kernels.convergence)
+        diff = new - maps
+        step = np.abs(diff)
+        # per probe, configuration and channel: the light still to come (workers.kernels.convergence)
         value = np.abs(new).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
-        deltas = (deltas + [step.reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)])[-3:]
-        residual, _ = relative_tail(deltas, value)                          # ρ_p(b), max over probes that matter
+        deltas = (deltas + [step.reshape(P, -1, nb, 3).sum(axis=1, dtype=np.float64)])[-4:]
+        if extrapolate:     # the residual after the tail is added, and the factor that adds it
+            residual, factor = extrapolated_tail(deltas, value)
+        else:               # ρ_p(b), max over probes that matter
+            residual, _ = relative_tail([d.sum(axis=-1) for d in deltas], value)
         for j, c in enumerate(live):
             s = slice(3 * j, 3 * j + 3)
             total = float(np.abs(new[..., s]).sum())
@@ -335,9 +350,15 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         cols = (3 * np.flatnonzero(done)[:, None] + np.arange(3)).ravel()
         log.bounces[live[done]] = b
         picked = radiance if done.all() else radiance[:, cols]               # no copy when all stop together
+        out = new[..., cols]
+        if extrapolate and b >= 4:  # the tail, E_∞ ≈ E_b + f·(E_b − E_{b−1}) per probe and channel (convergence doc)
+            f = factor[:, done].reshape(P, -1).astype(np.float32)             # (P, 3·done)
+            out = out + diff[..., cols] * f[:, None, None, :]
+            d_e = e_ind[:, cols] if e_prev is None else e_ind[:, cols] - e_prev[:, cols]
+            picked[rows] += rho[:, cols] * d_e * f[hit_probe]                 # the rays: L_b − L_{b−1} = ρ·ΔE
         held = picked.reshape(R, rows_all, -1)
         held = held if accumulate.inv is None else held[:, accumulate.inv]                # probe order
-        retire(live[done], held.transpose(1, 0, 2), new[..., cols], b)
+        retire(live[done], held.transpose(1, 0, 2), out, b)
         keep = ~done
         if not keep.any():
             break
@@ -345,6 +366,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         live = live[keep]
         deltas = [d[:, keep] for d in deltas]
         base, rho = base[:, kc], rho[:, kc]
+        if e_ind is not None:
+            e_ind = e_ind[:, kc]
         if near is not None:
             near_rho, near_base, near_prev = near_rho[:, kc], near_base[:, kc], near_prev[:, kc]
         radiance = np.ascontiguousarray(radiance[:, kc])

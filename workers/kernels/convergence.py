@@ -14,12 +14,28 @@ gives ρ = ∞). The bake has converged when ``max_p ρ_p < tolerance`` over the
 probe whose irradiance is at least ``floor`` × the brightest probe's. A global criterion (the whole grid's
 change) stops while a dark albedo-1 room next to a sunlit yard is still 30% short: sunlit probes converge
 in a few bounces and dominate any sum.
+
+**The tail is added, not waited for** (:func:`extrapolated_tail`, light stage 12): once a probe's ratios have
+settled, the tail ``δ_p(b) · r/(1 − r)`` is an estimate good to far better than its own size, so the series stops
+when the *uncertainty* of that estimate is small, and the bounce loop adds the tail to each probe's maps and rays
+(per colour channel, with that channel's latest ratio: the channels are independent operators, a wood floor's red
+and blue decay at different rates). A geometric series' tail is exact with the true ratio; the estimate's error
+comes from the ratio still moving, bounded by the spread of the last three ratios ``r_hi − r_lo``:
+
+    u_p(b) = δ_p(b) · (r_hi − r_lo) / ((1 − r_hi)² · Σ_texels |E_b|_p)        (d/dr of r/(1−r) is 1/(1−r)²)
+
+and the residual is ``2·u_p`` (measured: the worst probe's error after the tail was added was up to 1.2x ``u_p``)
+where ``ρ_p ≤`` :data:`RHO_CAP`, else ``ρ_p`` itself (a tail still that large is not extrapolated). Measured against
+the same bakes iterated to ρ < 1e-5 (max over the probes that matter of Σ|E − E_∞| / Σ|E_∞|; tolerance 0.5%):
+two-storey 32 bounces, error 0.38% → 23 bounces, 0.30%; two-rooms 26, 0.46% → 18, 0.22%; rooms-unequal 22, 0.46%
+→ 16, 0.21%; Cornell 16, 0.47% → 13, 0.10%; zdm2-sauerbraten (sun and sky) 16, 0.31% → 14, 0.09%. A fixed
+``light.bounces`` is a count: nothing is added there, and its residual is ``ρ``.
 """
 from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["probe_sums", "relative_tail", "RELEVANT_FLOOR"]
+__all__ = ["probe_sums", "relative_tail", "extrapolated_tail", "RELEVANT_FLOOR", "RHO_CAP"]
 
 NOISE = 1e-6
 """Per-probe increments below this fraction of the probe's value are float32 rounding (the maps are float32:
@@ -28,6 +44,16 @@ their relative resolution is 6e-8 per texel, and sums over texels add that up), 
 RELEVANT_FLOOR = 1e-6
 """Probes dimmer than this fraction of the brightest probe do not hold the bake back (they are black to
 any display; their own residual is still computed)."""
+
+RHO_CAP = 0.25
+"""A probe whose tail ``ρ_p`` is larger than this is not extrapolated (its ratios may not have settled: light still
+arriving from far rooms); its residual is ``ρ_p``."""
+
+SAFETY = 2.0
+"""The residual after extrapolation is this many times the estimate's uncertainty ``u_p`` (module doc)."""
+
+R_MAX = 0.95
+"""Ratios are clipped here before ``r/(1 − r)`` (a factor of at most 19)."""
 
 
 def probe_sums(maps: np.ndarray) -> np.ndarray:
@@ -40,7 +66,8 @@ def probe_sums(maps: np.ndarray) -> np.ndarray:
     return a.sum(axis=1, dtype=np.float64)
 
 
-def relative_tail(deltas: list[np.ndarray], value: np.ndarray, floor: float = RELEVANT_FLOOR) -> tuple[float, np.ndarray]:
+def relative_tail(deltas: list[np.ndarray], value: np.ndarray,
+                  floor: float = RELEVANT_FLOOR) -> tuple[float, np.ndarray]:
     """The residual of the module doc.
 
     Parameters
@@ -78,3 +105,52 @@ def relative_tail(deltas: list[np.ndarray], value: np.ndarray, floor: float = RE
     matters &= value > 0
     res = np.where(matters, rho, 0.0).max(axis=0) if value.size else np.zeros(value.shape[1:])
     return (float(res) if np.ndim(res) == 0 else res), rho
+
+
+def extrapolated_tail(deltas: list[np.ndarray], value: np.ndarray,
+                      floor: float = RELEVANT_FLOOR) -> tuple[float | np.ndarray, np.ndarray]:
+    """The residual after the tail is added, and the factor that adds it (module doc, "The tail is added").
+
+    Parameters
+    ----------
+    deltas : list of (P, k, 3) float64
+        Per-probe, per-configuration, per-channel increments ``Σ_texels |E_b − E_{b−1}|`` of the bounces so far,
+        oldest first (the last four are used).
+    value : (P, k) float64
+        Per-probe Σ |E_b| after the latest bounce (all channels).
+    floor : float
+        As :func:`relative_tail`.
+
+    Returns
+    -------
+    residual : (k,) float64
+        Max over the probes that matter of ``2·u_p`` (``ρ_p`` where ``ρ_p >`` :data:`RHO_CAP`); ∞ with fewer than
+        four bounces.
+    factor : (P, k, 3) float64
+        ``r/(1 − r)`` per probe, configuration and channel (r the channel's latest ratio, clipped at
+        :data:`R_MAX`), 0 where the probe is not extrapolated: ``E_∞ ≈ E_b + factor · (E_b − E_{b−1})``.
+    """
+    value = np.asarray(value, np.float64)
+    if len(deltas) < 4:
+        return np.full(value.shape[1:], np.inf), np.zeros(value.shape + (3,))
+    dc = [np.asarray(d, np.float64) for d in deltas[-4:]]
+    ds = [d.sum(axis=-1) for d in dc]                                   # δ(b−3) .. δ(b), (P, k)
+    with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
+        rs = [np.where(ds[i] > 0, ds[i + 1] / ds[i], np.where(ds[i + 1] > 0, np.inf, 0.0)) for i in range(3)]
+        r_hi = np.maximum(np.maximum(rs[0], rs[1]), rs[2])
+        r_lo = np.minimum(np.minimum(rs[0], rs[1]), rs[2])
+        r2 = np.maximum(rs[1], rs[2])                                   # relative_tail's r
+        tail = np.where(r2 < 1.0, ds[3] * r2 / (1.0 - r2), np.where(ds[3] > 0, np.inf, 0.0))
+        unc = np.where(r_hi < 1.0, ds[3] * (r_hi - r_lo) / (1.0 - r_hi) ** 2, np.where(ds[3] > 0, np.inf, 0.0))
+        rho = np.where(value > 0, tail / value, np.where(tail > 0, np.inf, 0.0))
+        u = np.where(value > 0, unc / value, np.where(unc > 0, np.inf, 0.0))
+        rc = np.where(dc[2] > 0, dc[3] / dc[2], 0.0)
+    noise = ds[3] <= NOISE * value                                      # float32 rounding: done, nothing to add
+    extrapolate = (rho <= RHO_CAP) & ~noise
+    est = np.where(noise, 0.0, np.where(extrapolate, SAFETY * u, rho))
+    rc = np.clip(rc, 0.0, R_MAX)
+    factor = np.where(extrapolate[..., None], rc / (1.0 - rc), 0.0)
+    brightest = value.max(axis=0) if value.size else np.zeros(value.shape[1:])
+    matters = (value >= floor * brightest) & (value > 0)
+    res = np.where(matters, est, 0.0).max(axis=0) if value.size else np.zeros(value.shape[1:])
+    return res, factor

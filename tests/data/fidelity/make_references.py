@@ -30,6 +30,7 @@ lights of its entry added):
 Sky 0 for the procedural scenes: they carry their own lights, and a probe then holds exactly E_probe. The held-out
 interiors of :mod:`workers.procedural_interiors` (``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall``,
 ``plane-wall``, whose divider is a double-sided plane, left out of the parity test: :func:`triangles`;
+``two-storey``, a lit upper floor over a dark lower one;
 :data:`REGIONS` below) are procedural scenes too; ``sun-window`` also has a sky (its ``CONFIGS`` entry, in the points
 file's and the reference's ``config``), handled as a real scene's sky (E_probe = E_total(sky) - E_direct(sky 0)).
 Made with ``--samples 4096 --seeds 0,1`` (corridor-l and sun-window ``--seeds 0,1,2,3``, the first two reused),
@@ -377,6 +378,22 @@ REGIONS["thick-wall"] = {
     "lit-10cm": [(3.9, y, z) for y, z in _TW_YZ],
     "lit": [(2.5, 1.2, 2.5), (1.0, 1.0, 3.0), (3.0, 2.0, 1.0), (2.0, 0.6, 2.0)],
     "door": [(4.2, 1.0, 3.05), (4.2, 1.6, 2.9)],   # in the passage through the wall
+}
+# two-storey: the dark room is downstairs, the wall to check is its ceiling, the 2 cm slab y in [2.6, 2.62] (lit
+# floor above it), at 5 / 10 / 25 cm under it, about 1 m or more from the stairwell opening (x in [3.9, 4.9],
+# z in [0.1, 1.5])
+_TS_XZ = [(1.5, 1.0), (2.5, 2.5), (1.0, 2.0), (2.8, 3.3)]
+REGIONS["two-storey"] = {
+    "dark-5cm": [(x, 2.55, z) for x, z in _TS_XZ],
+    "dark-10cm": [(x, 2.5, z) for x, z in _TS_XZ],
+    "dark-25cm": [(x, 2.35, z) for x, z in _TS_XZ],
+    "dark-middle": [(2.5, 1.3, 2.0), (1.0, 0.8, 1.0), (3.5, 1.8, 3.0), (4.2, 1.0, 3.2)],
+    "lit-10cm": [(x, 2.72, z) for x, z in _TS_XZ],
+    "lit": [(2.5, 3.8, 2.0), (1.0, 3.3, 1.0), (3.5, 4.4, 3.2), (4.0, 3.2, 3.0)],
+    # under the stairwell opening, downstairs (no direct light: the slab hides the lamp)
+    "stairwell": [(4.4, 2.0, 0.8), (4.4, 1.2, 0.8), (4.2, 2.3, 1.2)],
+    # 10 cm above the sideboard's top and in front of it
+    "sideboard": [(0.8, 1.0, 3.65), (1.4, 1.0, 3.65), (1.1, 0.5, 3.3)],
 }
 CHECK_RAYS = 512  # ray directions (spherical Fibonacci) of the free-space check of a real scene's points
 UNITS_NOTE = "E in W/m^2 (glTF units: cd / m^2, lux); RGB mean per receiver; dirs = the 6 axis normals per point"

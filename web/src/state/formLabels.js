@@ -36,7 +36,7 @@ export const FIELD_UI = {
   light: { label: 'Light', help: 'how light bounces between surfaces' },
   'light.bounces': { label: 'Bounces', help: 'a fixed number of bounces; leave unset to bounce until converged' },
   'light.max_bounces': { label: 'Most bounces', help: 'cap when bouncing until converged', advanced: true },
-  'light.tolerance': { label: 'Convergence tolerance', help: 'stop when the light still to come is below this fraction', advanced: true },
+  'light.tolerance': { label: 'Convergence tolerance', help: 'stop when the light unaccounted for (after the estimated remaining bounces are added) is below this fraction', advanced: true },
   'light.irradiance_texels': { label: 'Irradiance map size', unit: 'texels', help: 'per-probe irradiance resolution', advanced: true },
   'light.sh_order': { label: 'SH order', help: 'spherical-harmonics order of the probe output (2 = sharper)', advanced: true },
   'light.self_shadow_bias': { label: 'Self-shadow bias', help: 'offset that keeps surfaces from shadowing themselves', advanced: true },
