@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 from pathlib import Path
@@ -57,7 +58,7 @@ def bounce_maps(name: str, work: Path) -> np.ndarray:
             def __call__(self, maps, sh=None):
                 snaps.append(maps.copy())
                 return gather(maps, sh) if self.reads_sh else gather(maps)
-        kw.update(tolerance=TRUTH_TOLERANCE, max_bounces=400)
+        kw.update(tolerance=TRUTH_TOLERANCE, max_bounces=int(os.environ.get("KILN_BENCH_MAX_BOUNCES", 400)))
         out = original(index, miss, albedo, e_direct, dirs, states, n, Capture(), **kw)
         snaps.append(out[0].copy())
         return out

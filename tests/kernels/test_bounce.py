@@ -8,7 +8,7 @@ import pytest
 import scipy.sparse as sp
 
 from workers.kernels.bounce import integrate, integrate_one, irradiance_maps
-from workers.kernels.convergence import RHO_CAP
+from workers.kernels.convergence import RHO_CAP, extrapolated_tail
 from workers.kernels.gather import MatrixGather
 from workers.kernels.grid import ACTIVE, OFF
 from workers.kernels.sampling import fibonacci_sphere
@@ -78,6 +78,23 @@ def test_closed_box_sums_the_geometric_series(a):
     assert len(change) == first and all(math.isinf(r) for r in residual[:3]) and residual[-1] < 1e-4
     assert np.allclose(irr, e0[0] * a / (1 - a), rtol=1e-5)
     assert np.allclose(rad, e0[0] * a / (1 - a) / math.pi, rtol=1e-5)    # L = a/π·(E0 + E_∞) = E_∞/π
+
+
+def test_a_probe_cycling_at_float32_rounding_does_not_hold_the_series():
+    # sealed-box: two probes' maps toggled between two roundings forever (an increment of ~2e-6 of their value
+    # every bounce, ratio 1); the others converge geometrically: the tail can be estimated and added
+    P = 50
+    value = np.ones((P, 1))
+    deltas = [np.full((P, 1, 3), 0.5 ** b / 3) for b in range(8, 12)]
+    for d in deltas:
+        d[:2] = 2.4e-6 / 3                                          # the cyclers, per channel
+    res, factor = extrapolated_tail(deltas, value)
+    assert res[0] < 1e-4 and np.all(factor[:2] == 0) and np.allclose(factor[2:], 1.0)   # r = 0.5: r/(1 − r) = 1
+    # an increment well above rounding with a ratio of 1 is light still arriving: not converged
+    for d in deltas:
+        d[:2] = 1e-4 / 3
+    res, factor = extrapolated_tail(deltas, value)
+    assert math.isinf(res[0]) and np.all(factor[:2] == 0)
 
 
 def _probe_error(maps, limit, states):

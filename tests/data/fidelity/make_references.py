@@ -35,7 +35,8 @@ interiors of :mod:`workers.procedural_interiors` (``rooms-unequal``, ``sun-windo
 file's and the reference's ``config``), handled as a real scene's sky (E_probe = E_total(sky) - E_direct(sky 0)).
 Made with ``--samples 4096 --seeds 0,1`` (corridor-l and sun-window ``--seeds 0,1,2,3``, the first two reused),
 under ``nice -n 10`` on 2 cores shared with other benchmarks: thick-wall 288 s, rooms-unequal 161 s, corridor-l
-93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s, plane-wall 152 s + 364 s (seeds 0-3; ``wall_seconds`` in the references).
+93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s, plane-wall 152 s + 364 s (seeds 0-3; ``wall_seconds`` in the references);
+two-storey with ``--samples 8192 --seeds 0,1,2,3``: 592 s.
 
 Real scenes (:data:`EXTERNAL`, e.g. ``living-room``: ``godot-living-room/living_room.glb``, which has no lights of its
 own) are baked by the bench with the default config plus the entry's ``config`` (``scene.lights`` and ``scene.sky``).
