@@ -1,10 +1,12 @@
 """When the light stage stops its bounces: the tail waited for (light stage ≤ 11) against the tail added (stage 12).
 
-    .venv/bin/python tests/bench/bench_convergence.py [--scenes two-storey,two-rooms,rooms-unequal,cornell,zdm2]
+    .venv/bin/python tests/bench/bench_convergence.py [--scenes two-storey,two-rooms,rooms-unequal,cornell,sealed-box,zdm2,living-room]
         [--tolerance 0.005] [--json OUT.json]
 
-Per scene, the pipeline runs to the light stage with the default config (zdm2: ``../shared/scenes``' zdm2.glb with
-the sun and sky of bench_evaluate.py; skipped with a message when that folder is absent) and the light stage iterates
+Per scene (a scene of bench_fidelity.py: a procedural one, or a real one of ``../shared/scenes`` with its points
+file's lights and sky, e.g. zdm2 with the sun and sky of bench_evaluate.py, living-room with two point lights and a
+sky; skipped with a message when that folder is absent), the pipeline runs to the light stage with the default config
+plus those additions, and the light stage iterates
 to a residual of 1e-5 (:data:`TRUTH_TOLERANCE`), handing every bounce's maps to this script (its gather is wrapped).
 Both stopping rules are then played on the same sequence of maps — the bounce loop's maps up to a stop do not depend
 on the rule — with the functions the stage calls (:mod:`workers.kernels.convergence`):
@@ -42,8 +44,6 @@ from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels.convergence import RELEVANT_FLOOR, extrapolated_tail, relative_tail  # noqa: E402
 
 TRUTH_TOLERANCE = 1e-5
-ZDM2_CONFIG = {"scene": {"sky": [0.3, 0.35, 0.4],
-                         "lights": [{"type": "directional", "direction": [-0.3, -1, -0.2], "intensity": 3}]}}
 
 
 def bounce_maps(name: str, work: Path) -> np.ndarray:
@@ -63,12 +63,18 @@ def bounce_maps(name: str, work: Path) -> np.ndarray:
         snaps.append(out[0].copy())
         return out
 
-    if name == "zdm2":
-        glb, cfg = BF.SHARED_SCENES / "zdm2-sauerbraten" / "zdm2.glb", ZDM2_CONFIG
-        if not glb.exists():
-            raise FileNotFoundError(f"{glb} (../shared/scenes absent)")
+    pfile = BF.DATA / f"{name}.points.json"
+    pdoc = json.loads(pfile.read_text()) if pfile.exists() else {}
+    cfg = pdoc.get("config") or {}        # the fidelity bench's additions: lights and sky (zdm2: bench_evaluate's)
+    src = BF.source_of(pdoc)
+    if src is not None:                   # a real scene, read where it lies (a .gltf with files: as one GLB)
+        if not src.exists():
+            raise FileNotFoundError(f"{src} (../shared/scenes absent)")
+        glb = src
+        if BF.pack_model(src, work / f"{name}.zip"):
+            glb = work / f"{name}.zip"
     else:
-        glb, cfg = work / f"{name}.glb", {}
+        glb = work / f"{name}.glb"
         glb.write_bytes(BF.procedural_bytes(name))
     store = Store(work / "store")
     scene = ingest_file(glb)
@@ -116,7 +122,7 @@ def play(maps: np.ndarray, tol: float) -> dict:
 
 def main() -> int:
     ap = argparse.ArgumentParser()
-    ap.add_argument("--scenes", default="two-storey,two-rooms,rooms-unequal,cornell,zdm2")
+    ap.add_argument("--scenes", default="two-storey,two-rooms,rooms-unequal,cornell,sealed-box,zdm2,living-room")
     ap.add_argument("--tolerance", type=float, default=BakeConfig().light.tolerance)
     ap.add_argument("--json")
     args = ap.parse_args()
