@@ -14,8 +14,9 @@ Offline, each bounce is the full Monte Carlo estimate of DDGI-I eq 1 (DDGI-P eq 
 (α = 0): per octahedral texel direction n, ``E(n) = π · Σ_r max(0, n·ω_r) L_r / Σ_r max(0, n·ω_r)``, the
 cosine-weighted mean radiance times π (exact for constant radiance: a furnace gives π·L). Bounce b holds the
 first b terms of the Neumann series ``E = Σ_k T^k E_0``. Each configuration stops by one rule
-(:mod:`workers.kernels.convergence`): after a fixed ``bounces``, or once its estimated light still to come is
-below ``tolerance`` of its value at every probe that matters (capped at ``max_bounces``).
+(:mod:`workers.kernels.convergence`): after a fixed ``bounces``, or once the light unaccounted for after its
+estimated geometric tail is below ``tolerance`` of its value at every probe that matters, and then that tail is added
+(capped at ``max_bounces``).
 
 Batches: configuration j owns columns 3j..3j+2 of every (…, 3·B) array; a converged configuration leaves the
 batch (its columns are handed to ``retire`` and dropped), so later bounces cost only the live ones. The loop holds
@@ -324,7 +325,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         nb = live.size
         diff = new - maps
         step = np.abs(diff)
-        # per probe, configuration and channel: the light still to come (workers.kernels.convergence)
+        # per probe, configuration and channel: the increments the tail is estimated from (workers.kernels.convergence)
         value = np.abs(new).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
         deltas = (deltas + [step.reshape(P, -1, nb, 3).sum(axis=1, dtype=np.float64)])[-4:]
         if extrapolate:     # the residual after the tail is added, and the factor that adds it
