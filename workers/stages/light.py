@@ -43,7 +43,7 @@ bright thing (the relative noise of their first-bounce light, pooled over their 
 under fresh rotations (seeded by the bake's seed) and shaded as the trace's own; a probe's maps and SH are the mean
 of its sets (stats ``extra_rays``, ``extra_probes``, ``extra_noise_max``, ``extra_seconds``).
 Bounces: a fixed count (``light.bounces``) or until the light unaccounted for once the series' geometric tail is
-added (:mod:`workers.kernels.convergence`, "The tail is added, not waited for": light stage 12, 12-30% fewer bounces
+added (:mod:`workers.kernels.convergence`, "The tail is added, not waited for": light stage 12, 9-31% fewer bounces
 at the same or smaller error) is below ``light.tolerance`` at every probe that matters, and then that tail is added to
 the maps and the rays (capped at ``light.max_bounces``; a bake that stops short carries the warning
 ``not_converged``). OFF probes stay at 0 in
