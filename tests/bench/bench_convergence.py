@@ -36,11 +36,7 @@ sys.path.insert(0, str(ROOT / "tests" / "bench"))
 
 import bench_fidelity as BF  # noqa: E402
 import workers.stages.light as light_stage  # noqa: E402
-from persist.store import Store  # noqa: E402
 from proto.models import BakeConfig  # noqa: E402
-from proto.stages import plan  # noqa: E402
-from workers import pipeline  # noqa: E402
-from workers.gltf import ingest_file  # noqa: E402
 from workers.kernels.convergence import RELEVANT_FLOOR, extrapolated_tail, relative_tail  # noqa: E402
 
 TRUTH_TOLERANCE = 1e-5
@@ -65,27 +61,12 @@ def bounce_maps(name: str, work: Path) -> np.ndarray:
 
     pfile = BF.DATA / f"{name}.points.json"
     pdoc = json.loads(pfile.read_text()) if pfile.exists() else {}
-    cfg = pdoc.get("config") or {}        # the fidelity bench's additions: lights and sky (zdm2: bench_evaluate's)
-    src = BF.source_of(pdoc)
-    if src is not None:                   # a real scene, read where it lies (a .gltf with files: as one GLB)
-        if not src.exists():
-            raise FileNotFoundError(f"{src} (../shared/scenes absent)")
-        glb = src
-        if BF.pack_model(src, work / f"{name}.zip"):
-            glb = work / f"{name}.zip"
-    else:
-        glb = work / f"{name}.glb"
-        glb.write_bytes(BF.procedural_bytes(name))
-    store = Store(work / "store")
-    scene = ingest_file(glb)
-    sid = store.put_bytes(scene.to_bytes())
-    config = BakeConfig.model_validate(cfg)
+    src = BF.source_of(pdoc)              # a real scene, read where it lies
+    if src is not None and not src.exists():
+        raise FileNotFoundError(f"{src} (../shared/scenes absent)")
     light_stage.integrate_one = integrate_one
-    try:
-        for st, _ in plan(sid, config):
-            pipeline.execute_stage(store, sid, config, st.name)
-            if st.name == "light":
-                break
+    try:                                  # the fidelity bench's additions: lights and sky (zdm2: bench_evaluate's)
+        BF.bake(name, work, None, pdoc.get("config") or {}, src, until="light")
     finally:
         light_stage.integrate_one = original
     return np.stack(snaps)

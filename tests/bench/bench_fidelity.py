@@ -197,9 +197,10 @@ def rotated_config(config: dict, rot: np.ndarray) -> dict:
 
 
 def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = None, source: Path | None = None,
-         rotate: float = 0.0):
+         rotate: float = 0.0, until: str | None = None):
     """Bake scene ``name`` (procedural, or the real scene at ``source``, read in place) with ``config`` (default:
-    the default config, ``BakeConfig()``): (scene, {stage: LazyArtifacts}, config, seconds per stage)."""
+    the default config, ``BakeConfig()``), every stage or up to stage ``until``: (scene, {stage: LazyArtifacts},
+    config, seconds per stage)."""
     if source is not None and rotate:                # the real scene as one GLB (its files embedded), turned
         glb = work / f"{name}.glb"
         glb.write_bytes(rotated_glb(embed_glb(source), rotate))
@@ -224,6 +225,8 @@ def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = No
         if cached:
             times[st.name + " (cached)"] = times.pop(st.name)
         recs[st.name] = pipeline._lazy(store, rec)
+        if st.name == until:
+            break
     return scene, recs, cfg, times
 
 

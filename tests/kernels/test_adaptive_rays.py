@@ -138,6 +138,19 @@ def test_integrator_averages_a_probes_extra_rows():
     assert np.allclose(irr[1], (each[1] + each[4] + each[5]) / 3, rtol=1e-5, atol=1e-6)
     assert np.allclose(irr[3], (each[3] + each[6]) / 2, rtol=1e-5, atol=1e-6)
     assert not np.allclose(irr[1], each[1], rtol=1e-3)
+    # iterated to convergence the tail is added to the extra rows' rays by their parent's factor: the rays still
+    # give the merged maps (each hit gathers k_p/π x its own probe's first texel: probe p's series has its own
+    # ratio, below 1 since the hits' albedo is π)
+    probe_of_hit = np.concatenate([np.arange(P), parents])[index // R]
+    k = (np.array([0.2, 0.7, 0.4, 0.55], np.float32) / np.float32(math.pi))[probe_of_hit][:, None]
+    gather = lambda m: k * m[probe_of_hit, 1, 1]                                       # noqa: E731
+    irr, rad, change, residual = integrate_one(index, miss, albedo, e, rows, states, N, gather, bounces=None,
+                                               max_bounces=64, tolerance=1e-4, parents=parents)
+    each = [irradiance_maps(pats[rows.pattern[r]], rad[r:r + 1], N, states[r:r + 1])[0] for r in range(P + 3)]
+    assert 4 <= len(change) < 64 and residual[-1] < 1e-4              # converged, a tail of several % added
+    assert np.allclose(irr[1], (each[1] + each[4] + each[5]) / 3, rtol=1e-4, atol=1e-6)
+    assert np.allclose(irr[3], (each[3] + each[6]) / 2, rtol=1e-4, atol=1e-6)
+    assert np.allclose(irr[0], each[0], rtol=1e-4, atol=1e-6)
 
 
 def test_concat_hits_shifts_the_extra_rows_ray_indices():

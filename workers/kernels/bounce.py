@@ -297,11 +297,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
     cap = bounces if bounces is not None else max_bounces
     extrapolate = bounces is None       # iterating to convergence: the tail is added at the stop (convergence doc)
     e_ind = e_prev = None               # E_indirect at the hits of this bounce and the one before (None: 0)
-    if extrapolate and parents.size:    # the probe of each hit's row (extra rows: their parent's)
-        hit_row = index // R
-        hit_probe = np.where(hit_row < P, hit_row, parents[np.maximum(hit_row - P, 0)])
-    elif extrapolate:
-        hit_probe = index // R
+    if extrapolate:                     # the probe of each hit's row (extra rows: their parent's)
+        hit_probe = np.concatenate([np.arange(P), parents])[index // R]
     for b in range(1, cap + 1):
         if b == 1:
             radiance[rows] = base                                              # E_indirect = 0: the first bounce

@@ -143,12 +143,10 @@ def extrapolated_tail(deltas: list[np.ndarray], value: np.ndarray,
         rs = [np.where(ds[i] > 0, ds[i + 1] / ds[i], np.where(ds[i + 1] > 0, np.inf, 0.0)) for i in range(3)]
         r_hi = np.maximum(np.maximum(rs[0], rs[1]), rs[2])
         r_lo = np.minimum(np.minimum(rs[0], rs[1]), rs[2])
-        r2 = np.maximum(rs[1], rs[2])                                   # relative_tail's r
-        tail = np.where(r2 < 1.0, ds[3] * r2 / (1.0 - r2), np.where(ds[3] > 0, np.inf, 0.0))
         unc = np.where(r_hi < 1.0, ds[3] * (r_hi - r_lo) / (1.0 - r_hi) ** 2, np.where(ds[3] > 0, np.inf, 0.0))
-        rho = np.where(value > 0, tail / value, np.where(tail > 0, np.inf, 0.0))
         u = np.where(value > 0, unc / value, np.where(unc > 0, np.inf, 0.0))
         rc = np.where(dc[2] > 0, dc[3] / dc[2], 0.0)
+    _, rho = relative_tail(ds[1:], value, floor)                        # ρ_p, the whole tail (0 where rounding)
     noise = ds[3] <= NOISE * value                                      # float32 rounding: done, nothing to add
     extrapolate = (rho <= RHO_CAP) & ~noise
     est = np.where(noise, 0.0, np.where(extrapolate, SAFETY * u, rho))
