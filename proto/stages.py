@@ -118,20 +118,12 @@ def expand(config: BakeConfig) -> list[StageDef]:
 
 
 def dependencies(stages: list[StageDef]) -> dict[str, list[str]]:
-    """Which stages' jobs each stage's job waits for: the previous stage of the chain; a shard waits
-    for the stage before its group, a join for all its shards."""
-    deps: dict[str, list[str]] = {}
-    prev: str | None = None
-    for st in stages:
-        if st.shard is not None:
-            deps[st.name] = [prev] if prev else []
-        elif st.shards_from is not None:
-            deps[st.name] = [s.name for s in stages if s.parent == st.name]
-            prev = st.name
-        else:
-            deps[st.name] = [prev] if prev else []
-            prev = st.name
-    return deps
+    """Which stages' jobs each stage's job waits for: the stages among ``stages`` that it reads
+    (``StageDef.inputs``; a join reads its shards), in run order. A DAG, not the run order's chain: the
+    reference waits only for ingest, visibility's shards and anneal for no light, so two workers run them beside
+    the light stage (DESIGN "Data flow"; :func:`workers.pipeline.bake_local` runs the CLI's bakes the same way)."""
+    names = {st.name for st in stages}
+    return {st.name: [d for d in st.inputs if d in names] for st in stages}
 
 
 def plan(scene_id: str, config: BakeConfig, namespace: str | None = None) -> list[tuple[StageDef, str]]:

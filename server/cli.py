@@ -171,6 +171,8 @@ def bake_local(args) -> int:
 
     gates = _parse_gates(args)
     config = load_config(args.config, args.preset)
+    if args.jobs is not None and args.jobs < 1:
+        raise CliError(EXIT_USAGE, f"--jobs must be at least 1, got {args.jobs}")
     if not Path(args.scene).is_file():
         raise CliError(EXIT_INPUT, f"no such file: {args.scene}")
     try:
@@ -181,7 +183,8 @@ def bake_local(args) -> int:
     store = Store(Path(args.cache) / "store")
     prog = Progress([s.name for s in expand(config)], enabled=not args.quiet)
     try:
-        manifest = run(store, scene, config, report=prog.update)
+        manifest = run(store, scene, config, report=prog.update,
+                       **({} if args.jobs is None else {"concurrency": args.jobs}))
     except StageError as e:
         raise CliError(EXIT_BAKE, f"bake failed: {e.code}: {e.message}")
     finally:
@@ -519,6 +522,9 @@ def build_parser() -> argparse.ArgumentParser:
     s.add_argument("--api-key", default=os.environ.get("KILN_API_KEY"), help="API key for --server")
     s.add_argument("--cache", default=str(_default_cache()), help="stage cache directory (in-process bakes)")
     s.add_argument("--quiet", action="store_true", help="no progress bar")
+    s.add_argument("--jobs", type=int, default=None, metavar="N",
+                   help="in-process bakes: stages run side by side, at most N at once (default 2; 1: one after "
+                        "the other, as little memory as possible); each stage starts when the stages it reads are done")
     s.add_argument("--strict", action="store_true",
                    help=f"exit {EXIT_WARNINGS} when the bake has any warning (the bundle is still written)")
     s.add_argument("--fail-on", action="append", default=[], metavar="GATE",

@@ -12,8 +12,9 @@ Both the RQ jobs (:mod:`workers.jobs`) and the CLI's in-process bake call
 from __future__ import annotations
 
 import tempfile
+import threading
 import time
-from concurrent.futures import ThreadPoolExecutor
+from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
 from pathlib import Path
 from typing import Callable
 
@@ -167,13 +168,62 @@ def execute_stage(store: Store, scene_id: str, config: BakeConfig, stage: str,
     return rec, False
 
 
+BAKE_CONCURRENCY = 2
+"""Stages :func:`bake_local` runs side by side. The stages form a DAG (``StageDef.inputs``), not a chain: the
+reference reads only ingest, visibility's slabs and anneal read no light, so they run beside the light stage,
+whose threads leave part of the machine idle (zdm2 on 2 cores: light uses 1.44 of them). Two, as this
+machine's cores: each stage's kernels already use every core they can."""
+
+
+def ready_order(planned: list, done: set[str], started: set[str]) -> list:
+    """The stages of ``planned`` (``[(StageDef, key), ...]`` in run order) whose inputs are all ``done`` and that
+    have not ``started``, in run order (which puts the chain of probe stages, the longest path, first)."""
+    return [st for st, _ in planned if st.name not in started and all(d in done for d in st.inputs)]
+
+
 def bake_local(store: Store, scene: NormalizedScene, config: BakeConfig,
-               report: Callable[[str, float], None] = lambda s, f: None) -> Manifest:
-    """Run every stage in this process (the CLI's ``kiln bake`` without a server)."""
+               report: Callable[[str, float], None] = lambda s, f: None,
+               concurrency: int = BAKE_CONCURRENCY) -> Manifest:
+    """Run every stage in this process (the CLI's ``kiln bake`` without a server): each as soon as the stages
+    it reads are done, up to ``concurrency`` at once (1: one after the other, in run order). The artifacts do
+    not depend on the order (each stage reads only its inputs' stored artifacts). The first stage that fails
+    stops new ones from starting; those running finish; its exception is raised."""
     scene_id = store.put_bytes(scene.to_bytes())
-    cached = {}
-    for st, _ in plan(scene_id, config):
-        report(st.name, 0.0)
-        _, cached[st.name] = execute_stage(store, scene_id, config, st.name, lambda f, s=st.name: report(s, f))
-        report(st.name, 1.0)
+    planned = plan(scene_id, config)
+    cached: dict[str, bool] = {}
+    done: set[str] = set()
+    started: set[str] = set()
+    lock = threading.Lock()
+
+    def run_one(name: str) -> None:
+        def rep(f: float) -> None:
+            with lock:
+                report(name, f)
+        rep(0.0)
+        _, cached[name] = execute_stage(store, scene_id, config, name, rep)
+        rep(1.0)
+
+    with ThreadPoolExecutor(max(1, int(concurrency)), thread_name_prefix="kiln-stage") as pool:
+        running: dict = {}
+        error: BaseException | None = None
+        while True:
+            if error is None:
+                for st in ready_order(planned, done, started)[:max(0, int(concurrency) - len(running))]:
+                    started.add(st.name)
+                    running[pool.submit(run_one, st.name)] = st.name
+            if not running:
+                break
+            finished, _ = wait(running, return_when=FIRST_COMPLETED)
+            for fut in finished:
+                name = running.pop(fut)
+                exc = fut.exception()
+                if exc is not None:
+                    error = error or exc
+                else:
+                    done.add(name)
+        if error is not None:
+            raise error
+    missing = [st.name for st, _ in planned if st.name not in done]
+    if missing:                                     # a cycle in the stage table: a bug, not a user error
+        raise RuntimeError(f"stages never became ready: {missing}")
     return build_manifest(store, scene.summary(scene_id), config, cached=cached)

@@ -47,21 +47,24 @@ def test_bake_local_json_and_cache(tmp_path, scene_files):
     assert [s["name"] for s in manifest["stages"]][:2] == ["ingest", "place"]
     assert all(s["cached"] is False for s in manifest["stages"])
     # progress went to stderr; not a terminal there (a captured pipe, as in CI): one line per finished stage, no
-    # redrawn bar
+    # redrawn bar; stages run two at a time (each when what it reads is done), so the lines come in finishing order
     names = [s["name"] for s in manifest["stages"]]
     done = [ln for ln in r.stderr.splitlines() if ln.startswith("kiln: [")]
-    assert [ln.split("] ")[1].split(" done")[0] for ln in done] == names, r.stderr
-    assert done[-1].startswith(f"kiln: [{len(names)}/{len(names)}] ") and "\r" not in r.stderr
+    assert sorted(ln.split("] ")[1].split(" done")[0] for ln in done) == sorted(names), r.stderr
+    assert [ln.split("]")[0] for ln in done] == [f"kiln: [{i}/{len(names)}" for i in range(1, len(names) + 1)]
+    assert "\r" not in r.stderr
     arts = {a["name"]: a for a in manifest["artifacts"]}
     assert arts["probe_positions"]["shape"] == [5, 3, 4, 3] and arts["probe_positions"]["format"] == "ktx2"
     m, arrays = bundle.open_bundle(tmp_path / "out")
     assert arrays["lights"]["sky"] == [0.5, 0.5, 0.5]
     assert [l["type"] for l in arrays["lights"]["lights"]] == ["point", "directional"]
     assert m.scene.triangles == manifest["scene"]["triangles"]
-    # again: every stage from cache, identical artifacts
+    # again: every stage from cache, identical artifacts; --jobs 1: one stage after the other, in run order
     r2 = kiln("bake", scene_files["two-rooms"], "--config", cfg, "--out", tmp_path / "out2", "--json",
-              "--cache", cache)
+              "--cache", cache, "--jobs", "1")
     m2 = json.loads(r2.stdout)
+    done = [ln for ln in r2.stderr.splitlines() if ln.startswith("kiln: [")]
+    assert [ln.split("] ")[1].split(" done")[0] for ln in done] == names, r2.stderr
     assert all(s["cached"] for s in m2["stages"])
     assert [a["sha256"] for a in m2["artifacts"]] == [a["sha256"] for a in manifest["artifacts"]]
 
@@ -116,6 +119,8 @@ def test_bake_bad_config_names_the_field(tmp_path, scene_files):
     assert r.returncode == 3 and "not valid TOML" in r.stderr
     r = kiln("bake", scene_files["cornell"])
     assert r.returncode == 2  # --out is required
+    r = kiln("bake", scene_files["cornell"], "--out", tmp_path / "o", "--cache", tmp_path / "c", "--jobs", "0")
+    assert r.returncode == 2 and "--jobs must be at least 1" in r.stderr and not (tmp_path / "o").exists()
 
 
 def test_serve_bake_through_server_and_ctrl_c(tmp_path, scene_files):

@@ -47,6 +47,7 @@ stats : ``clusters``, ``residual_eq5`` (R̂ of the eq-5 masks, in samples), ``re
 from __future__ import annotations
 
 import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -85,9 +86,12 @@ def run_masks(ctx: StageContext) -> StageOutput:
     sh_l1 = np.asarray(light["sh_l1_full"], np.float32) if "sh_l1_full" in light else \
         np.stack([light[f"sh_l1_{c}"] for c in "rgb"], axis=-1).astype(np.float32)       # (nz, ny, nx, 4, 3)
 
+    # the residuals are statistics: each runs on a second thread (its kernel holds no GIL) beside what follows
+    side = ThreadPoolExecutor(1, thread_name_prefix="kiln-masks")
     t0 = time.perf_counter()
     m = fit_masks(theta, dont_care, counts, S, g, K, states)                               # eq 5
-    r5, mass = mask_residual(theta, dont_care, counts, S, g, m, states)
+    m5 = m
+    residual5 = side.submit(mask_residual, theta, dont_care, counts, S, g, m5, states)
     t_fit = time.perf_counter() - t0
     ctx.report(0.3)
 
@@ -100,12 +104,14 @@ def run_masks(ctx: StageContext) -> StageOutput:
     ctx.report(0.6)
 
     t2 = time.perf_counter()
+    if m is m5:                                     # fill_dont_care writes in place: the residual reads m5 first
+        residual5.result()
     m, filled = fill_dont_care(m, dont_care)
     m = gaussian_filter(m, sec.sigma)                                                       # §3.4 step 6
     q = quantize(m)                                                                         # (Z, Y, X, K) bytes
     q = canonicalize(q, dont_care, counts, S, g, K, states)                                 # free values -> 0
     t_post = time.perf_counter() - t2
-    rq, _ = mask_residual(theta, dont_care, counts, S, g, q, states)
+    residual_q = side.submit(mask_residual, theta, dont_care, counts, S, g, q, states)
     care = ~dont_care
     nonzero = (q[care] > 0).sum(axis=1) if care.any() else np.zeros(0)
     ctx.report(0.85)
@@ -137,6 +143,8 @@ def run_masks(ctx: StageContext) -> StageOutput:
         arts.append(Artifact("cluster_weights_4567", _half(_rgba(weights, 4), clamped), zstd_level=ZSTD_PROBES,
                              meta={"clusters": K},
                              description="g_i^k of clusters 4-7 per probe"))
+    (r5, mass), (rq, _) = residual5.result(), residual_q.result()
+    side.shutdown()
     stats = {
         "clusters": K, "samples_per_cell": S, "shape": list(q.shape[:3]),
         "residual_eq5": r5, "residual_stored": rq, "visible_mass": mass,
