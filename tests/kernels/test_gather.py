@@ -115,6 +115,8 @@ def test_sh_read_is_the_samplers_weights_over_each_cage_probes_clamped_sh_irradi
         want += w.weight[:, c, None] * np.maximum(e, 0.0)
     np.testing.assert_allclose(got, want, rtol=2e-5, atol=2e-5 * np.abs(want).max())
     assert (want[:, 0] > 0).sum() > 100 and (got >= 0).all()
+    # RGB (C = 3) takes its own kernel: the same sums in the same order as the general one, so the same floats
+    np.testing.assert_array_equal(gsh(maps[..., :3], np.ascontiguousarray(sh[..., 3:])), got[:, 3:])
     # constant radiance: π·L wherever the weights sum to 1
     L = np.array([0.5, 1.0, 2.0])
     dirs = fibonacci_sphere(4096)

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.sparse as sp
 from numba import njit
 
+from workers.kernels.chunks import map_chunks
 from workers.kernels.ddgi import point_weights, cage_probes, sample_irradiance, sampler_inputs
 from workers.kernels.sh import sh_irradiance_basis
 
@@ -34,6 +35,9 @@ __all__ = ["SamplerGather", "MatrixGather", "ddgi_weights", "SamplerWeights", "s
 
 SAMPLE_THREADS = 2
 """Threads for the probe sampler (its numba kernel releases the GIL)."""
+
+BASIS_CHUNK = 1 << 18
+"""Points per chunk of the SH gather's per-point basis (float64 temporaries of 9 columns: 19 MB a chunk)."""
 
 
 class SamplerWeights(NamedTuple):
@@ -117,6 +121,39 @@ def _apply_sh_kernel(base, weight, basis, steps, sh, out):
             out[i, ch] = acc
 
 
+@njit(cache=True, nogil=True)
+def _apply_sh_kernel3(base, weight, basis, steps, sh, out):
+    """:func:`_apply_sh_kernel` for C = 3 (RGB): the three channels in one pass over each cage probe's K × 3 row
+    (about twice as fast; the same sums in the same order, so the same floats)."""
+    K = basis.shape[1]
+    for i in range(base.shape[0]):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for c in range(8):
+            w = float(weight[i, c])
+            if w == 0.0:
+                continue
+            q = base[i] + (c & 1) * steps[0] + ((c >> 1) & 1) * steps[1] + ((c >> 2) & 1) * steps[2]
+            e0 = 0.0
+            e1 = 0.0
+            e2 = 0.0
+            for k in range(K):
+                b = float(basis[i, k])
+                e0 += b * float(sh[q, k, 0])
+                e1 += b * float(sh[q, k, 1])
+                e2 += b * float(sh[q, k, 2])
+            if e0 > 0.0:                        # each channel clamped where the probe's L2 rings below 0
+                a0 += w * e0
+            if e1 > 0.0:
+                a1 += w * e1
+            if e2 > 0.0:
+                a2 += w * e2
+        out[i, 0] = a0
+        out[i, 1] = a1
+        out[i, 2] = a2
+
+
 def _chunks(n: int):
     bounds = np.linspace(0, n, SAMPLE_THREADS + 1).astype(int)
     return [(int(bounds[i]), int(bounds[i + 1])) for i in range(SAMPLE_THREADS)]
@@ -182,8 +219,8 @@ def apply_sampler_weights_sh(weights: SamplerWeights, basis: np.ndarray, sh: np.
     sh = np.ascontiguousarray(sh, np.float32)
     w = weights
     out = np.empty((w.base.shape[0], sh.shape[2]), np.float32)
-    _on_threads(w.base.shape[0], lambda a, e: _apply_sh_kernel(w.base[a:e], w.weight[a:e], basis[a:e], w.steps, sh,
-                                                              out[a:e]))
+    kernel = _apply_sh_kernel3 if sh.shape[2] == 3 else _apply_sh_kernel
+    _on_threads(w.base.shape[0], lambda a, e: kernel(w.base[a:e], w.weight[a:e], basis[a:e], w.steps, sh, out[a:e]))
     return out
 
 
@@ -217,8 +254,14 @@ class SamplerGather:
             self._build(int(n))
 
     def _build(self, n: int) -> None:
-        if self.reads_sh:
-            self.basis = sh_irradiance_basis(self._inputs[1]).astype(np.float32)   # (H, 9), 36 bytes a point
+        if self.reads_sh:                   # (H, 9), 36 bytes a point; in chunks on two threads (numpy frees the GIL)
+            nrm = self._inputs[1]
+            self.basis = np.empty((nrm.shape[0], 9), np.float32)
+
+            def chunk(a: int, e: int) -> None:
+                self.basis[a:e] = sh_irradiance_basis(nrm[a:e])
+
+            map_chunks(chunk, nrm.shape[0], BASIS_CHUNK)
         self.weights = sampler_weights(*self._inputs, n, self.bias, self.visible)
         self.n, self._inputs, self.visible = n, None, None
 

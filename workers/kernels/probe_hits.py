@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from workers.kernels.chunks import map_chunks
 from workers.kernels.ddgi import cage_probes, cage_rays
 from workers.kernels.path_rng import _cosine_dir, _uniform
 from workers.kernels.sampling import probe_rays
@@ -27,11 +28,13 @@ from workers.kernels.shading import ensure_valid_reflection, surface_at_hits
 
 __all__ = ["HitSurfaces", "hit_surfaces", "concat_hits", "probe_visibility", "near_occlusion", "NearField", "VISIBILITY_CHUNK", "HIT_CHUNK"]
 
-HIT_CHUNK = 1 << 21
-"""Hits shaded per :func:`workers.kernels.shading.surface_at_hits` call in :func:`hit_surfaces` (memory bound)."""
+HIT_CHUNK = 1 << 20
+"""Hits shaded per :func:`workers.kernels.shading.surface_at_hits` call in :func:`hit_surfaces` (memory bound; two
+calls in flight, :func:`workers.kernels.chunks.map_chunks`: as many hits as one call of 2²¹ before)."""
 
-VISIBILITY_CHUNK = 1 << 20
-"""Hits per batch of visibility rays (8 rays each), bounding memory."""
+VISIBILITY_CHUNK = 1 << 19
+"""Hits per batch of visibility rays (8 rays each), bounding memory: two batches are in flight
+(:func:`workers.kernels.chunks.map_chunks`), as many rays as one batch of 2²⁰ before."""
 
 
 @dataclass
@@ -92,8 +95,8 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     H = index.size
     pos, n, alb, emi, geo, smooth = (np.empty((H, 3), np.float32) for _ in range(6))
     bent = np.zeros(H, bool)
-    for a in range(0, H, HIT_CHUNK):                      # bounded float64 temporaries (12M hits: ~2 GB at once)
-        b = min(H, a + HIT_CHUNK)
+
+    def chunk(a: int, b: int) -> None:     # bounded float64 temporaries (12M hits: ~2 GB at once), two at a time
         uv = flat[index[a:b], 1:3]
         s = surface_at_hits(scene, tri.ravel()[index[a:b]], uv[:, 0], uv[:, 1])
         nn = s["normal"].astype(np.float32)
@@ -104,6 +107,8 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
         nb, bent[a:b] = ensure_valid_reflection(geo[a:b], -d[a:b], smooth[a:b])   # Cycles' closure normal N'
         n[a:b] = nb
         pos[a:b], alb[a:b], emi[a:b] = s["position"], s["albedo"], s["emission"]
+
+    map_chunks(chunk, H, HIT_CHUNK)
     # visit hits in spatial order (a coarse 3D grid): the probe sampler then reads neighbouring probes
     # from cache (about 1.6x faster than ray order); the order does not change any result
     lo, hi = pos.min(axis=0) if len(pos) else 0, pos.max(axis=0) if len(pos) else 1
@@ -184,21 +189,22 @@ def probe_visibility(surf, grid: dict, positions: np.ndarray, states: np.ndarray
     """
     H = surf.position.shape[0]
     vis = np.zeros((H, 8), np.uint8)
-    rays = 0
-    for a in range(0, H, VISIBILITY_CHUNK):
-        b = min(H, a + VISIBILITY_CHUNK)
+
+    def chunk(a: int, b: int) -> int:       # two chunks at a time (workers.kernels.chunks): rays made while cast
         biased, cage = cage_probes(surf.position[a:b], surf.normal[a:b], surf.view[a:b], grid["counts"],
                                    grid["origin"], grid["spacing"], bias)        # x_b of DDGI-P eq 2
         live, o, dirs, tfar, slot = cage_rays(biased, cage, positions, states)   # biased point -> live probe
         occluded = caster.occluded(o, dirs, tfar=tfar)
         live.reshape(-1)[slot[occluded]] = 0
         vis[a:b] = live
-        rays += int(slot.shape[0])
-    return vis, rays
+        return int(slot.shape[0])
+
+    return vis, sum(map_chunks(chunk, H, VISIBILITY_CHUNK))
 
 
-NEAR_CHUNK = 1 << 18
-"""Hits per batch of :func:`near_occlusion` rays (``rays`` each), bounding memory."""
+NEAR_CHUNK = 1 << 17
+"""Hits per batch of :func:`near_occlusion` rays (``rays`` each), bounding memory: two batches are in flight
+(:func:`workers.kernels.chunks.map_chunks`), as many hits as one batch of 2¹⁸ before."""
 
 
 @njit(cache=True, nogil=True)
@@ -267,36 +273,38 @@ def near_occlusion(scene, position: np.ndarray, normal: np.ndarray, geo_normal: 
     """
     H = position.shape[0]
     idx, aa, alb, emi, cast = [], [], [], [], 0
+
+    def chunk(s: int, e: int):              # two chunks at a time (workers.kernels.chunks): rays made while cast
+        n = e - s
+        o = np.empty((n * rays, 3), np.float32)
+        d = np.empty((n * rays, 3), np.float32)
+        slot = np.empty(n * rays, np.int64)
+        m = _near_rays(np.ascontiguousarray(position[s:e], np.float64),
+                       np.ascontiguousarray(normal[s:e], np.float64),
+                       np.ascontiguousarray(geo_normal[s:e], np.float64), float(eps), int(rays), int(seed), s,
+                       o, d, slot)
+        if m == 0:
+            return m, None
+        h = caster.intersect(o[:m], d[:m], 0.0, np.full(m, radius, np.float32))
+        hit = np.flatnonzero(np.asarray(h.tri) >= 0)
+        if hit.size == 0:
+            return m, None
+        sl = slot[:m][hit]
+        surf = surface_at_hits(scene, np.asarray(h.tri)[hit], np.asarray(h.u)[hit], np.asarray(h.v)[hit])
+        dark = (np.asarray(h.backface)[hit] & ~np.asarray(surf["double_sided"], bool))[:, None]
+        count = np.bincount(sl, minlength=n)
+        own = np.flatnonzero(count)
+        w = 1.0 / count[own][:, None]
+        sums = [np.stack([np.bincount(sl, np.where(dark[:, 0], 0.0, surf[k][:, c]), minlength=n)
+                          for c in range(3)], axis=1)[own] for k in ("albedo", "emission")]
+        return m, (own + s, count[own] / rays, sums[0] * w, sums[1] * w)
+
     if H and rays > 0 and radius > 0:
-        for s in range(0, H, NEAR_CHUNK):
-            e = min(H, s + NEAR_CHUNK)
-            n = e - s
-            o = np.empty((n * rays, 3), np.float32)
-            d = np.empty((n * rays, 3), np.float32)
-            slot = np.empty(n * rays, np.int64)
-            m = _near_rays(np.ascontiguousarray(position[s:e], np.float64),
-                           np.ascontiguousarray(normal[s:e], np.float64),
-                           np.ascontiguousarray(geo_normal[s:e], np.float64), float(eps), int(rays), int(seed), s,
-                           o, d, slot)
-            if m == 0:
-                continue
+        for m, part in map_chunks(chunk, H, NEAR_CHUNK):
             cast += m
-            h = caster.intersect(o[:m], d[:m], 0.0, np.full(m, radius, np.float32))
-            hit = np.flatnonzero(np.asarray(h.tri) >= 0)
-            if hit.size == 0:
-                continue
-            sl = slot[:m][hit]
-            surf = surface_at_hits(scene, np.asarray(h.tri)[hit], np.asarray(h.u)[hit], np.asarray(h.v)[hit])
-            dark = (np.asarray(h.backface)[hit] & ~np.asarray(surf["double_sided"], bool))[:, None]
-            count = np.bincount(sl, minlength=n)
-            own = np.flatnonzero(count)
-            w = 1.0 / count[own][:, None]
-            sums = [np.stack([np.bincount(sl, np.where(dark[:, 0], 0.0, surf[k][:, c]), minlength=n)
-                              for c in range(3)], axis=1)[own] for k in ("albedo", "emission")]
-            idx.append(own + s)
-            aa.append(count[own] / rays)
-            alb.append(sums[0] * w)
-            emi.append(sums[1] * w)
+            if part is not None:
+                for lst, v in zip((idx, aa, alb, emi), part):
+                    lst.append(v)
     cat = (lambda xs, shape: np.concatenate(xs).astype(np.float32) if xs else np.zeros(shape, np.float32))
     return NearField(index=np.concatenate(idx) if idx else np.zeros(0, np.int64), a=cat(aa, (0,)),
                      albedo=cat(alb, (0, 3)), emission=cat(emi, (0, 3)), rays=cast)

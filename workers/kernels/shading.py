@@ -42,6 +42,8 @@ import math
 import numba
 import numpy as np
 
+from workers.kernels.chunks import map_chunks
+
 __all__ = ["srgb_to_linear", "SRGB_TO_LINEAR_LUT", "surface_at_hits", "sample_texture", "direct_irradiance",
            "ensure_valid_reflection", "bump_shadowing_term", "horizon_factor"]
 
@@ -314,8 +316,8 @@ def direct_irradiance(points, normals, lights, caster, eps: float, *, geo_normal
         raise ValueError(f"direct_irradiance: eps must be finite and >= 0, got {eps}")
     n = pts.shape[0]
     out = np.zeros((n, 3), np.float32)
-    for s in range(0, n, DIRECT_CHUNK):
-        e = min(n, s + DIRECT_CHUNK)
+
+    def chunk(s: int, e: int) -> None:      # two chunks at a time (workers.kernels.chunks): shading while casting
         acc = np.zeros((e - s, 3), np.float64)
         frame = None
         if geo_normals is not None or bent is not None:
@@ -325,6 +327,8 @@ def direct_irradiance(points, normals, lights, caster, eps: float, *, geo_normal
         for light in lights:
             _add_light(acc, pts[s:e], nrm[s:e], light, caster, eps, frame)
         out[s:e] = acc
+
+    map_chunks(chunk, n, DIRECT_CHUNK)
     return out
 
 
