@@ -11,10 +11,11 @@ Both the RQ jobs (:mod:`workers.jobs`) and the CLI's in-process bake call
 """
 from __future__ import annotations
 
+import queue
 import tempfile
 import threading
 import time
-from concurrent.futures import FIRST_COMPLETED, ThreadPoolExecutor, wait
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
 
@@ -187,42 +188,51 @@ def bake_local(store: Store, scene: NormalizedScene, config: BakeConfig,
     """Run every stage in this process (the CLI's ``kiln bake`` without a server): each as soon as the stages
     it reads are done, up to ``concurrency`` at once (1: one after the other, in run order). The artifacts do
     not depend on the order (each stage reads only its inputs' stored artifacts). The first stage that fails
-    stops new ones from starting; those running finish; its exception is raised."""
+    stops new ones from starting; those running finish; its exception is raised.
+
+    Stages run on daemon threads and the calling thread only waits for them, so an interrupt (Ctrl+C) there
+    returns at once: the running stages are abandoned, and the store holds only complete outputs (each is written
+    to a temporary file and renamed, as when a worker is killed)."""
     scene_id = store.put_bytes(scene.to_bytes())
     planned = plan(scene_id, config)
+    limit = max(1, int(concurrency))
     cached: dict[str, bool] = {}
     done: set[str] = set()
     started: set[str] = set()
+    running: set[str] = set()
+    finished: queue.SimpleQueue = queue.SimpleQueue()
     lock = threading.Lock()
 
     def run_one(name: str) -> None:
         def rep(f: float) -> None:
             with lock:
                 report(name, f)
-        rep(0.0)
-        _, cached[name] = execute_stage(store, scene_id, config, name, rep)
-        rep(1.0)
+        try:
+            rep(0.0)
+            _, cached[name] = execute_stage(store, scene_id, config, name, rep)
+            rep(1.0)
+        except BaseException as e:          # handed to the waiting thread, which raises it
+            finished.put((name, e))
+        else:
+            finished.put((name, None))
 
-    with ThreadPoolExecutor(max(1, int(concurrency)), thread_name_prefix="kiln-stage") as pool:
-        running: dict = {}
-        error: BaseException | None = None
-        while True:
-            if error is None:
-                for st in ready_order(planned, done, started)[:max(0, int(concurrency) - len(running))]:
-                    started.add(st.name)
-                    running[pool.submit(run_one, st.name)] = st.name
-            if not running:
-                break
-            finished, _ = wait(running, return_when=FIRST_COMPLETED)
-            for fut in finished:
-                name = running.pop(fut)
-                exc = fut.exception()
-                if exc is not None:
-                    error = error or exc
-                else:
-                    done.add(name)
-        if error is not None:
-            raise error
+    error: BaseException | None = None
+    while True:
+        if error is None:
+            for st in ready_order(planned, done, started)[:max(0, limit - len(running))]:
+                started.add(st.name)
+                running.add(st.name)
+                threading.Thread(target=run_one, args=(st.name,), name=f"kiln-stage-{st.name}", daemon=True).start()
+        if not running:
+            break
+        name, exc = finished.get()                  # interruptible: Ctrl+C raises here
+        running.discard(name)
+        if exc is not None:
+            error = error or exc
+        else:
+            done.add(name)
+    if error is not None:
+        raise error
     missing = [st.name for st, _ in planned if st.name not in done]
     if missing:                                     # a cycle in the stage table: a bug, not a user error
         raise RuntimeError(f"stages never became ready: {missing}")

@@ -118,3 +118,46 @@ def test_a_failing_stage_stops_what_reads_it(tmp_path, two_rooms, monkeypatch):
         pipeline.bake_local(Store(tmp_path / "s"), two_rooms, config, concurrency=2)
     assert "trace" in ran
     assert not {"light", "visibility.0", "visibility.1", "anneal", "masks", "evaluate"} & set(ran)
+
+
+INTERRUPT_SCRIPT = r"""
+import os, signal, sys, threading
+from persist.store import Store
+from proto.models import BakeConfig
+from workers import pipeline
+from workers.gltf import ingest_file
+
+signal.signal(signal.SIGINT, signal.default_int_handler)   # as in a terminal, even where the test runs with it ignored
+release = threading.Event()
+real = pipeline.execute_stage
+
+def stuck(store, scene_id, cfg, stage, *args, **kw):
+    if stage == "light":                       # Ctrl+C while a long stage runs, which then never ends by itself
+        os.kill(os.getpid(), signal.SIGINT)
+        release.wait(600)
+        return None, False
+    return real(store, scene_id, cfg, stage, *args, **kw)
+
+pipeline.execute_stage = stuck
+try:
+    pipeline.bake_local(Store(sys.argv[1]), ingest_file(sys.argv[2]), BakeConfig.model_validate_json(sys.argv[3]))
+    print("finished")
+except KeyboardInterrupt:
+    alive = [t.name for t in threading.enumerate() if t.name.startswith("kiln-stage-")]
+    print("interrupted while running:", ",".join(alive))
+"""
+
+
+def test_ctrl_c_returns_without_waiting_for_the_running_stages(tmp_path, scene_files):
+    """An interrupt in the waiting thread ends the bake at once; the stage still running is abandoned (it would
+    block for 10 minutes here), not waited for."""
+    import json
+    import os
+    import subprocess
+    import sys
+
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    r = subprocess.run([sys.executable, "-c", INTERRUPT_SCRIPT, str(tmp_path / "s"), str(scene_files["two-rooms"]),
+                        json.dumps(SMALL)], capture_output=True, text=True, cwd=root, timeout=300)
+    assert r.returncode == 0, r.stderr
+    assert "interrupted while running:" in r.stdout and "kiln-stage-light" in r.stdout, r.stdout + r.stderr
