@@ -1,4 +1,4 @@
-"""The queue client: enqueue a bake as a chain of RQ jobs (by name), cancel, and recover lost bakes.
+"""The queue client: enqueue a bake as RQ jobs (by name) that wait for the stages they read, cancel, and recover lost bakes.
 
 Routes enqueue jobs by their import path (``workers.jobs.run_stage``) so the API process
 never imports stage code. Job ids are ``<bake>-<attempt>-<stage>``: a bake re-enqueued by
@@ -63,8 +63,9 @@ def enqueue_bake(conn: redis.Redis, bake: dict, scene: dict | None = None,
                  memory_limit_bytes: int | None = None) -> list[str]:
     """Enqueue the stages of ``bake`` that have not succeeded, then ``finish_bake``; returns job ids.
 
-    Each job depends on the jobs of the stages it waits for (``proto.stages.dependencies``): the
-    chain, with a sharded stage's shards side by side and its join after all of them. ``scene`` (the
+    Each job depends on the jobs of the stages it reads (``proto.stages.dependencies``): a DAG, so the
+    reference, a sharded stage's shards and anneal run beside the light stage, and a join waits for all its
+    shards. ``scene`` (the
     catalog's scene summary) feeds the cost model that picks each stage's queue and timeout; without it
     the stage table's timeouts apply and every stage but prt/evaluate goes to the short queue.
     ``memory_limit_bytes`` goes into each stage job's meta: the work-horse's memory limit

@@ -1,7 +1,7 @@
 """RQ job entry points — the only RQ-aware module of the workers.
 
-A bake is a chain of jobs, one per stage (``depends_on`` the previous one), then
-:func:`finish_bake`. Jobs take ids and plain JSON, load inputs from the store, call
+A bake is one job per stage (``depends_on`` the jobs of the stages it reads: ``proto.stages.dependencies``),
+then :func:`finish_bake`. Jobs take ids and plain JSON, load inputs from the store, call
 :func:`workers.pipeline.execute_stage`, and record progress and outcome in the catalog.
 
 Failure handling:
