@@ -1,4 +1,4 @@
-"""The queue client: enqueue a bake as RQ jobs (by name) that wait for the stages they read, cancel, and recover lost bakes.
+"""The queue client: enqueue a bake as RQ jobs (by name), each waiting for the stages it reads; cancel; recover.
 
 Routes enqueue jobs by their import path (``workers.jobs.run_stage``) so the API process
 never imports stage code. Job ids are ``<bake>-<attempt>-<stage>``: a bake re-enqueued by
