@@ -19,7 +19,6 @@ Consumers: stages/light, kernels/prt_dataset. Inverse: none.
 """
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
 import numpy as np
@@ -154,11 +153,6 @@ def _apply_sh_kernel3(base, weight, basis, steps, sh, out):
         out[i, 2] = a2
 
 
-def _chunks(n: int):
-    bounds = np.linspace(0, n, SAMPLE_THREADS + 1).astype(int)
-    return [(int(bounds[i]), int(bounds[i + 1])) for i in range(SAMPLE_THREADS)]
-
-
 def sampler_weights(points, normals, views, grid: dict, positions, states, depth, n: int, bias: float,
                     visible=None) -> SamplerWeights:
     """What :func:`workers.kernels.ddgi.sample_irradiance` weighs at each point, computed once (DDGI-P §2.2:
@@ -182,22 +176,16 @@ def sampler_weights(points, normals, views, grid: dict, positions, states, depth
                          np.array([1 if cnt[0] > 1 else 0, cnt[0] if cnt[1] > 1 else 0,
                                    cnt[0] * cnt[1] if cnt[2] > 1 else 0], np.int64))
 
-    def work(ab):
-        a, e = ab
-        if e > a:
-            _weights_kernel(pts[a:e], nrm[a:e], view[a:e], cnt, org, spc, b, pos, st, dep,
-                            vis[a:e] if vis.shape[0] else vis, n + 2, out.base[a:e], out.weight[a:e],
-                            out.texel[a:e], out.frac[a:e])
-
-    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
-        list(pool.map(work, _chunks(N)))
+    _on_threads(N, lambda a, e: _weights_kernel(pts[a:e], nrm[a:e], view[a:e], cnt, org, spc, b, pos, st, dep,
+                                                vis[a:e] if vis.shape[0] else vis, n + 2, out.base[a:e],
+                                                out.weight[a:e], out.texel[a:e], out.frac[a:e]))
     return out
 
 
 def _on_threads(N: int, run) -> None:
-    """``run(a, e)`` over SAMPLE_THREADS contiguous row ranges [a, e) of N rows, on as many threads."""
-    with ThreadPoolExecutor(SAMPLE_THREADS) as pool:
-        list(pool.map(lambda ab: run(*ab) if ab[1] > ab[0] else None, _chunks(N)))
+    """``run(a, e)`` over SAMPLE_THREADS contiguous row ranges [a, e) of N rows, on as many threads
+    (:func:`workers.kernels.chunks.map_chunks` with one chunk a thread)."""
+    map_chunks(run, N, -(-N // SAMPLE_THREADS), SAMPLE_THREADS)
 
 
 def apply_sampler_weights(weights: SamplerWeights, maps: np.ndarray) -> np.ndarray:
