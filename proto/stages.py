@@ -45,7 +45,8 @@ STAGES: tuple[StageDef, ...] = (
     # 8: the automatic spacing room scale / 8 (was / 6; workers/kernels/autogrid.py ROOM_DIVISIONS)
     # 9: the bake frame: the grid turned about +Y to the walls (workers/kernels/frame.py; stats["frame"], grid.frame)
     StageDef("place", 9, ("place", "seed"), ("ingest",), timeout=600),
-    StageDef("relocate", 2, ("trace", "seed"), ("ingest", "place"), timeout=3600),
+    # relocate 3: the iterations after the first trace only the probes that can still move (kernels/relocation.py settled)
+    StageDef("relocate", 3, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full
     # 3: depth_moments' far texels clamped to the probe's reach (workers/kernels/depth_moments.py clamp_far), which
     # reads the runtime's self-shadow bias; OFF probes' moments 0; stored without the tile borders (proto/atlas.py);

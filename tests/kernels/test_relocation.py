@@ -110,3 +110,78 @@ def test_exit_candidates_stay_in_the_grid_box():
     np.testing.assert_allclose(cand[0, ok[0]], [[-0.2, 0, 0], [0.4, 0, 0]])
     cand, ok = exit_candidates(*args, k=2, box=(np.zeros(3), np.ones(3)))
     np.testing.assert_allclose(cand[0, ok[0]], [[0.4, 0, 0]])
+
+
+def test_settled_probes_are_those_no_rotation_would_move():
+    """Row 0: open air (nearest front face 3 m, no back face); row 1: a front face 0.15 m away, within 2 x the move
+    threshold 0.1 (min spacing 1 m); row 2: inside, nearest back face 5 m away, beyond 1.5 x its reach (limit
+    (0.45, 0.45, 0.45): 0.78 m); row 3: inside, back face 0.5 m away (it may get out); row 4: open air but it moved
+    this iteration; row 5: one back face among front faces (not inside: not settled by either rule)."""
+    from workers.kernels.relocation import settled
+
+    t = np.array([[3.0, 4.0, 5.0, INF], [0.15, 4.0, 5.0, 5.0], [5.0, 6.0, 7.0, 2.0], [0.5, 6.0, 7.0, 2.0],
+                  [3.0, 4.0, 5.0, INF], [3.0, 4.0, 5.0, 5.0]])
+    back = np.array([[False] * 4, [False] * 4, [True, True, True, False], [True, True, True, False], [False] * 4,
+                     [True, False, False, False]])
+    moved = np.array([False, False, False, False, True, False])
+    got = settled(np.zeros((6, 3)), t, back, moved, np.full(3, 0.45), 1.0, 0.25)
+    np.testing.assert_array_equal(got, [True, False, True, False, False, False])
+    # an offset already taken adds to the reach: 5 m is within 1.5 x (0.78 + 3) m
+    got = settled(np.array([[0, 0, 0]] * 2 + [[3.0, 0, 0]] + [[0, 0, 0]] * 3, float), t, back, moved,
+                  np.full(3, 0.45), 1.0, 0.25)
+    assert not got[2]
+
+
+def _exit_candidates_vectorized(base, positions, t, back, tri, dirs, normals, limit, margin, k, box=None):
+    """The numpy version :func:`exit_candidates` replaced (its greedy loop over the rays of all probes at once)."""
+    P, R = t.shape
+    cand, ok = np.zeros((P, k, 3)), np.zeros((P, k), bool)
+    d = np.asarray(dirs, np.float64)
+    tc = np.asarray(t, np.float64)
+    use = np.asarray(back, bool) & np.isfinite(tc)
+    n = np.asarray(normals, np.float64)[np.where(use, tri, 0)]
+    n *= np.where(np.einsum("crj,rj->cr", n, d) < 0, -1.0, 1.0)[..., None]
+    c = positions[:, None, :] + d[None] * np.where(use, tc, 0.0)[..., None] + margin * n
+    use &= np.all(np.abs(c - base[:, None, :]) <= limit, axis=2)
+    if box is not None:
+        use &= np.all((c >= box[0]) & (c <= box[1]), axis=2)
+    dist = np.where(use, np.linalg.norm(c - base[:, None, :], axis=2), np.inf)
+    order = np.argsort(dist, axis=1, kind="stable")
+    rows, got = np.arange(P), np.zeros(P, np.int64)
+    for j in range(R):
+        r = order[:, j]
+        q = c[rows, r]
+        take = use[rows, r] & (got < k)
+        near = np.linalg.norm(cand - q[:, None, :], axis=2) < margin
+        take &= ~np.any(near & ok, axis=1)
+        cand[rows[take], got[take]] = q[take]
+        ok[rows[take], got[take]] = True
+        got[take] += 1
+    return cand, ok
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_exit_candidates_equal_the_vectorized_version(seed):
+    """The numba loop picks the same candidates as the numpy version it replaced, on random rays (duplicates within
+    the margin, exits beyond the limit and the box, misses)."""
+    from workers.kernels.relocation import exit_candidates
+
+    rng = np.random.default_rng(seed)
+    P, R, T = 40, 48, 30
+    d = rng.normal(size=(R, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    normals = rng.normal(size=(T, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    t = np.round(rng.uniform(0.05, 1.5, (P, R)), 1)            # rounded: equal distances, ties in the order
+    t[rng.random((P, R)) < 0.2] = np.inf
+    back = rng.random((P, R)) < 0.6
+    tri = np.where(np.isfinite(t), rng.integers(0, T, (P, R)), -1)
+    base = rng.normal(size=(P, 3))
+    positions = base + rng.uniform(-0.2, 0.2, (P, 3))
+    box = (base.min(axis=0) - 0.5, base.max(axis=0))
+    for bx in (None, box):
+        want = _exit_candidates_vectorized(base, positions, t, back, tri, d, normals, np.full(3, 0.9), 0.2, 6, bx)
+        got = exit_candidates(base, positions, t, back, tri, d, normals, np.full(3, 0.9), 0.2, 6, bx)
+        np.testing.assert_array_equal(got[1], want[1])
+        np.testing.assert_array_equal(got[0], want[0])
+        assert want[1].sum() > P                                 # several candidates a probe: the greedy loop ran

@@ -80,6 +80,24 @@ def test_two_rooms_wall_probes_relocate_out_or_off(tmp_path, scene_files):
     assert interior.sum() > 0 and np.all(states[interior] == ACTIVE)
 
 
+def test_settled_probes_are_not_traced_again_and_change_nothing(tmp_path, scene_files, monkeypatch):
+    """The iterations after the first trace only the probes that can still move (kernels/relocation.py
+    ``settled``): two-rooms at a grid with probes in its walls and in open air gets the offsets of tracing every
+    probe every iteration, bit for bit, from fewer probe traces."""
+    from workers.stages import relocate as stage
+
+    cfg = {"place": {"counts": [12, 5, 6]}, "trace": {"rays_per_probe": 128}}
+    _, s = bake_until(tmp_path / "a", scene_files["two-rooms"], cfg, "relocate")
+    monkeypatch.setattr(stage, "settled", lambda offsets, *a: np.zeros(offsets.shape[0], bool))
+    _, every = bake_until(tmp_path / "b", scene_files["two-rooms"], cfg, "relocate")
+    P, iters = 12 * 5 * 6, 5
+    assert every["relocate"].stats["traced"] == P * iters
+    assert s["relocate"].stats["traced"] < 0.8 * P * iters
+    assert s["relocate"].stats["moved"] > 0 and s["relocate"].stats["rescued"] > 0    # the rescue ran on both
+    np.testing.assert_array_equal(s["relocate"]["probe_offsets"], every["relocate"]["probe_offsets"])
+    assert s["relocate"].stats["inside"] == every["relocate"].stats["inside"]
+
+
 def test_sealed_box_wall_probes_off(tmp_path, scene_files):
     # a grid inside the box's walls: probes at x = ±0.475 (inside the 5 cm walls) and inside the cavity; no
     # relocation (neither the Fig 7 iterations nor the rescue), so the classification alone is tested

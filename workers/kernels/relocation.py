@@ -1,4 +1,5 @@
-"""One iteration of the probe position optimizer (DDGI-P §5, Fig 7), for all probes at once (numpy only).
+"""One iteration of the probe position optimizer (DDGI-P §5, Fig 7), for all probes at once (numpy; the rescue's
+candidate selection in numba).
 
 Per probe, from one spherical ray cast (:func:`workers.raycast.probes.trace_probes`):
 
@@ -12,6 +13,14 @@ Per probe, from one spherical ray cast (:func:`workers.raycast.probes.trace_prob
 
 A new offset is kept only when it stays within the limit on every axis (RTXGI). Consumer: stage
 ``relocate`` (5 iterations, DDGI-P §5: "runs for 5 iterations"). Inverse: none.
+
+**Settled probes** (:func:`settled`): the iterations after the first trace only the probes that can still move. A
+probe that did not move is left alone from then on when its rays leave no doubt that no rotation of the pattern
+will move it: outside (no back face at all) with its nearest front face more than ``SETTLE_FRONT`` × the move
+threshold away, or inside with its nearest back face more than ``SETTLE_BACK`` × the farthest the limit lets it
+go (its exit lies beyond the limit). 256 rays are 12.6° apart, so a wall that near is hit; a surface small enough
+to slip between them could still be found by a later rotation, which the stage gives up. On zdm2-sauerbraten
+(20,387 probes) the iterations cast 10.6 M rays instead of 26.1 M and every offset is the same.
 
 **Rescue** (:func:`rescue`, after the iterations; not in the paper): DDGI-P §6.1 turns off the probes the grid
 constrains too much to leave a wall ("some probes are too constrained by the grid structure"). With the RTXGI
@@ -33,10 +42,11 @@ cell or less from its grid point, as they take a relocated one's at 0.45.
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
 
-__all__ = ["relocation_step", "exit_candidates", "free_space", "rescue", "RESCUE_CANDIDATES", "RESCUE_RAYS",
+__all__ = ["relocation_step", "settled", "exit_candidates", "free_space", "rescue", "RESCUE_CANDIDATES", "RESCUE_RAYS",
            "RESCUE_CROSSINGS", "RESCUE_MARGIN"]
 
 RESCUE_CANDIDATES = 6
@@ -45,11 +55,14 @@ RESCUE_CANDIDATES = 6
 RESCUE_RAYS = 64
 """Rays of the free-space test of each candidate."""
 
-CHUNK_PROBES = 2048
-"""Probes per batch of :func:`exit_candidates` (its arrays are chunk × rays × 3)."""
-
 RESCUE_CROSSINGS = 3
 """Hits followed along each ray of a stuck probe (the exits past the first hit: a wall's outer face, another solid)."""
+
+SETTLE_FRONT = 2.0
+"""An outside probe whose nearest front face is this many times the move threshold (0.1 min spacing) away is settled."""
+
+SETTLE_BACK = 1.5
+"""An inside probe whose nearest back face is this many times its reach (limit + offset, metres) away is settled."""
 
 RESCUE_MARGIN = 0.1
 """Distance kept from the exit face, × the smallest spacing (RTXGI's probeMinFrontfaceDistance is 0.1 spacing)."""
@@ -116,6 +129,76 @@ def relocation_step(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, dirs: 
     return np.where(ok[:, None], full, offsets)
 
 
+def settled(offsets: np.ndarray, t: np.ndarray, back: np.ndarray, moved: np.ndarray, limit: np.ndarray,
+            min_spacing: float, backface_fraction: float) -> np.ndarray:
+    """(P,) bool: the probes that later iterations need not trace again (module doc, "Settled probes").
+
+    ``offsets`` (P, 3) the offsets after this iteration, metres; ``t`` (P, R) this iteration's hit distances
+    (inf = miss), ``back`` (P, R) its back-face flags, ``moved`` (P,) whether the iteration moved the probe;
+    ``limit`` (3,) the per-axis offset limit, metres; ``min_spacing`` and ``backface_fraction`` as in
+    :func:`relocation_step`.
+    """
+    R = t.shape[1]
+    n_back = back.sum(axis=1)
+    front = np.where(back, np.inf, t).min(axis=1)
+    far_front = (n_back == 0) & (front > SETTLE_FRONT * 0.1 * min_spacing)
+    inside = n_back > backface_fraction * R
+    nearest_back = np.where(back, t, np.inf).min(axis=1)
+    reach = float(np.linalg.norm(limit)) + np.linalg.norm(offsets, axis=1)
+    deep = inside & (nearest_back > SETTLE_BACK * reach)
+    return (far_front | deep) & ~np.asarray(moved, bool)
+
+
+@njit(cache=True, nogil=True)
+def _exit_candidates(base, positions, t, back, tri, d, normals, limit, margin, k, box_lo, box_hi, has_box, cand, ok):
+    """The loop of :func:`exit_candidates` (same arguments, float64 arrays), probe by probe: each back-face hit's
+    exit point moved ``margin`` along the outward normal, kept within the limit and the box, taken nearest
+    ``base`` first (stable) unless within ``margin`` of one already taken, up to ``k``."""
+    P, R = t.shape
+    c = np.empty((R, 3))
+    dist = np.empty(R)
+    for p in range(P):
+        for r in range(R):
+            dist[r] = np.inf
+            tt = t[p, r]
+            if not (back[p, r] and np.isfinite(tt)):
+                continue
+            tr = tri[p, r]
+            n0, n1, n2 = normals[tr, 0], normals[tr, 1], normals[tr, 2]
+            if n0 * d[r, 0] + n1 * d[r, 1] + n2 * d[r, 2] < 0:               # outward: along the exiting ray
+                n0, n1, n2 = -n0, -n1, -n2
+            inside_limit = True
+            for j in range(3):
+                cj = positions[p, j] + d[r, j] * tt + margin * (n0 if j == 0 else (n1 if j == 1 else n2))
+                c[r, j] = cj
+                if not abs(cj - base[p, j]) <= limit[j]:
+                    inside_limit = False
+                if has_box and not (cj >= box_lo[j] and cj <= box_hi[j]):
+                    inside_limit = False
+            if inside_limit:
+                e0, e1, e2 = c[r, 0] - base[p, 0], c[r, 1] - base[p, 1], c[r, 2] - base[p, 2]
+                dist[r] = np.sqrt(e0 * e0 + e1 * e1 + e2 * e2)
+        order = np.argsort(dist, kind="mergesort")
+        got = 0
+        for j in range(R):
+            r = order[j]
+            if got >= k or not np.isfinite(dist[r]):
+                break                                                          # sorted: the rest are unused
+            dup = False
+            for g in range(got):
+                dx = cand[p, g, 0] - c[r, 0]
+                dy = cand[p, g, 1] - c[r, 1]
+                dz = cand[p, g, 2] - c[r, 2]
+                if np.sqrt(dx * dx + dy * dy + dz * dz) < margin:
+                    dup = True
+                    break
+            if not dup:
+                for i in range(3):
+                    cand[p, got, i] = c[r, i]
+                ok[p, got] = True
+                got += 1
+
+
 def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back: np.ndarray, tri: np.ndarray,
                     dirs: np.ndarray, normals: np.ndarray, limit: np.ndarray, margin: float,
                     k: int = RESCUE_CANDIDATES, box: tuple | None = None) -> tuple[np.ndarray, np.ndarray]:
@@ -145,35 +228,11 @@ def exit_candidates(base: np.ndarray, positions: np.ndarray, t: np.ndarray, back
     P, R = t.shape
     cand = np.zeros((P, k, 3))
     ok = np.zeros((P, k), bool)
-    d = np.asarray(dirs, np.float64)
-    for a in range(0, P, CHUNK_PROBES):                                        # bounds the (chunk, R, 3) arrays
-        b = min(a + CHUNK_PROBES, P)
-        tc = np.asarray(t[a:b], np.float64)
-        use = np.asarray(back[a:b], bool) & np.isfinite(tc)
-        n = np.asarray(normals, np.float64)[np.where(use, tri[a:b], 0)]         # (c, R, 3)
-        n *= np.where(np.einsum("crj,rj->cr", n, d) < 0, -1.0, 1.0)[..., None]  # outward: along the exiting ray
-        c = positions[a:b, None, :] + d[None] * np.where(use, tc, 0.0)[..., None] + margin * n
-        use &= np.all(np.abs(c - base[a:b, None, :]) <= limit, axis=2)
-        if box is not None:
-            use &= np.all((c >= np.asarray(box[0])) & (c <= np.asarray(box[1])), axis=2)
-        dist = np.where(use, np.linalg.norm(c - base[a:b, None, :], axis=2), np.inf)
-        order = np.argsort(dist, axis=1, kind="stable")
-        rows = np.arange(b - a)
-        got = np.zeros(b - a, np.int64)
-        for j in range(R):                                                     # greedy, nearest first
-            r = order[:, j]
-            q = c[rows, r]
-            take = use[rows, r] & (got < k)
-            if not take.any():
-                if not use[rows, r].any():
-                    break                                                      # sorted: the rest are unused too
-                continue
-            near = np.linalg.norm(cand[a + rows] - q[:, None, :], axis=2) < margin
-            take &= ~np.any(near & ok[a + rows], axis=1)
-            i = a + rows[take]
-            cand[i, got[take]] = q[take]
-            ok[i, got[take]] = True
-            got[take] += 1
+    lo, hi = (np.zeros(3), np.zeros(3)) if box is None else (np.asarray(box[0], np.float64), np.asarray(box[1], np.float64))
+    f64 = lambda x: np.ascontiguousarray(x, np.float64)  # noqa: E731
+    _exit_candidates(f64(base), f64(positions), f64(t), np.ascontiguousarray(back, bool),
+                     np.ascontiguousarray(tri, np.int64), f64(dirs), f64(normals), f64(limit), float(margin), int(k),
+                     lo, hi, box is not None, cand, ok)
     return cand, ok
 
 

@@ -3,7 +3,9 @@
 Each of ``relocate_iterations`` iterations traces ``rays_per_probe`` rays per probe on a spherical
 Fibonacci pattern under a fresh random rotation (seeded; :func:`workers.raycast.probes.trace_probes`), then
 applies the Fig 7 optimizer per probe (:func:`workers.kernels.relocation.relocation_step`), with the offset
-limit ``max_offset × spacing`` (RTXGI). Back faces of double-sided materials count as front faces (a thin
+limit ``max_offset × spacing`` (RTXGI). After the first iteration only the probes that can still move are traced
+(:func:`workers.kernels.relocation.settled`: not those in open air far from any surface, nor those deep in a
+solid; stat ``traced``, the probe traces of all iterations). Back faces of double-sided materials count as front faces (a thin
 double-sided plane has no inside). Then the probes still inside geometry move to the nearest free-space point
 within ``rescue_offset × spacing`` and the grid's box (:func:`workers.kernels.relocation.rescue`;
 ``rescue_offset = 0``: none, as DDGI-P), keeping ``0.1 × min spacing`` from the surface they leave through; stats ``inside`` (before the rescue),
@@ -18,7 +20,7 @@ import numpy as np
 
 from workers.kernels.grid import base_positions
 from workers.kernels.materials import double_sided_triangles
-from workers.kernels.relocation import RESCUE_MARGIN, relocation_step, rescue
+from workers.kernels.relocation import RESCUE_MARGIN, relocation_step, rescue, settled
 from workers.kernels.sampling import fibonacci_sphere, random_rotation
 from workers.raycast import caster_for_scene
 from workers.raycast.probes import trace_probes
@@ -44,15 +46,22 @@ def run_relocate(ctx: StageContext) -> StageOutput:
     offsets = np.zeros((P, 3))
     rays, ray_seconds = 0, 0.0
     iters = sec.relocate_iterations
-    check = None                                     # the probes the rescue traces: inside at the last iteration
+    active = np.arange(P)                            # the probes this iteration traces (all, the first time)
+    inside = np.zeros(P, bool)                       # inside at the last iteration that traced the probe
+    traced = 0
     for it in range(iters):
         dirs = (pattern.astype(np.float64) @ random_rotation(rng).T).astype(np.float32)
-        t, _, _, _, back, s = trace_probes(caster, base + offsets, dirs, ds)
+        t, _, _, _, back, s = trace_probes(caster, base[active] + offsets[active], dirs, ds)
         rays += t.size
         ray_seconds += s
-        offsets = relocation_step(offsets, t, back, dirs, limit, min_spacing, sec.backface_fraction)
-        check = np.flatnonzero(back.sum(axis=1) > sec.backface_fraction * back.shape[1])   # may still be inside
+        traced += active.size
+        new = relocation_step(offsets[active], t, back, dirs, limit, min_spacing, sec.backface_fraction)
+        moved = np.any(new != offsets[active], axis=1)
+        offsets[active] = new
+        inside[active] = back.sum(axis=1) > sec.backface_fraction * back.shape[1]
+        active = active[~settled(new, t, back, moved, limit, min_spacing, sec.backface_fraction)]
         ctx.report((it + 1) / max(iters, 1) * 0.8)
+    check = np.flatnonzero(inside) if iters else None          # may still be inside: the rescue traces these
     res = {"inside": None, "rescued": 0}
     if sec.rescue_offset > sec.max_offset and P:
         offsets, res = rescue(caster, base, offsets, ds, sec.rescue_offset * spacing, RESCUE_MARGIN * min_spacing,
@@ -65,7 +74,7 @@ def run_relocate(ctx: StageContext) -> StageOutput:
     moved = np.any(offsets != 0, axis=1)
     rel = np.abs(offsets) / np.where(spacing > 0, spacing, 1.0)
     stats = {
-        "probes": P, "iterations": iters, "rays": rays, "ray_seconds": ray_seconds,
+        "probes": P, "iterations": iters, "traced": traced, "rays": rays, "ray_seconds": ray_seconds,
         "rays_per_second": rays / ray_seconds if ray_seconds > 0 else None,
         "moved": int(moved.sum()), "max_offset_fraction": float(rel.max()) if P else 0.0,
         "inside": res["inside"], "rescued": res["rescued"],
