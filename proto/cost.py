@@ -21,7 +21,8 @@ light      N' (shading, 8 occlusion rays a hit) × bounces N' hits and radiance,
            N' = N (1 + light.extra_rays), the adaptive rays
 visibility F × 8 corner rays × visibility.rays            F × 8 (θ) per shard; the join F × 9
 anneal     sweeps × P + F (edge loss)                    F × 9
-masks      F × K                                         F × K floats, P × K cluster SH volumes
+masks      F × K                                         F × K floats
+clusters   P × K                                         P × K cluster SH volumes
 compress   F × K                                         F × K
 prt        C × (M + N bounces) + lightmap texels         a batch × N + C × (P × SH + lightmap texels)
 reference  (points × spp + preview px × preview_spp) × ~3  the preview G-buffers and reference images
@@ -104,7 +105,8 @@ VIS_CHUNK_MEM = 130 * MB       # a full chunk of visibility rays (bounded by CHU
 VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
 FIELD_MEM_PER_SAMPLE = {"visibility": 44, "anneal": 15, "masks": 60, "compress": 27}
 FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 4, "compress": 1}
-MASK_MEM_PER_PROBE_CLUSTER = 2050   # masks: each cluster's L1 and L2 SH volumes over the probes, as it builds them
+MASK_MEM_PER_PROBE_CLUSTER = 2050   # clusters: each cluster's L1 and L2 SH volumes over the probes, as it builds them
+CLUSTER_SECONDS_PER_PROBE_CLUSTER = 6e-6   # clusters: zdm2 (20,387 probes, K = 4) 0.5 s
 PATH_CHUNK = 1 << 18          # paths in flight per wavefront chunk (workers.kernels.pathtrace.DEFAULT_MAX_PATHS)
 PATH_BYTES = 512              # bytes per path in flight (ibid.)
 PRT_FIXED_MEM = 100 * MB      # the measurement points, the lightmap's atlas (xatlas), the prt kernels
@@ -416,14 +418,15 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
     # the clusters (R8, 1 B a probe raw) and the loss after each sweep (float32)
     add("anneal", F * FIELD_SECONDS_PER_SAMPLE["anneal"] + config.masks.sweeps * P * ANNEAL_SECONDS_PER_PROBE_SWEEP,
         LIB_NUMBA + F * FIELD_MEM_PER_SAMPLE["anneal"] + P * 64, P / 2 + 4 * (config.masks.sweeps + 1) + 2 * H)
-    # the G dense mask volumes; the K clusters' SH volumes, each 0 outside its cluster (about one SH a probe as
-    # stored): L1 (3K RGBA16F volumes) and for L2 bakes the K L2 atlases (7 (nz + 2) slices); the G weight volumes
-    l2 = nx * ny * (nz + 2) * CLUSTER_L2_BYTES_PER_PROBE + K * H if sh_k == 9 else 0
+    # the G dense mask volumes
     add("masks", F * FIELD_SECONDS_PER_SAMPLE["masks"] * max(1.0, K / 4) ** 0.5,
-        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"])
-        + P * K * MASK_MEM_PER_PROBE_CLUSTER,
-        G * (min(F * 4, MASK_SURFACE_BYTES * surface) + H) + P * CLUSTER_L1_BYTES_PER_PROBE + 3 * K * H + l2
-        + G * (P * CLUSTER_WEIGHT_BYTES_PER_PROBE + H))
+        LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["masks"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["masks"]),
+        G * (min(F * 4, MASK_SURFACE_BYTES * surface) + H))
+    # the K clusters' SH volumes, each 0 outside its cluster (about one SH a probe as stored): L1 (3K RGBA16F
+    # volumes) and for L2 bakes the K L2 atlases (7 (nz + 2) slices); the G weight volumes
+    l2 = nx * ny * (nz + 2) * CLUSTER_L2_BYTES_PER_PROBE + K * H if sh_k == 9 else 0
+    add("clusters", P * K * CLUSTER_SECONDS_PER_PROBE_CLUSTER, LIB_SMALL + P * K * MASK_MEM_PER_PROBE_CLUSTER,
+        P * CLUSTER_L1_BYTES_PER_PROBE + 3 * K * H + l2 + G * (P * CLUSTER_WEIGHT_BYTES_PER_PROBE + H), rays=False)
     # the atlas of the non-constant (cell, cluster) blocks and the indirection (2 G RGBA8 texels a cell)
     add("compress", F * FIELD_SECONDS_PER_SAMPLE["compress"],
         LIB_NUMBA + F * (FIELD_MEM_PER_SAMPLE["compress"] + K * FIELD_MEM_PER_SAMPLE_CLUSTER["compress"]),

@@ -28,6 +28,7 @@ class StageDef:
     inputs: tuple[str, ...]             # upstream stages whose artifacts/stats it reads
     timeout: int = 3600                 # seconds, for the RQ job
     shards_from: str | None = None      # "section.field" giving a shard count: the stage fans out
+    inputs_when: tuple[tuple[str, str], ...] = ()   # (stage, "section.field"): read only when that field is true
     # set on the expanded entries of a sharded stage (see expand):
     shard: int | None = None            # this entry is shard `shard` of `shard_count` of `parent`
     shard_count: int | None = None
@@ -66,8 +67,13 @@ STAGES: tuple[StageDef, ...] = (
     # anneal 2: anneal_loss a float32 KTX2 table (was npy float64)
     StageDef("anneal", 2, ("masks.clusters", "masks.coloring", "masks.sweeps", "masks.regularization", "seed"),
              ("place", "trace", "visibility"), timeout=3600),
-    StageDef("masks", 2, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
-             ("place", "relocate", "trace", "light", "visibility", "anneal"), timeout=3600),
+    # masks 3: the cluster probe volumes moved to stage clusters; light read only by the light-aware fit (eq 9), so
+    # by default the masks and their compression run beside the light stage
+    StageDef("masks", 3, ("masks.sigma", "masks.light_aware", "masks.light_aware_penalty"),
+             ("place", "relocate", "trace", "visibility", "anneal"), timeout=3600,
+             inputs_when=(("light", "masks.light_aware"),)),
+    # each cluster's probes' SH and weights (MD §3.4): what the mask modes shade with, from the light and the colouring
+    StageDef("clusters", 1, (), ("place", "trace", "light", "anneal"), timeout=3600),
     # compress 3: the mask lookup's blend takes from the offset read only the clusters the point sees
     # (compress.lookup_blend; its lookup_error stat)
     StageDef("compress", 3, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
@@ -90,8 +96,8 @@ STAGES: tuple[StageDef, ...] = (
     # only the clusters the point sees (compress.lookup_blend, gi_mask.glsl); 6: the eval_points artifact (each mode
     # at the points: GET /v1/compare's paired standard errors)
     StageDef("evaluate", 6, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
-             ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
-              "reference"), timeout=7200),
+             ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "clusters", "compress",
+              "prt", "reference"), timeout=7200),
 )
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 
@@ -101,13 +107,23 @@ def shard_count(config: BakeConfig, st: StageDef) -> int:
     return int(getattr(getattr(config, section), field))
 
 
+def _field(config: BakeConfig, dotted: str):
+    section, field = dotted.split(".")
+    return getattr(getattr(config, section), field)
+
+
 def expand(config: BakeConfig) -> list[StageDef]:
     """The stages of a bake in run order, a sharded stage as its shards followed by its join.
 
-    Shard ``i`` of stage ``s`` is named ``s.i``; the join keeps the name ``s`` and reads every shard.
+    Shard ``i`` of stage ``s`` is named ``s.i``; the join keeps the name ``s`` and reads every shard. A stage's
+    ``inputs_when`` entries join its inputs when their config field is true (``masks`` reads ``light`` only for the
+    light-aware fit).
     """
     out: list[StageDef] = []
     for st in STAGES:
+        extra = tuple(dep for dep, field in st.inputs_when if _field(config, field))
+        if extra:
+            st = replace(st, inputs=st.inputs + extra)
         if st.shards_from is None:
             out.append(st)
             continue
@@ -121,8 +137,9 @@ def expand(config: BakeConfig) -> list[StageDef]:
 def dependencies(stages: list[StageDef]) -> dict[str, list[str]]:
     """Which stages' jobs each stage's job waits for: the stages among ``stages`` that it reads
     (``StageDef.inputs``; a join reads its shards), in run order. A DAG, not the run order's chain: the
-    reference waits only for ingest, visibility's shards and anneal for no light, so two workers run them beside
-    the light stage (DESIGN "Data flow"; :func:`workers.pipeline.bake_local` runs the CLI's bakes the same way)."""
+    reference waits only for ingest; visibility's shards, anneal, masks (without the light-aware fit) and compress
+    for no light, so two workers run them beside the light stage, and after it only ``clusters`` and evaluate are
+    left (DESIGN "Data flow"; :func:`workers.pipeline.bake_local` runs the CLI's bakes the same way)."""
     names = {st.name for st in stages}
     return {st.name: [d for d in st.inputs if d in names] for st in stages}
 

@@ -26,6 +26,7 @@ from proto.stages import STAGE_BY_NAME, build_manifest, plan
 from workers.scene import NormalizedScene
 from workers.stages.base import LazyArtifacts, StageContext, StageOutput
 from workers.stages.anneal import run_anneal
+from workers.stages.clusters import run_clusters
 from workers.stages.compress import run_compress
 from workers.stages.evaluate import run_evaluate
 from workers.stages.lighting import run_lighting
@@ -47,6 +48,7 @@ RUNNERS: dict[str, Callable[[StageContext], StageOutput]] = {
     "visibility": run_visibility,
     "anneal": run_anneal,
     "masks": run_masks,
+    "clusters": run_clusters,
     "compress": run_compress,
     "prt": run_prt,
     "reference": run_reference,
@@ -62,8 +64,8 @@ def load_scene(store: Store, scene_id: str) -> NormalizedScene:
     return NormalizedScene.from_bytes(store.read_bytes(scene_id))
 
 
-FRAME_STAGES = frozenset({"place", "relocate", "trace", "light", "visibility", "anneal", "masks", "compress", "prt",
-                          "evaluate"})
+FRAME_STAGES = frozenset({"place", "relocate", "trace", "light", "visibility", "anneal", "masks", "clusters",
+                          "compress", "prt", "evaluate"})
 """The stages that work in the bake frame (:mod:`workers.kernels.frame`): their ``ctx.scene`` is the scene turned by
 the place section's yaw, and (all but evaluate) their ``ingest`` input's lights and bounds are turned likewise.
 ``ingest`` and ``reference`` stay in the world frame (the reference is shared by bakes of any probe config);

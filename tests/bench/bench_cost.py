@@ -210,7 +210,7 @@ def check(files: list[str]) -> int:
     return 0
 
 
-BYTE_GROUPS = ("ingest", "trace", "light", "visibility", "anneal", "masks", "compress")
+BYTE_GROUPS = ("ingest", "trace", "light", "visibility", "anneal", "masks", "clusters", "compress")
 """The stages whose stored bytes ``--check`` shows one by one (a sharded stage with its shards)."""
 
 

@@ -232,7 +232,7 @@ def bake(name: str, work: Path, store_dir: Path | None, config: dict | None = No
 
 def merged_arrays(recs: dict) -> dict:
     out = {}
-    for st in ("relocate", "trace", "light", "visibility", "masks", "compress"):
+    for st in ("relocate", "trace", "light", "visibility", "masks", "clusters", "compress"):
         if st in recs:
             for n in recs[st].names():
                 out[n] = recs[st][n]

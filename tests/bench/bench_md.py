@@ -95,7 +95,7 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
     scene = ingest_file(path)
     recs, times = bake(store, scene, counts, lighting, tolerance)
     lazy = {k: v[1] for k, v in recs.items()}
-    info = {a["name"]: a for st in ("masks", "compress") for a in recs[st][0]["artifacts"]}
+    info = {a["name"]: a for st in ("masks", "clusters", "compress") for a in recs[st][0]["artifacts"]}
     place = lazy["place"].stats
     grid = {k: place[k] for k in ("counts", "origin", "spacing")}
     P = int(np.prod(place["counts"]))
@@ -138,7 +138,7 @@ def run(name: str, counts, store: Store, n_points: int, tolerance=None) -> dict:
     # GI error added, at surface points (L2, the runtime default)
     sp = area_points(scene, n_points, seed=0)
     pts, nrm = sp["position"], sp["normal"]
-    stored = {n: np.asarray(lazy["masks"][n]) for n in sh_names + w_names}
+    stored = {n: np.asarray(lazy["clusters"][n]) for n in sh_names + w_names}
     decomp = decompress_channels(np.asarray(lazy["compress"]["mask_atlas"]),
                                  np.asarray(lazy["compress"]["mask_indirection"]),
                                  {"samples_per_cell": S, "clusters": K})

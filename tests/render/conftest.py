@@ -19,11 +19,11 @@ def ctx():
 
 
 def bake_arrays(s: dict) -> dict:
-    """{artifact name: array} of the stages a GI mode reads (light, masks, compress, relocate, trace) that ran; with
+    """{artifact name: array} of the stages a GI mode reads (light, masks, clusters, compress, relocate, trace) that ran; with
     ``masks_0123`` / ``masks_4567`` the masks the compressed atlas stands for (what the runtime samples: the
     compression may be lossy, ``masks.compress_tolerance``)."""
     out = {}
-    for st in ("light", "masks", "compress", "relocate", "trace"):
+    for st in ("light", "masks", "clusters", "compress", "relocate", "trace"):
         if st in s:
             for n in s[st].names():
                 out[n] = s[st][n]

@@ -102,7 +102,7 @@ def test_furnace_every_mode_near_zero_error(tmp_path, scene_files):
     cfg = {"place": {"counts": [3, 3, 3], "box": {"min": lo, "max": hi}}, "scene": {"sky": [1, 1, 1]},
            "trace": {"rays_per_probe": 64}, "light": {"bounces": 1}, **MD_SMALL}
     scene, s = bake_until(tmp_path, scene_files["furnace"], cfg, "compress")
-    arrays = {n: s[st][n] for st in ("light", "relocate", "trace", "masks", "compress") for n in s[st].names()}
+    arrays = {n: s[st][n] for st in ("light", "relocate", "trace", "masks", "clusters", "compress") for n in s[st].names()}
     place = s["place"].stats
     grid = {k: place[k] for k in ("counts", "origin", "spacing")}
     S, T = 4, s["compress"].stats["block_size"]

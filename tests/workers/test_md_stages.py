@@ -1,4 +1,4 @@
-"""Stages anneal and masks (Mask Decomposition) on the procedural scenes, through the real pipeline
+"""Stages anneal, masks and clusters (Mask Decomposition) on the procedural scenes, through the real pipeline
 up to visibility, then the stage functions with a hand-built context."""
 from __future__ import annotations
 
@@ -13,7 +13,8 @@ from workers.kernels.grid import OFF
 from workers.kernels.mask_field import field_fractions, join_theta
 from workers.kernels.sh import sh_l2_atlas
 from workers.stages.anneal import run_anneal
-from workers.stages.base import LazyArtifacts, StageContext
+from workers.stages.base import LazyArtifacts, StageContext, StageOutput
+from workers.stages.clusters import run_clusters
 from workers.stages.masks import run_masks
 
 from tests.workers.test_probes import bake_until
@@ -39,12 +40,16 @@ def _lazy(out) -> LazyArtifacts:
     return LazyArtifacts(out.stats, {a.name: (lambda a=a: a.data) for a in out.artifacts})
 
 
-def _md(scene, s, cfg):
-    """Run anneal then masks on the baked inputs; returns (anneal output, masks output)."""
+def _md(scene, s, cfg, parts: bool = False):
+    """Run anneal, masks and clusters on the baked inputs; returns (anneal output, the masks' and the clusters'
+    outputs as one: their artifacts and stats together) — with ``parts`` also the two apart."""
     a = run_anneal(_ctx(scene, s, cfg))
     inputs = {**s, "anneal": _lazy(a)}
-    m = run_masks(_ctx(scene, inputs, cfg))
-    return a, m
+    light = inputs.pop("light")                 # the masks read no light (without the light-aware fit)
+    m = run_masks(_ctx(scene, {**inputs, "light": light} if cfg["masks"].get("light_aware") else inputs, cfg))
+    c = run_clusters(_ctx(scene, {**inputs, "light": light}, cfg))
+    both = StageOutput(artifacts=m.artifacts + c.artifacts, stats={**m.stats, **c.stats})
+    return (a, both, m, c) if parts else (a, both)
 
 
 def _arrays(s, m) -> dict:
@@ -99,8 +104,10 @@ def test_two_rooms_annealing_beats_random_and_is_seeded(tmp_path, scene_files, S
 def test_stage_outputs_layout(tmp_path, scene_files, K):
     cfg = _two_rooms_cfg(4, clusters=K, sweeps=200)
     scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
-    a, m = _md(scene, s, cfg)
+    a, m, masks, clusters = _md(scene, s, cfg, parts=True)
     arts = {x.name: x for x in a.artifacts + m.artifacts}
+    assert {x.name for x in masks.artifacts} == {"masks_0123"} | ({"masks_4567"} if K > 4 else set())
+    assert not {x.name for x in clusters.artifacts} & {x.name for x in masks.artifacts}
     nx, ny, nz = 9, 4, 5
     Z, Y, X = s["visibility"]["theta_0123"].shape[:3]
     assert arts["clusters"].data.shape == (nz, ny, nx, 1) and arts["clusters"].data.dtype == np.uint8
@@ -124,7 +131,7 @@ def test_stage_outputs_layout(tmp_path, scene_files, K):
     for i, c in enumerate("rgb"):     # from the light stage's float32 L1 (the bundle's sh_l1_* are RGBA16F)
         total = sum(arts[f"cluster_sh_{k}_{c}"].data for k in range(K))
         assert total.shape == (nz, ny, nx, 4) and total.dtype == np.float16            # RGBA16F (issue 17)
-        assert arts[f"cluster_sh_0_{c}"].zstd_level == 9      # workers/stages/masks.py ZSTD_PROBES
+        assert arts[f"cluster_sh_0_{c}"].zstd_level == 9      # workers/stages/clusters.py ZSTD_PROBES
         assert np.array_equal(total, np.where(on[..., None], s["light"]["sh_l1_full"][..., i], 0).astype(np.float16))
     # the L2 cluster volumes (sh_l2 layout) partition the probes' 9 coefficients the same way
     from workers.kernels.sh import sh_l2_atlas_depth, sh_l2_from_atlas
@@ -371,8 +378,11 @@ def test_light_aware_fit_brings_mask_gi_closer(tmp_path, scene_files):
     scene, s = _bake(tmp_path, scene_files["two-rooms"], cfg)
     a = run_anneal(_ctx(scene, s, cfg))
     inputs = {**s, "anneal": _lazy(a)}
-    plain = run_masks(_ctx(scene, inputs, cfg))
+    clusters = run_clusters(_ctx(scene, inputs, cfg)).artifacts               # the probes' side: the same for both
+    plain = run_masks(_ctx(scene, {k: v for k, v in inputs.items() if k != "light"}, cfg))
     fitted = run_masks(_ctx(scene, inputs, _two_rooms_cfg(8, light_aware=True)))
+    plain = StageOutput(artifacts=plain.artifacts + clusters, stats=plain.stats)
+    fitted = StageOutput(artifacts=fitted.artifacts + clusters, stats=fitted.stats)
     la = fitted.stats["light_aware"]
     assert plain.stats["light_aware"] is None
     assert la["loss_after"] < 0.5 * la["loss_before"]

@@ -35,7 +35,11 @@ def test_dependencies_are_the_stages_inputs():
     assert deps["reference"] == ["ingest"]                                   # beside every probe stage
     assert deps["visibility.0"] == deps["visibility.1"] == ["place", "relocate", "trace"]   # beside light
     assert deps["visibility"] == ["place", "relocate", "trace", "visibility.0", "visibility.1"]
-    assert "light" not in deps["anneal"] and "light" in deps["masks"]
+    assert "light" not in deps["anneal"] and "light" in deps["clusters"]
+    # the masks and their compression read no light unless the masks are fitted to it (eq 9)
+    assert "light" not in deps["masks"] and deps["compress"] == ["place", "masks"]
+    aware = dependencies(expand(BakeConfig.model_validate({**SMALL, "masks": {**SMALL["masks"], "light_aware": True}})))
+    assert "light" in aware["masks"]
     assert set(deps["evaluate"]) == set(STAGE_BY_NAME["evaluate"].inputs)
     # the light stage's chain is still there: each probe stage waits for the one it reads
     assert deps["light"] == ["ingest", "place", "relocate", "trace"]
@@ -62,7 +66,8 @@ def test_enqueued_jobs_wait_only_for_their_inputs(tmp_path):
         assert waits["ingest"] == []
         assert waits["reference"] == [jid("ingest")]
         assert waits["visibility.0"] == sorted(jid(d) for d in ("place", "relocate", "trace"))
-        assert jid("light") not in waits["anneal"] and jid("light") in waits["masks"]
+        assert jid("light") not in waits["anneal"] and jid("light") in waits["clusters"]
+        assert jid("light") not in waits["masks"] and jid("light") not in waits["compress"]
         assert len(Job.fetch(ids[-1], connection=conn).dependency_ids) == len(names)   # finish waits for all
         conn.close()
     finally:
@@ -117,7 +122,7 @@ def test_a_failing_stage_stops_what_reads_it(tmp_path, two_rooms, monkeypatch):
     with pytest.raises(StageError, match="on purpose"):
         pipeline.bake_local(Store(tmp_path / "s"), two_rooms, config, concurrency=2)
     assert "trace" in ran
-    assert not {"light", "visibility.0", "visibility.1", "anneal", "masks", "evaluate"} & set(ran)
+    assert not {"light", "visibility.0", "visibility.1", "anneal", "masks", "clusters", "evaluate"} & set(ran)
 
 
 INTERRUPT_SCRIPT = r"""

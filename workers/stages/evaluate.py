@@ -36,7 +36,7 @@ from workers.kernels.reference_layout import point_columns
 from workers.render.previews import HEATMAP_VMAX, mode_previews, mode_resources, png_supported
 from workers.stages.base import Artifact, LazyArtifacts, StageContext, StageOutput, jsonable, samples_per_cell
 
-INPUTS = ("light", "relocate", "trace", "masks", "compress", "prt")
+INPUTS = ("light", "relocate", "trace", "masks", "clusters", "compress", "prt")
 """The stages whose artifacts the modes read, by name (a later stage's name wins)."""
 SETTINGS = ("cameras", "width", "height", "fov_y", "spp", "preview_spp", "bounces", "surface_points", "sampling",
             "previews", "modes", "repeats", "flip")
