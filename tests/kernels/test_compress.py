@@ -349,7 +349,7 @@ def _ctx(volumes: dict, counts, origin, spacing, S, tol=0.0, K=None):
 def test_stage_run_compress(two):
     from proto.ktx2 import decode_ktx2, encode_ktx2
     from workers.kernels.mask_atlas import decompress_channels
-    from workers.stages.compress import run_compress
+    from workers.stages.compress import ZSTD_LEVEL, run_compress
 
     rng = np.random.default_rng(13)
     counts, origin, spacing, S = (7, 4, 5), np.array([0.0, 1.0, -1.0]), np.array([0.5, 0.5, 0.6]), 8
@@ -377,7 +377,7 @@ def test_stage_run_compress(two):
     assert atlas.dtype == np.uint8 and atlas.ndim == 4 and atlas.shape[3] == 1 and arts["mask_atlas"].meta == meta
     stored = 0
     for x in (atlas, ind):
-        back, info = decode_ktx2(encode_ktx2(x, zstd_level=19))            # R8 / RGBA8 3D KTX2
+        back, info = decode_ktx2(encode_ktx2(x, zstd_level=ZSTD_LEVEL))    # R8 / RGBA8 3D KTX2, as stored
         np.testing.assert_array_equal(back.reshape(x.shape), x)
         stored += info["byte_length"]
     assert st["compressed_zstd_bytes"] == stored      # the stats' sizes are the frames the artifacts store

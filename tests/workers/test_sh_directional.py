@@ -107,7 +107,7 @@ def test_open_lit_floor_against_cycles(tmp_path, scene_files):
     lo = np.asarray(g["origin"])
     cfg = {"place": {"counts": g["counts"], "box": {"min": lo.tolist(),
                                                      "max": (lo + np.asarray(g["spacing"]) * 7).tolist()}}}
-    _, s = bake_until(tmp_path, scene_files["sealed-box"], cfg, "masks")
+    _, s = bake_until(tmp_path, scene_files["sealed-box"], cfg, "clusters")
     grid = {k: s["place"].stats[k] for k in ("counts", "origin", "spacing")}
     P = np.asarray(points["points"])
     # 1. the stored probe SH at the probe positions (they are grid positions; relocation moved none here)
@@ -128,7 +128,7 @@ def test_open_lit_floor_against_cycles(tmp_path, scene_files):
     assert np.nanmax(worst["L1 non-linear"][0]) > 0.2                        # what L2 replaced
     # 2. the runtime modes at free-space points (their default is L2: the bake has the L2 volumes)
     arrays = {}
-    for st in ("light", "masks", "visibility"):
+    for st in ("light", "masks", "clusters", "visibility"):
         for n in s[st].names():
             arrays[n] = s[st][n]
     opened = points["regions"]["open"]
