@@ -107,6 +107,21 @@ def test_concurrent_bake_equals_the_sequential_one_and_overlaps(tmp_path, two_ro
             assert first(dep, 1.0) < first(st.name, 0.0), (st.name, dep)
 
 
+def test_a_stage_runs_with_one_blas_thread(tmp_path, two_rooms, monkeypatch):
+    """OpenBLAS's threads spin beside the other stage (workers/pipeline.py BLAS_THREADS): the first stage a process
+    runs sets every loaded OpenBLAS to one thread."""
+    from threadpoolctl import threadpool_info, threadpool_limits
+
+    monkeypatch.setattr(pipeline, "_blas_limited", False)
+    with threadpool_limits(limits=2, user_api="blas"):
+        assert {i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"} == {2}
+        store = Store(tmp_path / "s")
+        sid = store.put_bytes(two_rooms.to_bytes())
+        pipeline.execute_stage(store, sid, BakeConfig.model_validate(SMALL), "ingest")
+        blas = [i for i in threadpool_info() if i["user_api"] == "blas"]
+        assert blas and {i["num_threads"] for i in blas} == {pipeline.BLAS_THREADS} == {1}
+
+
 def test_a_failing_stage_stops_what_reads_it(tmp_path, two_rooms, monkeypatch):
     config = BakeConfig.model_validate(SMALL)
     real = pipeline.execute_stage
