@@ -257,3 +257,36 @@ def test_near_field_leaves_hits_without_occlusion_bit_identical():
     ref2 = integrate_one(index, miss, albedo, e, dirs, states, N, gather, bounces=2, max_bounces=2, tolerance=0)
     changed = np.flatnonzero(np.any(got[1].reshape(-1, 3) != ref2[1].reshape(-1, 3), axis=1))
     assert set(changed.tolist()) <= {int(index[3]), int(index[7])} and changed.size >= 1
+
+
+@pytest.mark.parametrize("P, T, nb", [(5, 100, 1), (3000, 144, 2), (7, 324, 3)])
+def test_channel_sums_are_numpys_float64_sums(P, T, nb):
+    """The convergence statistics' per-probe sums (bounce._channel_sums) are numpy's, bit for bit, over values spread
+    across six decades (where the summation order shows)."""
+    from workers.kernels.bounce import _channel_sums
+
+    rng = np.random.default_rng(P)
+    x = (rng.random((P, T, 3 * nb)) * 10 ** rng.uniform(-3, 3, (P, T, 3 * nb))).astype(np.float32)
+    want = x.reshape(P, T, nb, 3).sum(axis=1, dtype=np.float64)
+    np.testing.assert_array_equal(_channel_sums(x).reshape(P, nb, 3), want)
+
+
+@pytest.mark.parametrize("previous", [False, True])
+def test_add_tail_is_the_numpy_expression(previous):
+    """bounce._add_tail adds ρ·ΔE·f to the stopping configurations' rays as the numpy expression it replaced does,
+    float32 for float32 (two of three configurations stopping: a column pick)."""
+    from workers.kernels.bounce import _add_tail
+
+    rng = np.random.default_rng(3)
+    H, P, B, rows_all = 500, 40, 3, 900
+    rows = rng.permutation(rows_all)[:H].astype(np.int64)
+    rho, e_ind, e_prev = (rng.random((H, 3 * B), dtype=np.float32) for _ in range(3))
+    cols = np.array([0, 1, 2, 6, 7, 8], np.int64)
+    f = rng.random((P, cols.size), dtype=np.float32) * 3
+    hit_probe = rng.integers(0, P, H).astype(np.int64)
+    picked = rng.random((rows_all, cols.size), dtype=np.float32)
+    want = picked.copy()
+    d_e = e_ind[:, cols] - e_prev[:, cols] if previous else e_ind[:, cols]
+    want[rows] += rho[:, cols] * d_e * f[hit_probe]
+    _add_tail(picked, rows, rho, e_ind, e_prev if previous else np.zeros((0, 0), np.float32), cols, f, hit_probe)
+    np.testing.assert_array_equal(picked, want)

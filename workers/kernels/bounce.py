@@ -185,6 +185,35 @@ def _shade_hits(radiance, index, base, rho, e_indirect):
             radiance[r, c] = base[h, c] + rho[h, c] * e_indirect[h, c]
 
 
+@njit(cache=True, nogil=True)
+def _channel_sums(x):
+    """(P, C) float64: ``x.sum(axis=1, dtype=np.float64)`` of a (P, T, C) float32 array, summed over T in order as numpy
+    sums a non-contiguous axis (the same floats; one pass, no strided temporaries)."""
+    P, T, C = x.shape
+    out = np.zeros((P, C))
+    for p in range(P):
+        for t in range(T):
+            for c in range(C):
+                out[p, c] += np.float64(x[p, t, c])
+    return out
+
+
+@njit(cache=True, nogil=True)
+def _add_tail(picked, rows, rho, e_ind, e_prev, cols, f, hit_probe):
+    """The series' tail on the rays of the stopping configurations (:func:`integrate`), in place and float32 as numpy
+    computes ``picked[rows] += rho[:, cols] · (e_ind[:, cols] − e_prev[:, cols]) · f[hit_probe]`` (``e_prev`` of shape
+    (0, 0): no previous bounce, ΔE = e_ind). ``picked`` (rows, J) holds the columns ``cols`` (J,) of the hits' (H, ·)
+    arrays; ``f`` (P, J) the per-probe factors, ``hit_probe`` (H,) each hit's probe."""
+    first = e_prev.shape[0] == 0
+    for h in range(rows.shape[0]):
+        r = rows[h]
+        p = hit_probe[h]
+        for j in range(cols.shape[0]):
+            c = cols[j]
+            d = e_ind[h, c] if first else e_ind[h, c] - e_prev[h, c]
+            picked[r, j] += rho[h, c] * d * f[p, j]
+
+
 @dataclass
 class BounceLog:
     """What each configuration's series did. ``bounces`` (B,) int64; per configuration, per bounce:
@@ -324,7 +353,7 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         step = np.abs(diff)
         # per probe, configuration and channel: the increments the tail is estimated from (workers.kernels.convergence)
         value = np.abs(new).reshape(P, -1, nb, 3).sum(axis=(1, 3), dtype=np.float64)
-        deltas = (deltas + [step.reshape(P, -1, nb, 3).sum(axis=1, dtype=np.float64)])[-4:]
+        deltas = (deltas + [_channel_sums(step.reshape(P, -1, 3 * nb)).reshape(P, nb, 3)])[-4:]
         if extrapolate:     # the residual after the tail is added, and the factor that adds it
             residual, factor = extrapolated_tail(deltas, value)
         else:               # ρ_p(b), max over probes that matter
@@ -352,8 +381,8 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
         if extrapolate and b >= 4:  # the tail, E_∞ ≈ E_b + f·(E_b − E_{b−1}) per probe and channel (convergence doc)
             f = factor[:, done].reshape(P, -1).astype(np.float32)             # (P, 3·done)
             out = out + diff[..., cols] * f[:, None, None, :]
-            d_e = e_ind[:, cols] if e_prev is None else e_ind[:, cols] - e_prev[:, cols]
-            picked[rows] += rho[:, cols] * d_e * f[hit_probe]                 # the rays: L_b − L_{b−1} = ρ·ΔE
+            _add_tail(picked, rows, rho, e_ind, np.zeros((0, 0), np.float32) if e_prev is None else e_prev, cols,
+                      np.ascontiguousarray(f), hit_probe)                  # the rays: L_b − L_{b−1} = ρ·ΔE
         held = picked.reshape(R, rows_all, -1)
         held = held if accumulate.inv is None else held[:, accumulate.inv]                # probe order
         retire(live[done], held.transpose(1, 0, 2), out, b)
