@@ -21,7 +21,7 @@ threshold away, or inside with its nearest back face more than ``SETTLE_BACK`` �
 go (its exit lies beyond the limit). 256 rays are 12.6° apart, so a wall that near is hit; a surface small enough
 to slip between them could still be found by a later rotation, which the stage gives up. On zdm2-sauerbraten
 (20,387 probes) the iterations cast 10.6 M rays instead of 26.1 M and every offset is the same; so on the default grids
-of godot-living-room, truck-town, both real Cornell boxes and six procedural interiors (21-47% of the probe traces).
+of godot-living-room, truck-town, both real Cornell boxes and five procedural scenes (21-47% of the probe traces).
 
 **Rescue** (:func:`rescue`, after the iterations; not in the paper): DDGI-P §6.1 turns off the probes the grid
 constrains too much to leave a wall ("some probes are too constrained by the grid structure"). With the RTXGI
