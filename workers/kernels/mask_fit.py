@@ -25,7 +25,7 @@ import numpy as np
 from workers.kernels.mask_field import (check_counts, check_field, check_labels, corner_probe, corner_weight,
                                         field_fractions, off_flags)
 
-__all__ = ["fit_masks", "mask_residual", "light_aware_fit", "fill_dont_care", "gaussian_filter", "quantize",
+__all__ = ["rgba_group", "fit_masks", "mask_residual", "light_aware_fit", "fill_dont_care", "gaussian_filter", "quantize",
            "cluster_volumes", "canonicalize", "half_volume"]
 
 
@@ -491,6 +491,15 @@ def canonicalize(q: np.ndarray, dont_care: np.ndarray, counts, S: int, g, K: int
 
 
 HALF_MAX = 65504.0  # the largest float16
+
+
+def rgba_group(channels: np.ndarray, start: int) -> np.ndarray:
+    """Channels ``start … start + 3`` of (..., K) as (..., 4), zero-padded past K: one RGBA volume of a group of four
+    clusters (``masks_0123``, ``cluster_weights_4567``, …)."""
+    out = np.zeros(channels.shape[:-1] + (4,), channels.dtype)
+    part = channels[..., start:start + 4]
+    out[..., :part.shape[-1]] = part
+    return np.ascontiguousarray(out)
 
 
 def half_volume(a, clamped: list) -> np.ndarray:

@@ -111,6 +111,14 @@ class LazyArtifacts:
         return sorted(self._loaders)
 
 
+def probe_sh_l1(light) -> np.ndarray:
+    """The light stage's float32 L1 volumes (nz, ny, nx, 4, 3) from its outputs ``light`` (``sh_l1_full``; older
+    bakes: the stored ``sh_l1_{r,g,b}``): what the masks' light-aware fit and the cluster volumes read."""
+    if "sh_l1_full" in light:
+        return np.asarray(light["sh_l1_full"], np.float32)
+    return np.stack([light[f"sh_l1_{c}"] for c in "rgb"], axis=-1).astype(np.float32)
+
+
 def samples_per_cell(config: BakeConfig, place_stats: dict) -> int:
     """The visibility field's samples per cell axis S (MD §3.4): the config's, else the automatic grid's
     choice (``grid.auto.samples_per_cell``: both sides of the thinnest walls), else 8."""

@@ -26,10 +26,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from workers.kernels.mask_fit import cluster_volumes, half_volume as _half
+from workers.kernels.mask_fit import cluster_volumes, half_volume as _half, rgba_group
 from workers.kernels.sh import sh_l2_atlas
-from workers.stages.base import Artifact, StageContext, StageOutput
-from workers.stages.masks import _rgba, probe_sh_l1
+from workers.stages.base import Artifact, StageContext, StageOutput, probe_sh_l1
 
 ZSTD_PROBES = 9    # the cluster probe volumes (zdm2: 1.58 MB at 9 in 0.16 s, 1.45 MB at 19 in 3.2 s)
 
@@ -54,11 +53,11 @@ def run_clusters(ctx: StageContext) -> StageOutput:
             arts.append(Artifact(f"cluster_sh_l2_{k}", _half(sh_l2_atlas(vols2[k]), clamped), zstd_level=ZSTD_PROBES,
                                  meta={"cluster": k, "layout": "three.js LightProbeGrid", "texels": 7, "padding": 1},
                                  description=f"L2 radiance SH of cluster {k}'s probes (0 elsewhere), sh_l2 layout"))
-    arts.append(Artifact("cluster_weights_0123", _half(_rgba(weights, 0), clamped), zstd_level=ZSTD_PROBES,
+    arts.append(Artifact("cluster_weights_0123", _half(rgba_group(weights, 0), clamped), zstd_level=ZSTD_PROBES,
                          meta={"clusters": K},
                          description="g_i^k of clusters 0-3 per probe: trilinear gives w_k = Σ φ_i g_i^k"))
     if K > 4:
-        arts.append(Artifact("cluster_weights_4567", _half(_rgba(weights, 4), clamped), zstd_level=ZSTD_PROBES,
+        arts.append(Artifact("cluster_weights_4567", _half(rgba_group(weights, 4), clamped), zstd_level=ZSTD_PROBES,
                              meta={"clusters": K},
                              description="g_i^k of clusters 4-7 per probe"))
     return StageOutput(artifacts=arts, stats={"clusters": K, "half_clamped": clamped[0]})

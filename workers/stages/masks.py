@@ -41,26 +41,10 @@ import numpy as np
 
 from workers.kernels.mask_field import join_theta
 from workers.kernels.mask_fit import (canonicalize, fill_dont_care, fit_masks, gaussian_filter, light_aware_fit,
-                                      mask_residual, quantize)
-from workers.stages.base import Artifact, StageContext, StageOutput
+                                      mask_residual, quantize, rgba_group)
+from workers.stages.base import Artifact, StageContext, StageOutput, probe_sh_l1
 
 ZSTD_LEVEL = 3
-
-
-def _rgba(channels: np.ndarray, start: int) -> np.ndarray:
-    """Channels ``start … start + 3`` of (..., K) as (..., 4), zero-padded past K."""
-    out = np.zeros(channels.shape[:-1] + (4,), channels.dtype)
-    part = channels[..., start:start + 4]
-    out[..., :part.shape[-1]] = part
-    return np.ascontiguousarray(out)
-
-
-def probe_sh_l1(light) -> np.ndarray:
-    """The light stage's float32 L1 volumes (nz, ny, nx, 4, 3) (``sh_l1_full``; older bakes: the stored
-    ``sh_l1_{r,g,b}``)."""
-    if "sh_l1_full" in light:
-        return np.asarray(light["sh_l1_full"], np.float32)
-    return np.stack([light[f"sh_l1_{c}"] for c in "rgb"], axis=-1).astype(np.float32)
 
 
 def run_masks(ctx: StageContext) -> StageOutput:
@@ -108,10 +92,10 @@ def run_masks(ctx: StageContext) -> StageOutput:
     ctx.report(0.85)
 
     meta = {"samples_per_cell": S, "clusters": K}
-    arts = [Artifact("masks_0123", _rgba(q, 0), zstd_level=ZSTD_LEVEL, meta=meta,
+    arts = [Artifact("masks_0123", rgba_group(q, 0), zstd_level=ZSTD_LEVEL, meta=meta,
                      description="mask m·255 of clusters 0-3 per refined-grid sample (MD eq 3, 5)")]
     if K > 4:
-        arts.append(Artifact("masks_4567", _rgba(q, 4), zstd_level=ZSTD_LEVEL, meta=meta,
+        arts.append(Artifact("masks_4567", rgba_group(q, 4), zstd_level=ZSTD_LEVEL, meta=meta,
                              description="mask m·255 of clusters 4-7 per refined-grid sample"))
     (r5, mass), (rq, _) = residual5.result(), residual_q.result()
     side.shutdown()
