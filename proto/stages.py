@@ -73,7 +73,7 @@ STAGES: tuple[StageDef, ...] = (
              ("place", "relocate", "trace", "visibility", "anneal"), timeout=3600,
              inputs_when=(("light", "masks.light_aware"),)),
     # each cluster's probes' SH and weights (MD §3.4): what the mask modes shade with, from the light and the colouring
-    StageDef("clusters", 1, (), ("place", "trace", "light", "anneal"), timeout=3600),
+    StageDef("clusters", 1, (), ("trace", "light", "anneal"), timeout=3600),
     # compress 3: the mask lookup's blend takes from the offset read only the clusters the point sees
     # (compress.lookup_blend; its lookup_error stat)
     StageDef("compress", 3, ("masks.compress_tolerance", "seed"), ("place", "masks"), timeout=3600),
