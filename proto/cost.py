@@ -106,7 +106,7 @@ VIS_MEM_PER_SAMPLE = 12        # θ and don't-care of a shard's samples
 FIELD_MEM_PER_SAMPLE = {"visibility": 44, "anneal": 15, "masks": 60, "compress": 27}
 FIELD_MEM_PER_SAMPLE_CLUSTER = {"masks": 4, "compress": 1}
 MASK_MEM_PER_PROBE_CLUSTER = 2050   # clusters: each cluster's L1 and L2 SH volumes over the probes, as it builds them
-CLUSTER_SECONDS_PER_PROBE_CLUSTER = 6e-6   # clusters: zdm2 (20,387 probes, K = 4) 0.5 s
+CLUSTER_SECONDS_PER_PROBE_CLUSTER = 6e-6   # clusters: 0.5 s at zdm2's 20,387 probes x K = 4 (measured 0.03-0.13 s)
 PATH_CHUNK = 1 << 18          # paths in flight per wavefront chunk (workers.kernels.pathtrace.DEFAULT_MAX_PATHS)
 PATH_BYTES = 512              # bytes per path in flight (ibid.)
 PRT_FIXED_MEM = 100 * MB      # the measurement points, the lightmap's atlas (xatlas), the prt kernels
