@@ -102,14 +102,14 @@ STAGES: tuple[StageDef, ...] = (
 STAGE_BY_NAME = {s.name: s for s in STAGES}
 
 
-def shard_count(config: BakeConfig, st: StageDef) -> int:
-    section, field = st.shards_from.split(".")
-    return int(getattr(getattr(config, section), field))
-
-
 def _field(config: BakeConfig, dotted: str):
+    """The config value at ``"section.field"``."""
     section, field = dotted.split(".")
     return getattr(getattr(config, section), field)
+
+
+def shard_count(config: BakeConfig, st: StageDef) -> int:
+    return int(_field(config, st.shards_from))
 
 
 def expand(config: BakeConfig) -> list[StageDef]:
