@@ -14,7 +14,7 @@ import re
 
 from workers.gltf.errors import err, invalid
 
-__all__ = ["Document", "HONOURED_EXTENSIONS", "lookup", "is_int", "is_num", "vec", "num"]
+__all__ = ["Document", "HONOURED_EXTENSIONS", "EXPLAINED_EXTENSIONS", "lookup", "is_int", "is_num", "vec", "num"]
 
 #: Extensions we read (or that need nothing from us): allowed in ``extensionsRequired``.
 HONOURED_EXTENSIONS = frozenset(
@@ -31,6 +31,9 @@ HONOURED_EXTENSIONS = frozenset(
         "KHR_meshopt_compression",
     }
 )
+#: Extensions read only to say what the bake does with them: their own warning (:mod:`workers.gltf.materials`)
+#: instead of a place in "extensions ignored"; still refused when required.
+EXPLAINED_EXTENSIONS = frozenset({"KHR_materials_transmission", "KHR_materials_volume"})
 #: Extensions refused by name when required, with the reason given to the user.
 _REFUSED_EXTENSIONS = {
     "KHR_texture_basisu": "KTX2/Basis Universal textures cannot be decoded here; re-export with PNG, "
@@ -144,6 +147,7 @@ class Document:
                 )
             if name not in HONOURED_EXTENSIONS:
                 raise err("unsupported_extension", f"required extension {name} is not supported by this service")
-        ignored = sorted({u for u in used if isinstance(u, str) and u not in HONOURED_EXTENSIONS})
+        ignored = sorted({u for u in used if isinstance(u, str) and u not in HONOURED_EXTENSIONS
+                          and u not in EXPLAINED_EXTENSIONS})
         if ignored:
             warnings.append("extensions ignored: " + ", ".join(ignored))

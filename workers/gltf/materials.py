@@ -3,7 +3,8 @@
 Per material: base colour factor and texture (``KHR_materials_pbrSpecularGlossiness`` diffuse when a material
 has no metallic-roughness block), metallic and roughness factors and texture, emissive factor x
 ``KHR_materials_emissive_strength`` and emissive texture, ``doubleSided``, ``alphaMode`` and ``alphaCutoff``;
-the texture slot whose UV set (and ``KHR_texture_transform``) ``uv0`` carries. Textures are decoded once per
+``KHR_materials_transmission`` only for a warning (the glass is baked opaque, as the Cycles Lambert reference bakes
+it); the texture slot whose UV set (and ``KHR_texture_transform``) ``uv0`` carries. Textures are decoded once per
 image with PIL to RGBA uint8 (PNG, JPEG, WebP via ``EXT_texture_webp``), their size checked from the header
 first. :data:`DEFAULT_MATERIAL` is glTF's default material (3.9.6), for primitives without one.
 Consumer: :mod:`workers.gltf.reader`. Inverse: :mod:`workers.scene_glb` (materials written back).
@@ -29,7 +30,7 @@ from PIL import Image
 
 from workers.gltf.accessors import Accessors
 from workers.gltf.container import Files, decode_data_uri, split_uri
-from workers.gltf.document import Document, is_int, num, vec
+from workers.gltf.document import Document, is_int, is_num, num, vec
 from workers.gltf.errors import IngestError, err, invalid
 from workers.gltf.limits import LFS_POINTER, IngestLimits, check_emissive
 
@@ -240,6 +241,7 @@ class Materials:
         image_slot: dict[int, int] = {}
         uv_refs: list[TexRef | None] = []
         alpha_modes: Counter = Counter()
+        transmissive: list[str] = []
 
         def tex_index(ref: TexRef | None) -> int | None:
             if ref is None:
@@ -296,6 +298,10 @@ class Materials:
                 raise invalid(f"{what}.alphaCutoff must not be negative")
             if alpha == "BLEND":
                 alpha_modes[alpha] += 1
+            tr = ext.get("KHR_materials_transmission")
+            if isinstance(tr, dict) and is_num(tr.get("transmissionFactor")) and tr["transmissionFactor"] > 0:
+                name = m.get("name")
+                transmissive.append(name if isinstance(name, str) else f"material_{i}")
             uv_ref = base_ref or emissive_ref or mr_ref
             for other, slot in ((emissive_ref, "emissive"), (mr_ref, "metallic-roughness")):
                 if (other is not None and uv_ref is not None and other is not uv_ref
@@ -322,4 +328,12 @@ class Materials:
             self.warnings.append(
                 f"alphaMode BLEND on {n} material{'s' * (n != 1)} baked as a cutout at alpha 0.5 "
                 "(probe rays see a blended surface where its alpha is at least 0.5, and through it elsewhere)")
+        if transmissive:
+            n = len(transmissive)
+            shown = ", ".join(repr(t) for t in transmissive[:3]) + (f" and {n - 3} more" if n > 3 else "")
+            self.warnings.append(
+                f"KHR_materials_transmission on {n} material{'s' * (n != 1)} ({shown}) baked as opaque diffuse "
+                "surfaces (a diffuse-only probe bake, as the Cycles Lambert reference): no light passes through "
+                "them, so a room lit only through glass reads dark; to let light through, remove the glass or give "
+                "it alphaMode MASK with an alpha below alphaCutoff")
         return materials, textures, uv_refs

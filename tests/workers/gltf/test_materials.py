@@ -132,3 +132,34 @@ def test_texture_transform_matrix_is_translation_rotation_scale():
     assert np.allclose(m @ [1, 0, 1], [0.5, -1.75]) and np.allclose(m @ [0, 1, 1], [1.5, 0.25])
     assert np.allclose(texture_transform_matrix({}, "m"), [[1, 0, 0], [0, 1, 0]])
     assert same_transform(None, None) and not same_transform(m, None) and same_transform(m, m.copy())
+
+
+def test_transmissive_glass_is_named_in_its_own_warning(tmp_path):
+    """KHR_materials_transmission is not honoured (the glass blocks light, as in the Cycles Lambert reference): the
+    warning names the materials and says so, instead of a bare "extensions ignored"; a factor of 0 is no glass."""
+    g = Gltf()
+    glass = {"KHR_materials_transmission": {"transmissionFactor": 1.0}}
+    g.doc["materials"] = [{"name": "window", "extensions": glass},
+                          {"name": "frosted", "extensions": {"KHR_materials_transmission": {"transmissionFactor": 0.4},
+                                                             "KHR_materials_volume": {"thicknessFactor": 0.01}}},
+                          {"name": "off", "extensions": {"KHR_materials_transmission": {"transmissionFactor": 0}}},
+                          {"name": "odd", "extensions": {"KHR_materials_transmission": {"transmissionFactor": "x"}}}]
+    g.doc["extensionsUsed"] = ["KHR_materials_transmission", "KHR_materials_volume", "EXT_foo"]
+    for i in range(4):
+        g.node(mesh=g.mesh(QUAD[:3], material=i))
+    s = ingest_file(write_glb(tmp_path / "g.glb", g))
+    glassy = [w for w in s.warnings if "KHR_materials_transmission" in w]
+    assert len(glassy) == 1 and "2 materials ('window', 'frosted')" in glassy[0], s.warnings
+    assert "opaque" in glassy[0] and "alphaMode MASK" in glassy[0]
+    assert "extensions ignored: EXT_foo" in s.warnings        # the others are still listed
+    # no transmissive material (a factor of 0, a factor that is not a number): nothing said about glass
+    h = Gltf()
+    h.doc["materials"] = g.doc["materials"][2:]
+    h.doc["extensionsUsed"] = ["KHR_materials_transmission"]
+    h.node(mesh=h.mesh(QUAD[:3], material=0))
+    h.node(mesh=h.mesh(QUAD[:3], material=1))
+    s = ingest_file(write_glb(tmp_path / "h.glb", h))
+    assert not any("KHR_materials_transmission" in w for w in s.warnings), s.warnings
+    # required, it is still refused (the bake cannot honour it)
+    g.doc["extensionsRequired"] = ["KHR_materials_transmission"]
+    expect_error("unsupported_extension", write_glb(tmp_path / "r.glb", g))
