@@ -307,8 +307,8 @@ def direct_irradiance(points, normals, lights, caster, eps: float, *, geo_normal
     E : (N, 3) float32, linear RGB irradiance (lux × colour). Work proceeds in chunks of
     :data:`DIRECT_CHUNK` points, so memory stays bounded for millions of points.
     """
-    pts = np.asarray(points, dtype=np.float64)
-    nrm = np.asarray(normals, dtype=np.float64)
+    pts = np.asarray(points)            # each chunk converted to float64 on its own (bounded temporaries)
+    nrm = np.asarray(normals)
     if pts.ndim != 2 or pts.shape[1] != 3 or nrm.shape != pts.shape:
         raise ValueError(f"direct_irradiance: points and normals must both be (N, 3), got {pts.shape}, {nrm.shape}")
     eps = float(eps)
@@ -320,12 +320,13 @@ def direct_irradiance(points, normals, lights, caster, eps: float, *, geo_normal
     def chunk(s: int, e: int) -> None:      # two chunks at a time (workers.kernels.chunks): shading while casting
         acc = np.zeros((e - s, 3), np.float64)
         frame = None
-        if geo_normals is not None or bent is not None:
-            frame = (None if geo_normals is None else np.asarray(geo_normals, np.float64)[s:e],
-                     None if bent is None else np.asarray(smooth_normals, np.float64)[s:e],
-                     None if bent is None else np.asarray(bent, bool)[s:e])
+        if geo_normals is not None or bent is not None:     # the chunk's rows only, then float64
+            frame = (None if geo_normals is None else np.asarray(geo_normals[s:e], np.float64),
+                     None if bent is None else np.asarray(smooth_normals[s:e], np.float64),
+                     None if bent is None else np.asarray(bent[s:e], bool))
+        x, nx = np.asarray(pts[s:e], np.float64), np.asarray(nrm[s:e], np.float64)
         for light in lights:
-            _add_light(acc, pts[s:e], nrm[s:e], light, caster, eps, frame)
+            _add_light(acc, x, nx, light, caster, eps, frame)
         out[s:e] = acc
 
     map_chunks(chunk, n, DIRECT_CHUNK)
