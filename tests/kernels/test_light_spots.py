@@ -114,3 +114,60 @@ def test_virtual_lights_are_capped_keeping_their_power(monkeypatch):
     _, coarse, n_coarse, _ = LS.spot_correction(*args)
     assert n_fine > 4 >= n_coarse > 0
     assert abs(coarse[0, 0, 0] / fine[0, 0, 0] - 1) < 0.05
+
+
+def test_pair_and_delta_kernels_equal_the_vectorized_sums():
+    """The compiled pairs (:func:`LS._spot_pairs`) and deltas (:func:`LS._add_deltas`, the SH basis per pair) give
+    the sums of the vectorized form they replaced: per virtual light the probes with cos θ_y > 0, their shadow rays,
+    a·max(0, texel·ω) into the maps and a·Y_k(ω) (:func:`workers.kernels.sh._sh_basis`) into the SH, blocked pairs
+    skipped. Random lights and probes; a probe standing at a light's lifted origin gets a zero-length ray."""
+    from workers.kernels.sh import _sh_basis
+
+    rng = np.random.default_rng(5)
+    V, N, n, eps, dmin = 7, 300, 8, 1e-3, 0.05
+    vy, x = rng.uniform(-2, 2, (V, 3)), rng.uniform(-2, 2, (N, 3))
+    vn = rng.normal(size=(V, 3))
+    vn /= np.linalg.norm(vn, axis=1, keepdims=True)
+    vp = rng.uniform(0, 3, (V, 3))
+    x[17] = vy[2] + eps * vn[2]                         # at the origin of virtual light 2's rays
+    texel = oct_texel_directions(n).reshape(-1, 3).astype(np.float64)
+    o, dirs, om, a = (np.full((V * N, 3), np.nan) for _ in range(4))
+    tfar, probe = np.full(V * N, np.nan), np.full(V * N, -1, np.int64)
+    k = LS._spot_pairs(vy, vn, vp, x, eps, dmin, o, dirs, tfar, probe, om, a)
+    ref = {f: [] for f in ("o", "dirs", "tfar", "probe", "om", "a")}
+    for y, ny, pw in zip(vy, vn, vp):                   # the vectorized form (light stage 12)
+        w = y - x
+        d = np.sqrt(np.einsum("ij,ij->i", w, w))
+        omj = w / np.maximum(d, 1e-12)[:, None]
+        ok = np.flatnonzero(-(omj @ ny) > 0)
+        oj = (y + eps * ny)[None].repeat(ok.size, 0)
+        back = x[ok] - oj
+        dist = np.sqrt(np.einsum("ij,ij->i", back, back))
+        with np.errstate(invalid="ignore"):
+            ref["dirs"].append(back / dist[:, None])
+        ref["o"].append(oj)
+        ref["tfar"].append(np.maximum(dist - 2 * eps, 0.0))
+        ref["probe"].append(ok)
+        ref["om"].append(omj[ok])
+        ref["a"].append((-(omj @ ny))[ok, None] / np.maximum(d[ok], dmin)[:, None] ** 2 * pw[None])
+    ref = {f: np.concatenate(v) for f, v in ref.items()}
+    assert k == ref["probe"].size and 0 < k < V * N
+    np.testing.assert_array_equal(probe[:k], ref["probe"])
+    for f, got in (("o", o), ("tfar", tfar), ("om", om), ("a", a)):
+        np.testing.assert_allclose(got[:k], ref[f], rtol=1e-13, atol=0, err_msg=f)
+    zero = np.flatnonzero(np.isnan(ref["dirs"][:, 0]))
+    assert zero.size == 1 and tfar[zero[0]] == 0.0 and np.array_equal(dirs[zero[0]], [0, 0, 1])
+    rest = np.setdiff1d(np.arange(k), zero)
+    np.testing.assert_allclose(dirs[rest], ref["dirs"][rest], rtol=1e-13, atol=1e-15)
+
+    free = rng.uniform(size=k) < 0.7
+    for K in (4, 9):
+        dmaps, dsh = np.zeros((N, n * n, 3)), np.zeros((N, K, 3))
+        LS._add_deltas(dmaps, dsh, probe[:k], free, om[:k], a[:k], texel)
+        want_maps, want_sh = np.zeros_like(dmaps), np.zeros_like(dsh)
+        p, om_f, a_f = probe[:k][free], om[:k][free], a[:k][free]
+        np.add.at(want_maps, p, np.maximum(om_f @ texel.T, 0.0)[:, :, None] * a_f[:, None, :])
+        np.add.at(want_sh, p, _sh_basis(om_f, K)[:, :, None] * a_f[:, None, :])
+        np.testing.assert_allclose(dmaps, want_maps, rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(dsh, want_sh, rtol=1e-12, atol=1e-15)
+        assert np.count_nonzero(dsh) > 0

@@ -40,7 +40,7 @@ from numba import njit
 
 from workers.kernels.octahedral import add_border, oct_texel_directions
 from workers.kernels.sampling import fibonacci_sphere
-from workers.kernels.sh import _sh_basis
+from workers.kernels.sh import SH_C0, SH_C1, SH_C2, SH_C3, SH_C4
 
 __all__ = ["SPOT_FACTOR", "PHOTONS", "CELL_FRACTION", "MAX_VIRTUAL_LIGHTS", "MIN_DISTANCE_FRACTION",
            "spot_thresholds", "split_direct", "spot_correction"]
@@ -154,75 +154,98 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
     h = float(sp[sp > 0].min()) if np.any(sp > 0) else 1.0
     texel = oct_texel_directions(n).reshape(-1, 3).astype(np.float64)              # (n², 3)
     idx = np.flatnonzero(live)
-    x = positions[idx].astype(np.float64)
-    n_vl = rays = 0
-    batch: list[tuple] = []        # virtual lights whose shadow rays go to the caster together (SPOT_BATCH_RAYS)
-    held = 0
-
-    def flush():
-        # one caster call for the batch: about SPOT_BATCH_RAYS rays, so the caster's threads share them (a virtual
-        # light's own ~P rays are one chunk, one thread); the same rays and sums as one call per virtual light
-        nonlocal held
-        if not batch:
-            return
-        o = np.concatenate([b[0] for b in batch])
-        back = np.concatenate([b[1] for b in batch])
-        dist = np.sqrt(np.einsum("ij,ij->i", back, back))
-        blocked = np.asarray(caster.occluded(o, back / dist[:, None], tfar=np.maximum(dist - 2 * eps, 0.0)), bool)
-        free = ~blocked
-        pr = np.concatenate([idx[b[2]] for b in batch])[free]
-        om_f = np.concatenate([b[3] for b in batch])[free]
-        a = np.concatenate([b[4][:, None] * b[5][None] for b in batch])[free]     # (k, 3) irradiance at normal ω
-        # E(n) = a·max(0, n·ω) per texel, and the radiance SH of a delta a·Y_lm(ω), added in place
-        _add_deltas(dmaps, dsh, pr, om_f, a, texel, _sh_basis(om_f, K))
-        batch.clear()
-        held = 0
-
+    x = np.ascontiguousarray(positions[idx], np.float64)
+    found = []
     for light, c in zip(lights, thresholds):
         if light["type"] not in ("point", "spot") or not math.isfinite(c):
             continue
-        pos, nrm, power = _virtual_lights(scene, caster, light, c, double_sided, CELL_FRACTION * h)
-        n_vl += len(pos)
-        for y, ny, pw in zip(pos, nrm, power):
-            w = y - x                                                               # probe -> virtual light
-            d = np.sqrt(np.einsum("ij,ij->i", w, w))
-            om = w / np.maximum(d, 1e-12)[:, None]
-            cos_y = -(om @ ny)                                                      # at y, toward the probe
-            ok = np.flatnonzero(cos_y > 0)
-            if ok.size == 0:
-                continue
-            o = (y + eps * ny)[None].repeat(ok.size, 0)
-            g = cos_y[ok] / np.maximum(d[ok], MIN_DISTANCE_FRACTION * h) ** 2           # cos θ_y / d²
-            batch.append((o, x[ok] - o, ok, om[ok], g, pw))
-            rays += ok.size
-            held += ok.size
-            if held >= SPOT_BATCH_RAYS:
-                flush()
-    flush()
+        found.append(_virtual_lights(scene, caster, light, c, double_sided, CELL_FRACTION * h))
+    n_vl = sum(len(f[0]) for f in found)
+    rays = 0
+    if n_vl == 0 or x.shape[0] == 0:
+        return add_border(dmaps.reshape(P, n, n, 3)).astype(np.float32), dsh, n_vl, rays
+    pos, nrm, power = (np.ascontiguousarray(np.concatenate([f[i] for f in found]), np.float64) for i in range(3))
+    # virtual lights in batches of 2·SPOT_BATCH_RAYS pairs at most (cos θ_y > 0 leaves about half of them as shadow
+    # rays), one caster call each so that its threads share them; the pair buffers are reused
+    group = max(1, 2 * SPOT_BATCH_RAYS // x.shape[0])
+    cap = group * x.shape[0]
+    o, dirs, om = (np.empty((cap, 3)) for _ in range(3))
+    a, tfar, probe = np.empty((cap, 3)), np.empty(cap), np.empty(cap, np.int64)
+    for j in range(0, n_vl, group):
+        k = _spot_pairs(pos[j:j + group], nrm[j:j + group], power[j:j + group], x, eps,
+                        MIN_DISTANCE_FRACTION * h, o, dirs, tfar, probe, om, a)
+        rays += k
+        if k == 0:
+            continue
+        free = ~np.asarray(caster.occluded(o[:k], dirs[:k], tfar=tfar[:k]), bool)
+        # E(n) = a·max(0, n·ω) per texel, and the radiance SH of a delta a·Y_lm(ω), added in place
+        _add_deltas(dmaps, dsh, idx[probe[:k]], free, om[:k], a[:k], texel)
     return add_border(dmaps.reshape(P, n, n, 3)).astype(np.float32), dsh, n_vl, rays
 
 
-def _add_deltas(dmaps, dsh, probes, om, a, texel, basis) -> None:
-    """``dmaps[p, t] += a_j·max(0, texel_t·ω_j)`` and ``dsh[p, k] += a_j·basis[j, k]`` for p = probes[j], in the
+@njit(cache=True, nogil=True)
+def _spot_pairs(vy, vn, vp, x, eps, dmin, o, dirs, tfar, probe, om, a):  # pragma: no cover - compiled
+    """The (virtual light, probe) pairs that can receive light, in the order of the virtual lights and then of the
+    probes: written to ``o``, ``dirs``, ``tfar`` (the shadow ray from the virtual light, lifted by ``eps`` along its
+    normal, to the probe), ``probe`` (index into x), ``om`` (unit probe → virtual light) and ``a`` (the irradiance
+    at normal ω, ``ρΦ_ex/π · cos θ_y / max(d, dmin)²``); returns their count. vy, vn, vp : (V, 3) positions,
+    normals (facing the light), ρΦ_ex/π; x : (N, 3) probes; the buffers hold V·N rows. The same float64 operations
+    as the vectorized form it replaced (module doc)."""
+    k = 0
+    for j in range(vy.shape[0]):
+        yx, yy, yz = vy[j, 0], vy[j, 1], vy[j, 2]
+        nx, ny, nz = vn[j, 0], vn[j, 1], vn[j, 2]
+        ox, oy, oz = yx + eps * nx, yy + eps * ny, yz + eps * nz
+        for i in range(x.shape[0]):
+            wx, wy, wz = yx - x[i, 0], yy - x[i, 1], yz - x[i, 2]               # probe -> virtual light
+            d = math.sqrt(wx * wx + wy * wy + wz * wz)
+            m = max(d, 1e-12)
+            mx, my, mz = wx / m, wy / m, wz / m
+            cos_y = -(mx * nx + my * ny + mz * nz)                             # at y, toward the probe
+            if not cos_y > 0.0:
+                continue
+            bx, by, bz = x[i, 0] - ox, x[i, 1] - oy, x[i, 2] - oz
+            dist = math.sqrt(bx * bx + by * by + bz * bz)
+            o[k, 0], o[k, 1], o[k, 2] = ox, oy, oz
+            if dist > 0.0:
+                dirs[k, 0], dirs[k, 1], dirs[k, 2] = bx / dist, by / dist, bz / dist
+            else:           # the probe at the ray's origin: tfar 0, nothing can block it
+                dirs[k, 0], dirs[k, 1], dirs[k, 2] = 0.0, 0.0, 1.0
+            tfar[k] = max(dist - 2.0 * eps, 0.0)
+            probe[k] = i
+            om[k, 0], om[k, 1], om[k, 2] = mx, my, mz
+            dd = max(d, dmin)
+            g = cos_y / (dd * dd)                                               # cos θ_y / d²
+            a[k, 0], a[k, 1], a[k, 2] = g * vp[j, 0], g * vp[j, 1], g * vp[j, 2]
+            k += 1
+    return k
+
+
+def _add_deltas(dmaps, dsh, probes, free, om, a, texel) -> None:
+    """``dmaps[p, t] += a_j·max(0, texel_t·ω_j)`` and ``dsh[p, k] += a_j·Y_k(ω_j)`` (:func:`workers.kernels.sh.
+    _sh_basis`, K = dsh.shape[1]) for p = probes[j] where ``free[j]`` (the shadow ray reached the probe), in the
     order of j (a batch of virtual lights, each one's probes distinct): :data:`DELTA_THREADS` threads, each over a
     range of probes, so every probe's sum has the same terms in the same order as one pass."""
     if probes.size == 0:
         return
     cuts = np.linspace(0, dmaps.shape[0], DELTA_THREADS + 1).astype(np.int64)
     if DELTA_THREADS == 1 or probes.size < 4096:
-        _add_delta(dmaps, dsh, probes, om, a, texel, basis, 0, dmaps.shape[0])
+        _add_delta(dmaps, dsh, probes, free, om, a, texel, 0, dmaps.shape[0])
         return
     with ThreadPoolExecutor(DELTA_THREADS) as pool:
-        list(pool.map(lambda i: _add_delta(dmaps, dsh, probes, om, a, texel, basis, cuts[i], cuts[i + 1]),
+        list(pool.map(lambda i: _add_delta(dmaps, dsh, probes, free, om, a, texel, cuts[i], cuts[i + 1]),
                       range(DELTA_THREADS)))
 
 
 @njit(cache=True, nogil=True)
-def _add_delta(dmaps, dsh, probes, om, a, texel, basis, lo, hi):
-    """:func:`_add_deltas` for the probes in [lo, hi), without (k, n², 3) temporaries."""
+def _add_delta(dmaps, dsh, probes, free, om, a, texel, lo, hi):  # pragma: no cover - compiled
+    """:func:`_add_deltas` for the probes in [lo, hi), without (k, n², 3) or (k, K) temporaries: the SH basis
+    of each ω as :func:`workers.kernels.sh._sh_basis` computes it (the same products in the same order)."""
+    K = dsh.shape[1]
+    y = np.empty(9)
     for j in range(probes.size):
         p = probes[j]
-        if p < lo or p >= hi:
+        if p < lo or p >= hi or not free[j]:
             continue
         ox, oy, oz = om[j, 0], om[j, 1], om[j, 2]
         for t in range(texel.shape[0]):
@@ -230,6 +253,10 @@ def _add_delta(dmaps, dsh, probes, om, a, texel, basis, lo, hi):
             if c > 0.0:
                 for ch in range(3):
                     dmaps[p, t, ch] += c * a[j, ch]
-        for k in range(basis.shape[1]):
+        y[0], y[1], y[2], y[3] = SH_C0, SH_C1 * oy, SH_C1 * oz, SH_C1 * ox
+        if K == 9:
+            y[4], y[5] = SH_C2 * ox * oy, SH_C2 * oy * oz
+            y[6], y[7], y[8] = SH_C3 * (3.0 * oz * oz - 1.0), SH_C2 * ox * oz, SH_C4 * (ox * ox - oy * oy)
+        for k in range(K):
             for ch in range(3):
-                dsh[p, k, ch] += basis[j, k] * a[j, ch]
+                dsh[p, k, ch] += y[k] * a[j, ch]
