@@ -171,3 +171,20 @@ def test_pair_and_delta_kernels_equal_the_vectorized_sums():
         np.testing.assert_allclose(dmaps, want_maps, rtol=1e-12, atol=1e-15)
         np.testing.assert_allclose(dsh, want_sh, rtol=1e-12, atol=1e-15)
         assert np.count_nonzero(dsh) > 0
+
+
+def test_split_direct_equals_the_vectorized_split():
+    """:func:`LS.split_direct`'s compiled row loop gives the floats of ``Σ_l E_l·min(1, c_l/max(Y(E_l), 1e-30))``
+    written with numpy (its former form), NaN and inf rows and an infinite threshold included."""
+    rng = np.random.default_rng(1)
+    per = [rng.gamma(0.3, 5, (5000, 3)).astype(np.float32) for _ in range(3)]
+    per[0][:100] = 0
+    per[1][5], per[2][7] = np.nan, np.inf
+    th = [2.0, math.inf, 0.5]
+    want = np.zeros((5000, 3))
+    for e, c in zip(per, th):
+        with np.errstate(all="ignore"):
+            want += e.astype(np.float64) * np.minimum(1.0, c / np.maximum(LS._luma(e), 1e-30))[:, None]
+    got = LS.split_direct(per, th)
+    assert got.dtype == np.float32 and np.array_equal(got, want.astype(np.float32), equal_nan=True)
+    assert np.isnan(got[5]).all() and np.isnan(got[7]).all() and (got[8:] < per[0][8:] + per[1][8:] + per[2][8:] + 1).all()

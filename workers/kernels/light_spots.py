@@ -84,9 +84,20 @@ def split_direct(per_light: list[np.ndarray], thresholds: list[float]) -> np.nda
     """(H, 3) float32: the bounded part ``Σ_l E_l·min(1, c_l/Y(E_l))`` of the direct irradiance (module doc)."""
     out = np.zeros(per_light[0].shape if per_light else (0, 3), np.float64)
     for e, c in zip(per_light, thresholds):
-        y = _luma(e)
-        out += np.asarray(e, np.float64) * np.minimum(1.0, c / np.maximum(y, 1e-30))[:, None]
+        _add_bounded(out, np.ascontiguousarray(e), _luma(e), float(c))
     return out.astype(np.float32)
+
+
+@njit(cache=True, nogil=True)
+def _add_bounded(out, e, y, c):  # pragma: no cover - compiled
+    """``out += e · min(1, c / max(y, 1e-30))`` row by row in float64, NaN propagating as numpy's minimum and
+    maximum do (the vectorized form this replaced, without its (H, 3) temporaries)."""
+    for i in range(e.shape[0]):
+        m = y[i] if (y[i] >= 1e-30 or y[i] != y[i]) else 1e-30
+        q = c / m
+        s = q if (q <= 1.0 or q != q) else 1.0
+        for k in range(e.shape[1]):
+            out[i, k] += np.float64(e[i, k]) * s
 
 
 def _virtual_lights(scene, caster, light: dict, c: float, double_sided: np.ndarray, cell: float):
