@@ -53,6 +53,37 @@ def test_hit_surfaces_keep_front_hits_with_normals_toward_the_probe():
         assert np.array_equal(getattr(one, name), getattr(s, name))
 
 
+
+def test_hit_surfaces_are_each_rays_surface_in_spatial_order():
+    """Every hit is its own ray's surface (surface_at_hits at that ray's triangle and barycentrics: positions as its
+    float32, albedo, emission), and the hits come in the stable order of their coarse 64³ cell (ties in ray order):
+    the order, found from the positions before anything is shaded, that the light stage's sampler reads from cache."""
+    from workers.kernels.shading import surface_at_hits
+
+    scene = _wall()
+    rng = np.random.default_rng(3)
+    P, R = 40, 64
+    dirs = rng.normal(size=(R, 3)).astype(np.float32)
+    dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
+    tri = rng.integers(-1, 2, (P, R)).astype(np.int32)                       # misses, both triangles
+    uv = rng.uniform(0, 0.5, (P, R, 2)).astype(np.float32)
+    hits = np.concatenate([rng.uniform(0.1, 3, (P, R, 1)), uv, (rng.uniform(size=(P, R, 1)) < 0.2)], -1)
+    hits = hits.astype(np.float32)
+    s = hit_surfaces(scene, dirs, hits, tri)
+    flat = hits.reshape(-1, 4)
+    want = np.flatnonzero((tri.ravel() >= 0) & (flat[:, 3] < 0.5))
+    assert sorted(s.index.tolist()) == want.tolist()
+    ref = surface_at_hits(scene, tri.ravel()[s.index], flat[s.index, 1], flat[s.index, 2])
+    for name in ("position", "albedo", "emission"):
+        assert np.array_equal(getattr(s, name), ref[name]), name
+    lo, hi = s.position.min(axis=0), s.position.max(axis=0)
+    cell = np.floor((s.position - lo) / np.maximum(hi - lo, 1e-6) * 63.999).astype(np.int64)
+    key = cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2])
+    assert np.all(np.diff(key) >= 0) and key[0] < key[-1]
+    same = np.diff(key) == 0
+    assert np.all(np.diff(s.index)[same] > 0)                                # ties keep ray order
+
+
 class _Caster:
     def __init__(self, blocked: bool):
         self.blocked, self.rays = blocked, 0

@@ -91,14 +91,30 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
     P, R = tri.shape
     flat = hits.reshape(-1, hits.shape[-1])               # (P·R, 4): t, u, v, backface
     index = np.flatnonzero((tri >= 0) & ~(hits[..., 3] > 0.5))
-    d = probe_rays(dirs, P).of_rays(index)                # probe p's ray r at p·R + r (no (P·R, 3) tile)
+    tri_flat = tri.ravel()
+    tris = np.asarray(scene.triangles)
+    # visit hits in spatial order (a coarse 3D grid): the probe sampler then reads neighbouring probes from cache
+    # (about 1.6x faster than ray order); the order does not change any result. It is found from the positions
+    # alone (the float32 positions surface_at_hits gives), and every field is then made in that order: no
+    # reordered copies of the fields (about 1.3 s of single-threaded gathers for 3.4 M hits)
     H = index.size
-    pos, n, alb, emi, geo, smooth = (np.empty((H, 3), np.float32) for _ in range(6))
+    pos = np.empty((H, 3), np.float32)
+    map_chunks(lambda a, b: _hit_positions(tris, tri_flat[index[a:b]], flat[index[a:b], 1], flat[index[a:b], 2],
+                                           pos[a:b]), H, HIT_CHUNK)
+    lo, hi = pos.min(axis=0) if len(pos) else 0, pos.max(axis=0) if len(pos) else 1
+    cell = np.floor((pos - lo) / np.maximum(hi - lo, 1e-6) * 63.999).astype(np.int64)
+    key = cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2])
+    in_range = len(key) == 0 or (key.min() >= 0 and key.max() < 64 ** 3)        # (not for non-finite positions)
+    order = _counting_order(key, 64 ** 3) if in_range else np.argsort(key, kind="stable")
+    del cell, key
+    index = index[order]
+    d = probe_rays(dirs, P).of_rays(index)                # probe p's ray r at p·R + r (no (P·R, 3) tile)
+    n, alb, emi, geo, smooth = (np.empty((H, 3), np.float32) for _ in range(5))
     bent = np.zeros(H, bool)
 
     def chunk(a: int, b: int) -> None:     # bounded float64 temporaries (12M hits: ~2 GB at once), two at a time
         uv = flat[index[a:b], 1:3]
-        s = surface_at_hits(scene, tri.ravel()[index[a:b]], uv[:, 0], uv[:, 1])
+        s = surface_at_hits(scene, tri_flat[index[a:b]], uv[:, 0], uv[:, 1])
         nn = s["normal"].astype(np.float32)
         gg = s["geo_normal"].astype(np.float32)
         flip = (np.einsum("ij,ij->i", gg, d[a:b]) > 0)[:, None]                  # the side the ray arrived on
@@ -109,24 +125,24 @@ def hit_surfaces(scene, dirs: np.ndarray, hits: np.ndarray, tri: np.ndarray) -> 
         pos[a:b], alb[a:b], emi[a:b] = s["position"], s["albedo"], s["emission"]
 
     map_chunks(chunk, H, HIT_CHUNK)
-    # visit hits in spatial order (a coarse 3D grid): the probe sampler then reads neighbouring probes
-    # from cache (about 1.6x faster than ray order); the order does not change any result
-    lo, hi = pos.min(axis=0) if len(pos) else 0, pos.max(axis=0) if len(pos) else 1
-    cell = np.floor((pos - lo) / np.maximum(hi - lo, 1e-6) * 63.999).astype(np.int64)
-    key = cell[:, 0] + 64 * (cell[:, 1] + 64 * cell[:, 2])
-    in_range = len(key) == 0 or (key.min() >= 0 and key.max() < 64 ** 3)        # (not for non-finite positions)
-    order = _counting_order(key, 64 ** 3) if in_range else np.argsort(key, kind="stable")
-    del cell, key
-    view = (-d[order]).astype(np.float32)
+    view = (-d).astype(np.float32)
     d = None
-    index = index[order]                                  # one reordered copy at a time
-    pos = pos[order]
-    n = n[order]
-    alb = alb[order]
-    emi = emi[order]
-    geo, smooth, bent = geo[order], smooth[order], bent[order]
     return HitSurfaces(index=index, position=pos, normal=n, view=view, albedo=alb, emission=emi, miss=tri < 0, P=P,
                        R=R, geo_normal=geo, smooth_normal=smooth, bent=bent)
+
+
+@njit(cache=True, nogil=True)
+def _hit_positions(tris, t, u, v, out):  # pragma: no cover - compiled
+    """``out[h] = (1 − u − v)·v0 + u·v1 + v·v2`` of triangle t[h], float64 arithmetic stored as float32: the
+    positions :func:`workers.kernels.shading.surface_at_hits` gives (its ``_interpolate_hits``, the same
+    expression), computed alone to order the hits before they are shaded."""
+    for h in range(t.shape[0]):
+        k = t[h]
+        b1 = np.float64(u[h])
+        b2 = np.float64(v[h])
+        b0 = 1.0 - b1 - b2
+        for a in range(3):
+            out[h, a] = b0 * np.float64(tris[k, 0, a]) + b1 * np.float64(tris[k, 1, a]) + b2 * np.float64(tris[k, 2, a])
 
 
 def concat_hits(a: HitSurfaces, b: HitSurfaces) -> HitSurfaces:
