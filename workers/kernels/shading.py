@@ -589,10 +589,16 @@ def horizon_factor(normals, geo_normals, smooth_normals=None, bent=None) -> np.n
 
     normals, geo_normals, smooth_normals : (N, 3) unit (N', Ng on the lit side, s); bent : (N,) bool or None (none).
     """
-    n = np.ascontiguousarray(normals, np.float64)
-    g = np.ascontiguousarray(geo_normals, np.float64)
-    s = n if smooth_normals is None else np.ascontiguousarray(smooth_normals, np.float64)
-    b = np.zeros(n.shape[0], np.bool_) if bent is None else np.ascontiguousarray(bent, np.bool_)
-    out = np.empty(n.shape[0])
-    _horizon_kernel(n, g, s, b, HORIZON_QUADRATURE[0], HORIZON_QUADRATURE[1], out)
+    normals, geo_normals = np.asarray(normals), np.asarray(geo_normals)
+    smooth = normals if smooth_normals is None else np.asarray(smooth_normals)
+    out = np.empty(normals.shape[0])
+
+    def chunk(a: int, e: int) -> None:     # each chunk's rows in float64, two chunks at a time (the same floats)
+        n = np.ascontiguousarray(normals[a:e], np.float64)
+        g = np.ascontiguousarray(geo_normals[a:e], np.float64)
+        s = n if smooth_normals is None else np.ascontiguousarray(smooth[a:e], np.float64)
+        b = np.zeros(e - a, np.bool_) if bent is None else np.ascontiguousarray(bent[a:e], np.bool_)
+        _horizon_kernel(n, g, s, b, HORIZON_QUADRATURE[0], HORIZON_QUADRATURE[1], out[a:e])
+
+    map_chunks(chunk, normals.shape[0], DIRECT_CHUNK)
     return out
