@@ -101,9 +101,12 @@ class _RayMajorMaps:
         """``radiance_rm`` (R, P, C), its columns in this object's order; returns (P, n+2, n+2, C) in probe order."""
         R, P, C = radiance_rm.shape
         num = np.empty((self.w[0].shape[0], P, C), np.float32)
-        for g, w in enumerate(self.w):                      # Σ_r w · L: (T, P, C), each pattern's block in place
+
+        def product(g: int) -> None:                        # Σ_r w · L: (T, P, C), each pattern's block in place
             a, b = self.bounds[g], self.bounds[g + 1]
-            num[:, a:b] = (w @ radiance_rm[:, a:b].reshape(R, (b - a) * C)).reshape(-1, b - a, C)
+            num[:, a:b] = (self.w[g] @ radiance_rm[:, a:b].reshape(R, (b - a) * C)).reshape(-1, b - a, C)
+
+        self._per_group(product)
         out = np.empty((P, self.n + 2, self.n + 2, C), np.float32)
         bounds = np.linspace(0, P, _MAP_THREADS + 1).astype(np.int64)
         with ThreadPoolExecutor(_MAP_THREADS) as pool:      # π · num / den, OFF = 0, the border: one pass
@@ -122,12 +125,26 @@ class _RayMajorMaps:
             self._sh_basis = [(_sh_basis(np.asarray(d, np.float64), K) * (4.0 * math.pi / R)).astype(np.float32)
                               for d in self._patterns]                        # (R, K) each
         out = np.empty((P, K, C), np.float32)
-        for g, y in enumerate(self._sh_basis):
+
+        def product(g: int) -> None:
             a, b = self.bounds[g], self.bounds[g + 1]
-            out[self.cols[a:b]] = (y.T @ radiance_rm[:, a:b].reshape(R, (b - a) * C)).reshape(K, b - a, C) \
-                .transpose(1, 0, 2)
+            out[self.cols[a:b]] = (self._sh_basis[g].T @ radiance_rm[:, a:b].reshape(R, (b - a) * C)) \
+                .reshape(K, b - a, C).transpose(1, 0, 2)
+
+        self._per_group(product)
         out[self.off] = 0.0
         return out
+
+    def _per_group(self, product) -> None:
+        """``product(g)`` for every pattern group, on :data:`_MAP_THREADS` threads: each writes only its own
+        columns, and each product is one single-threaded BLAS call (the light stage's processes run OpenBLAS on one
+        thread, workers.pipeline.BLAS_THREADS), so the floats are those of one loop."""
+        if len(self.w) == 1 or _MAP_THREADS == 1:
+            for g in range(len(self.w)):
+                product(g)
+            return
+        with ThreadPoolExecutor(_MAP_THREADS) as pool:
+            list(pool.map(product, range(len(self.w))))
 
 
 _MAP_THREADS = 2
