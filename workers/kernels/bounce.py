@@ -34,6 +34,7 @@ import numpy as np
 from numba import njit
 
 from workers.kernels.adaptive_rays import merge_rows
+from workers.kernels.chunks import map_chunks
 from workers.kernels.convergence import extrapolated_tail, relative_tail
 from workers.kernels.grid import OFF
 from workers.kernels.octahedral import _cosine_power, accumulate_octahedral, add_border, oct_texel_directions
@@ -177,6 +178,12 @@ def _finish_maps(num, den, ok, slot, cols, off, p0, p1, out):
             out[p, 0, n + 1, c] = out[p, n, 1, c]
             out[p, n + 1, 0, c] = out[p, 1, n, c]
             out[p, n + 1, n + 1, c] = out[p, 1, 1, c]
+
+
+def _halves(kernel, n: int) -> None:
+    """``kernel(a, e)`` over two halves of [0, n) on two threads: for the per-hit kernels below, whose rows (and the
+    radiance rows and hits they write) are distinct, so the result is one pass's."""
+    map_chunks(kernel, n, max(1, -(-n // 2)), 2)
 
 
 @njit(cache=True, nogil=True)
@@ -352,8 +359,9 @@ def integrate(index: np.ndarray, miss: np.ndarray, albedo: np.ndarray, e_direct:
             e_prev = e_ind
             e_ind = np.ascontiguousarray(gather(maps, sh) if reads_sh else gather(maps), np.float32)
             if near is not None:    # multi-bounce near-field occlusion (parameter ``near``), in place
-                _near_update(e_ind, sel, near_a, near_base, near_rho, near_prev)
-            _shade_hits(radiance, rows, base, rho, e_ind)
+                _halves(lambda a, e: _near_update(e_ind, sel[a:e], near_a[a:e], near_base[a:e], near_rho[a:e],
+                                                  near_prev[a:e]), sel.size)
+            _halves(lambda a, e: _shade_hits(radiance, rows[a:e], base[a:e], rho[a:e], e_ind[a:e]), rows.size)
         new = accumulate(radiance.reshape(R, rows_all, -1))                   # DDGI-I eq 1, α = 0
         if parents.size:
             new = merge_rows(new, parents)                                     # a probe's rows: their mean
