@@ -290,3 +290,38 @@ def test_add_tail_is_the_numpy_expression(previous):
     want[rows] += rho[:, cols] * d_e * f[hit_probe]
     _add_tail(picked, rows, rho, e_ind, e_prev if previous else np.zeros((0, 0), np.float32), cols, f, hit_probe)
     np.testing.assert_array_equal(picked, want)
+
+
+def test_the_threaded_per_row_helpers_equal_one_numpy_pass():
+    """The loop's helpers on two threads: a retiring configuration's rays in probe order (``_probe_major``) equal
+    ``held[:, inv].transpose(1, 0, 2)`` made contiguous; the per-pattern products (``_RayMajorMaps``) and the
+    shading of the hits split in halves give the floats of one thread."""
+    from workers.kernels import bounce as kb
+    from workers.kernels.sampling import ProbeRays, rotated_patterns
+
+    rng = np.random.default_rng(2)
+    held = rng.random((16, 11, 6), dtype=np.float32)
+    inv = rng.permutation(11)
+    got = kb._probe_major(held, inv)
+    assert got.flags.c_contiguous and np.array_equal(got, np.ascontiguousarray(held[:, inv].transpose(1, 0, 2)))
+    assert np.array_equal(kb._probe_major(held, None), np.ascontiguousarray(held.transpose(1, 0, 2)))
+
+    R, P = 32, 90
+    rays = ProbeRays(rotated_patterns(R, 5, rng).astype(np.float32), np.arange(P) % 5)
+    acc = kb._RayMajorMaps(rays, 4, np.full(P, ACTIVE))
+    rad = rng.random((R, P, 3), dtype=np.float32)
+    two = acc(rad), acc.sh(rad)
+    threads, kb._MAP_THREADS = kb._MAP_THREADS, 1
+    try:
+        one = acc(rad), acc.sh(rad)
+    finally:
+        kb._MAP_THREADS = threads
+    assert np.array_equal(one[0], two[0]) and np.array_equal(one[1], two[1])
+
+    radiance = np.zeros((500, 3), np.float32)
+    rows = rng.permutation(500)[:301]
+    base, rho, e = (rng.random((301, 3), dtype=np.float32) for _ in range(3))
+    kb._halves(lambda a, b: kb._shade_hits(radiance, rows[a:b], base[a:b], rho[a:b], e[a:b]), rows.size)
+    want = np.zeros_like(radiance)
+    want[rows] = base + rho * e
+    assert np.array_equal(radiance, want)
