@@ -178,7 +178,7 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
     pos, nrm, power = (np.ascontiguousarray(np.concatenate([f[i] for f in found]), np.float64) for i in range(3))
     # virtual lights in batches of 2·SPOT_BATCH_RAYS pairs at most (cos θ_y > 0 leaves about half of them as shadow
     # rays), one caster call each so that its threads share them; the pair buffers are reused
-    group = max(1, 2 * SPOT_BATCH_RAYS // x.shape[0])
+    group = min(max(1, 2 * SPOT_BATCH_RAYS // x.shape[0]), n_vl)
     cap = group * x.shape[0]
     o, dirs, om = (np.empty((cap, 3)) for _ in range(3))
     a, tfar, probe = np.empty((cap, 3)), np.empty(cap), np.empty(cap, np.int64)
