@@ -140,12 +140,7 @@ class _RayMajorMaps:
         """``product(g)`` for every pattern group, on :data:`_MAP_THREADS` threads: each writes only its own
         columns, and each product is one single-threaded BLAS call (the light stage's processes run OpenBLAS on one
         thread, workers.pipeline.BLAS_THREADS), so the floats are those of one loop."""
-        if len(self.w) == 1 or _MAP_THREADS == 1:
-            for g in range(len(self.w)):
-                product(g)
-            return
-        with ThreadPoolExecutor(_MAP_THREADS) as pool:
-            list(pool.map(product, range(len(self.w))))
+        map_chunks(lambda g, _: product(g), len(self.w), 1, _MAP_THREADS)
 
 
 _MAP_THREADS = 2
