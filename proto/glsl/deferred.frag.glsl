@@ -8,6 +8,7 @@
 //   uGPosition xyz world position, w 1 where shaded; uGNormal xyz unit shading normal facing the camera;
 //   uGAlbedo rgb linear albedo; uGEmission rgb emitted radiance;
 //   uShadowMask0 / uShadowMask1 (RGBA8) visibility of lights 0-3 / 4-7 (Embree shadow rays, 0 or 1).
+// A scene with more than MAX_LIGHTS lights is drawn a group of 8 at a time (uOutput 2 for the further groups).
 #include "common.glsl"
 #define KILN_LIGHT_VISIBILITY 1
 #include "lights.glsl"
@@ -44,7 +45,8 @@ void main() {
   if (uLightCount > 4) gShadow1 = texelFetch(uShadowMask1, gPixel, 0);
   giViewDir = uGiFrame * normalize(uEye - P.xyz);                          // the GI modes work in the bake frame
   vec3 eDirect = directIrradiance(P.xyz, n);                                // direct light: world
-  vec3 eIndirect = giIndirectIrradiance(uGiFrame * P.xyz, uGiFrame * n);
+  // E_direct alone (a further light group's pass, workers/render/shading.py) skips the mode's lookups
+  vec3 eIndirect = uOutput == 2 ? vec3(0.0) : giIndirectIrradiance(uGiFrame * P.xyz, uGiFrame * n);
   vec3 c;
   if (uOutput == 1) c = eIndirect;
   else if (uOutput == 2) c = eDirect;

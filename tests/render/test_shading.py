@@ -312,6 +312,51 @@ def test_direct_matches_python_and_shadow_rays(ctx, two_rooms):
     assert np.abs(rad).max() == 0  # albedo 0, no emission
 
 
+def test_more_lights_than_a_pass_takes_are_drawn_in_groups(ctx, two_rooms):
+    """A scene with 13 lights (MAX_LIGHTS = 8 a pass): E_direct is every light's (= shading.direct_irradiance with
+    the shadow rays), the radiance adds albedo/π of all of them to the GI of one pass, and E_indirect is the mode's
+    alone — where a single pass of the first 8 lights raised ValueError and failed the evaluate stage."""
+    from workers.render.shading import MAX_LIGHTS
+
+    scene, s = two_rooms
+    rng = np.random.default_rng(11)
+    lights = [{"type": "point", "position": (rng.random(3) * [7.4, 2.4, 3.4] + 0.3).tolist(), "intensity": 2.0 + i,
+               "color": [1.0, 0.5 + 0.04 * i, 0.3]} for i in range(12)]
+    lights.append({"type": "directional", "direction": [-0.3, -1.0, -0.2], "intensity": 1.5})
+    assert len(lights) > MAX_LIGHTS
+    p, n = _points(64 * 32, rng, TWO_ROOMS_BOX)
+    caster = RayCaster(scene.triangles)
+    want = direct_irradiance(p, n, lights, caster, 1e-3)
+    sm = shadow_masks(p, n, lights, caster, 1e-3)
+    albedo = rng.random((32, 64, 3)).astype(np.float32)
+    emission = np.zeros((32, 64, 3), np.float32)
+    emission[:4] = 0.25
+    gb = GBufferInputs(_as_image(p), _as_image(n), albedo, emission, np.ones((32, 64), bool), sm.reshape(32, 64, -1))
+    r = ShadingRenderer(ctx, lights)
+    try:
+        assert len(r.light_groups) == 2
+        r.set_mode(prepare_mode("leaking", bake_arrays(s), bake_grid(s)))
+        r.set_gbuffer(gb)
+        e_dir = r.render("leaking", output=2).reshape(-1, 3)
+        e_ind = r.render("leaking", output=1).reshape(-1, 3)
+        rad = r.render("leaking", output=0).reshape(-1, 3)
+    finally:
+        r.release()
+    r1 = ShadingRenderer(ctx, lights[:MAX_LIGHTS])            # the first group alone: the GI is the same
+    try:
+        r1.set_mode(prepare_mode("leaking", bake_arrays(s), bake_grid(s)))
+        r1.set_gbuffer(GBufferInputs(gb.position, gb.normal, albedo, emission, gb.shaded, sm[:, :MAX_LIGHTS].reshape(32, 64, -1)))
+        e_ind1 = r1.render("leaking", output=1).reshape(-1, 3)
+    finally:
+        r1.release()
+    scale = np.abs(want).max()
+    assert (sm[:, MAX_LIGHTS:] == 0).any() and (want > 0).any()
+    assert np.abs(e_dir - want).max() <= 1e-4 * scale
+    np.testing.assert_array_equal(e_ind, e_ind1)
+    expect = emission.reshape(-1, 3) + albedo.reshape(-1, 3) / np.pi * (want + e_ind)
+    assert np.abs(rad - expect).max() <= 1e-4 * np.abs(expect).max()
+
+
 PRT_CFG = {"place": {"counts": [3, 3, 3]}, "trace": {"rays_per_probe": 32}, "light": {"bounces": 2},
            "prt": {"enabled": True, "configurations": 16, "measurement_points": 32, "basis": 8, "lightmap": 0,
                    "scenario": {"types": ["point"], "box": {"min": [0.2, 0.2, 0.2], "max": [0.8, 0.8, 0.8]}}}}

@@ -80,6 +80,26 @@ def test_two_rooms_leaking_worst_mask_and_ddgi_far_better(tmp_path, scene_files)
     assert contact.format in ("png", "npy")
 
 
+def test_more_lights_than_a_shading_pass_takes(tmp_path, scene_files):
+    """Two rooms with 9 point lights added to its own (10 > MAX_LIGHTS = 8 a pass): the evaluate stage draws its
+    previews in two light groups (workers/render/shading.py) instead of failing the bake with "the shading pass
+    takes at most 8 lights"; the reference's shadow masks hold all 10 lights and every mode is scored."""
+    from workers.render.shading import MAX_LIGHTS
+
+    extra = [{"type": "point", "position": [0.8 + 0.35 * i, 2.2, 1.0 + 0.2 * (i % 3)], "intensity": 1.5}
+             for i in range(9)]
+    cfg = {**TWO_ROOMS, "scene": {"lights": extra}}
+    cam = {"position": [3.5, 1.5, 2.0], "target": [1.0, 1.0, 1.5], "name": "rooma"}
+    scene, s = bake_until(tmp_path, scene_files["two-rooms"], cfg, "compress")
+    assert len(s["ingest"]["lights"]["lights"]) == 10 > MAX_LIGHTS
+    out = _evaluate(scene, s, cfg, {**EVAL, "cameras": [cam], "flip": False})
+    m = _stats(out)
+    assert set(out.stats["modes"]) >= {"direct", "leaking", "mask_normalized"}
+    for k in out.stats["modes"]:
+        assert math.isfinite(m[f"{k}.image_rmse"]) and m[f"{k}.pass_ms"] > 0
+    assert {"eval_rooma_reference", "eval_rooma_direct", "eval_contact"} <= {a.name for a in out.artifacts}
+
+
 def test_sealed_box_leaking_worst(tmp_path, scene_files):
     # a camera inside the sealed cavity: the reference's indirect is ~0 there; leaking probes bring the sun in
     cam = {"position": [0.0, 0.5, 0.35], "target": [0.0, 0.4, -0.45], "name": "cavity", "fov_y": 80.0}

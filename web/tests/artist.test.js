@@ -2,7 +2,7 @@ import { describe, expect, it } from 'vitest';
 import { readFileSync } from 'node:fs';
 import { fileURLToPath } from 'node:url';
 import {
-  LIGHT_TYPES, defaultLight, degToRad, hexToLinear, insideBounds, linearToHex, preBakeWarnings, radToDeg, radToDegRounded, skyControls,
+  LIGHT_TYPES, defaultLight, degToRad, hexToLinear, insideBounds, lightCoverage, linearToHex, preBakeWarnings, radToDeg, radToDegRounded, skyControls,
   skyRadiance, sunAngles, sunDirection,
 } from '../src/state/lighting.js';
 import { FIELD_UI, fieldUi, humanize, splitReferences } from '../src/state/formLabels.js';
@@ -147,5 +147,22 @@ describe('dashboard columns', () => {
     expect(v).not.toHaveProperty('memory MiB');
     expect(v).not.toHaveProperty(['stage_seconds.place']);
     expect(v['place seconds']).toBe(0.2);
+  });
+});
+
+describe('lightCoverage: what the viewer\'s direct light leaves out', () => {
+  const limits = { maxLights: 8, cubes: 4, dirs: 2 };
+  const pts = (n) => Array.from({ length: n }, () => ({ type: 'point' }));
+  it('says nothing when every light is drawn with a shadow map', () => {
+    expect(lightCoverage([], limits)).toBe('');
+    expect(lightCoverage([...pts(4), { type: 'directional' }, { type: 'directional' }], limits)).toBe('');
+  });
+  it('names the lights beyond a pass and the unshadowed ones', () => {
+    const note = lightCoverage(pts(32), limits);
+    expect(note).toContain('first 8 of the bake\'s 32 lights');
+    expect(note).toContain('hold all 32');
+    expect(note).toContain('4 of the 8 drawn lights are unshadowed');
+    expect(lightCoverage([...pts(5)], limits)).toBe('1 of the 5 drawn lights is unshadowed here (shadow maps for 4 point/spot and 2 directional lights).');
+    expect(lightCoverage([{ type: 'directional' }, { type: 'directional' }, { type: 'directional' }], limits)).toContain('1 of the 3 drawn lights is unshadowed');
   });
 });

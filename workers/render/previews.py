@@ -21,6 +21,7 @@ import time
 import numpy as np
 
 from workers.kernels import metrics as MT
+from proto.gi_modes import MAX_LIGHTS
 from workers.kernels.reference_layout import pack_gbuffer, unpack_gbuffer
 
 __all__ = ["HEATMAP_VMAX", "GBUFFER_FETCHES", "reference_previews", "mode_previews", "mode_resources",
@@ -220,8 +221,9 @@ def _preview_summary(modes, per_camera, n_lights: int, summary: dict) -> None:
             if xs:
                 summary[f"{m}.{key}"] = float(np.mean(xs))
         if f"{m}.pass_ms" in summary and f"{m}.gi_fetches_per_pixel" in summary:
+            groups = max(1, math.ceil(n_lights / MAX_LIGHTS))   # a further group of 8 lights: position + normal
             summary[f"{m}.pass_fetches_per_pixel"] = (summary[f"{m}.gi_fetches_per_pixel"] + GBUFFER_FETCHES
-                                                      + math.ceil(n_lights / 4))
+                                                      + 2 * (groups - 1) + math.ceil(n_lights / 4))
     for a, b in (("mask", "leaking"), ("ddgi", "mask"), ("mask_normalized", "leaking")):
         if f"{a}.pass_ms" in summary and summary.get(f"{b}.pass_ms"):
             summary[f"ratio.{a}_over_{b}.pass_ms"] = summary[f"{a}.pass_ms"] / summary[f"{b}.pass_ms"]

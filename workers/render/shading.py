@@ -10,7 +10,10 @@ files the WebGL2 viewer compiles. One full-screen triangle; per pixel
   :func:`workers.kernels.shading.direct_irradiance`) times a per-pixel, per-light visibility computed
   with Embree shadow rays on the CPU (:func:`shadow_masks`) and uploaded as RGBA8 textures (lights 0-3,
   4-7). So the direct term is the reference's, exactly (the same rays, eps and normals), and the pass
-  still does the lighting work a game's base pass does.
+  still does the lighting work a game's base pass does. A pass takes :data:`MAX_LIGHTS` lights (8); a scene
+  with more is drawn in groups of 8, one pass each (:meth:`ShadingRenderer.render`: the first group's pass
+  gives E_indirect and the radiance of its lights, each further group's E_direct adds ``albedo/π · E_direct``
+  on the CPU), as a forward renderer's additive light passes do.
 - ``E_indirect``: the mode's ``giIndirectIrradiance(p, n)``.
 
 ``uOutput`` selects radiance (0), E_indirect (1) or E_direct (2); targets are RGBA32F, read back as
@@ -340,7 +343,8 @@ class ShadingRenderer:
     Parameters
     ----------
     ctx : moderngl.Context, optional (default: a new headless one, released by :meth:`release`)
-    lights : list of light dicts (the scene's resolved lights, world; at most 8)
+    lights : list of light dicts (the scene's resolved lights, world; any number: groups of :data:`MAX_LIGHTS`,
+        one pass each, see :meth:`render`)
     frame : (3, 3) array-like, optional: the bake frame, row-major world -> bake (the manifest's
         ``grid.frame.matrix``; also its dict); None = identity. See :meth:`set_frame` and the module doc.
     """
@@ -353,7 +357,12 @@ class ShadingRenderer:
         self._mgl = mgl
         self.sources = load_sources()
         self.lights = list(lights)
-        self.light_uniforms = light_uniforms(self.lights)
+        # groups of MAX_LIGHTS lights, a pass each (at least one group, empty for a scene without lights)
+        self.light_groups = [self.lights[i:i + MAX_LIGHTS] for i in range(0, len(self.lights), MAX_LIGHTS)] or [[]]
+        self._group_uniforms = [light_uniforms(g) for g in self.light_groups]
+        self.light_uniforms = self._group_uniforms[0]
+        self._shadow_textures: list[dict] = []       # per group: uShadowMask0 / uShadowMask1
+        self._albedo = None                          # (H, W, 3) float32: the CPU sum of the groups' radiance
         self.vert = preprocess("fullscreen.vert.glsl", self.sources, target="desktop").code
         self.programs: dict[str, object] = {}
         self.modes: dict[str, ModeResources] = {}
@@ -428,7 +437,7 @@ class ShadingRenderer:
 
     def set_gbuffer(self, g: GBufferInputs) -> None:
         """Upload a G-buffer (and its shadow masks) and size the target."""
-        for t in self._gbuf.values():
+        for t in list(self._gbuf.values()) + [t for d in self._shadow_textures for t in d.values()]:
             t.release()
         H, W = g.shape
         L = len(self.lights)
@@ -441,14 +450,17 @@ class ShadingRenderer:
             out[..., :3] = a
             return out
 
-        sm = np.full((H, W, 8), 255, np.uint8)
+        G = len(self.light_groups)
+        sm = np.full((H, W, G * MAX_LIGHTS), 255, np.uint8)       # lights 8g .. 8g+7 in group g's two textures
         if g.shadow is not None and L:
             sm[..., :L] = np.round(np.clip(np.asarray(g.shadow, np.float64).reshape(H, W, L), 0, 1) * 255)
         self._gbuf = {"uGPosition": self._texture(pos, False), "uGNormal": self._texture(rgba(g.normal), False),
                       "uGAlbedo": self._texture(rgba(g.albedo), False),
-                      "uGEmission": self._texture(rgba(g.emission), False),
-                      "uShadowMask0": self._texture(sm[..., :4], False),
-                      "uShadowMask1": self._texture(sm[..., 4:], False)}
+                      "uGEmission": self._texture(rgba(g.emission), False)}
+        self._shadow_textures = [{"uShadowMask0": self._texture(sm[..., 8 * k:8 * k + 4], False),
+                                  "uShadowMask1": self._texture(sm[..., 8 * k + 4:8 * k + 8], False)}
+                                 for k in range(G)]
+        self._albedo = np.asarray(g.albedo, np.float32).reshape(H, W, 3) if G > 1 else None
         if self._size != (W, H):
             if self._fbo is not None:
                 self._fbo.release()
@@ -457,12 +469,14 @@ class ShadingRenderer:
             self._fbo = self.ctx.framebuffer(color_attachments=[self._target])
             self._size = (W, H)
 
-    def _bind(self, mode: str, output: int, eye) -> None:
+    def _bind(self, mode: str, output: int, eye, group: int = 0) -> None:
         prog = self.program(mode)
         res = self.modes.get(mode) or ModeResources(mode)
         unit = 0
         bound = set()
-        for name, tex in list(self._gbuf.items()) + list(self.mode_textures.get(mode, {}).items()):
+        shadow = self._shadow_textures[group] if self._shadow_textures else {}
+        for name, tex in (list(self._gbuf.items()) + list(shadow.items())
+                          + list(self.mode_textures.get(mode, {}).items())):
             if name in prog:
                 tex.use(location=unit)
                 prog[name].value = unit
@@ -477,7 +491,8 @@ class ShadingRenderer:
                 self._dummy(kind).use(location=unit)
                 u.value = unit
                 unit += 1
-        values = {**self.light_uniforms, **res.uniforms, "uEye": tuple(float(x) for x in eye), "uOutput": int(output),
+        values = {**self._group_uniforms[group], **res.uniforms, "uEye": tuple(float(x) for x in eye),
+                  "uOutput": int(output),
                   "uGiFrame": self._frame_uniform}
         for name, v in values.items():
             if name not in prog:
@@ -495,20 +510,44 @@ class ShadingRenderer:
                 self._dummies[kind] = self.ctx.texture((1, 1), 4, bytes(16), dtype="f4")
         return self._dummies[kind]
 
-    def draw(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> None:
-        """Render the pass into the target (no read back, no finish)."""
-        self._bind(mode, output, eye)
+    def _draw(self, mode: str, output: int, eye, group: int) -> None:
+        self._bind(mode, output, eye, group)
         self._fbo.use()
         self.ctx.viewport = (0, 0, *self._size)
         self.ctx.disable(self._mgl.DEPTH_TEST | self._mgl.BLEND)
         self._vao(mode).render(self._mgl.TRIANGLES, vertices=3)
 
-    def render(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> np.ndarray:
-        """(H, W, 3) float32: radiance (output 0), E_indirect (1) or E_direct (2), row 0 = top."""
-        self.draw(mode, output, eye)
+    def _read(self) -> np.ndarray:
         W, H = self._size
         a = np.frombuffer(self._target.read(), np.float32).reshape(H, W, 4)
         return np.ascontiguousarray(a[..., :3])
+
+    def draw(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> None:
+        """Render the pass into the target (no read back, no finish): one draw per light group (a scene with more
+        than :data:`MAX_LIGHTS` lights pays a pass per group, E_direct alone after the first, as :meth:`render`
+        does; the target then holds the last group's)."""
+        self._draw(mode, output, eye, 0)
+        for k in range(1, len(self.light_groups)):
+            self._draw(mode, 2, eye, k)
+
+    def render(self, mode: str, output: int = 0, eye=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """(H, W, 3) float32: radiance (output 0), E_indirect (1) or E_direct (2), row 0 = top.
+
+        With more than :data:`MAX_LIGHTS` lights, one pass per group of 8: E_direct is the sum of the groups'
+        E_direct, E_indirect the first pass's (it does not depend on the lights: the PRT mode's coefficients hold
+        all of them), and the radiance the first pass's (emission, its lights, the GI) plus ``albedo/π ·
+        E_direct`` of every further group (the G-buffer's albedo, float32 sums on the CPU)."""
+        self._draw(mode, output, eye, 0)
+        out = self._read()
+        if output == 1 or len(self.light_groups) == 1:
+            return out
+        extra = np.zeros_like(out)
+        for k in range(1, len(self.light_groups)):
+            self._draw(mode, 2, eye, k)
+            extra += self._read()
+        if output == 2:
+            return out + extra
+        return out + self._albedo * np.float32(1.0 / math.pi) * extra
 
     def time_pass(self, mode: str, eye=(0.0, 0.0, 0.0), repeats: int = 5) -> dict:
         """Wall time of the whole pass (draw + ctx.finish()), one warm-up, then ``repeats``: median, min, all."""
@@ -544,7 +583,7 @@ class ShadingRenderer:
         for texs in self.mode_textures.values():
             for t in texs.values():
                 t.release()
-        for t in self._gbuf.values():
+        for t in list(self._gbuf.values()) + [t for d in self._shadow_textures for t in d.values()]:
             t.release()
         for v in list(self._vaos.values()) + list(self._dummies.values()):
             v.release()
@@ -553,6 +592,6 @@ class ShadingRenderer:
         if self._fbo is not None:
             self._fbo.release()
             self._target.release()
-        self.mode_textures, self._gbuf, self._vaos, self.programs = {}, {}, {}, {}
+        self.mode_textures, self._gbuf, self._vaos, self.programs, self._shadow_textures = {}, {}, {}, {}, []
         if self._own_ctx:
             self.ctx.release()

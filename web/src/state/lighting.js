@@ -155,3 +155,29 @@ export function preBakeWarnings(config, scene) {
   }
   return out;
 }
+
+/**
+ * What the viewer's direct light leaves out of a bake's lights (the renderer's limits: `maxLights` a pass, as
+ * lights.glsl MAX_LIGHTS; shadow maps for the first `cubes` point/spot and `dirs` directional lights among those
+ * drawn, as renderer/shadows.js). '' when it draws them all, shadowed; else a sentence for the Lights panel. The
+ * baked GI and the evaluate stage's pictures hold every light whatever this says.
+ * @param {{type: string}[]} lights
+ * @param {{maxLights: number, cubes: number, dirs: number}} limits
+ */
+export function lightCoverage(lights, { maxLights, cubes, dirs }) {
+  const list = (lights || []).filter((l) => l && ['point', 'spot', 'directional'].includes(l.type));
+  const drawn = list.slice(0, maxLights);
+  const local = drawn.filter((l) => l.type !== 'directional').length;
+  const sun = drawn.length - local;
+  const unshadowed = Math.max(0, local - cubes) + Math.max(0, sun - dirs);
+  const parts = [];
+  if (list.length > drawn.length) {
+    parts.push(`The viewer draws the direct light of the first ${drawn.length} of the bake's ${list.length} lights `
+      + `(${maxLights} a pass); the baked GI and the evaluate stage's pictures hold all ${list.length}.`);
+  }
+  if (unshadowed > 0) {
+    parts.push(`${unshadowed} of the ${drawn.length} drawn ${unshadowed === 1 ? 'lights is' : 'lights are'} unshadowed here `
+      + `(shadow maps for ${cubes} point/spot and ${dirs} directional lights).`);
+  }
+  return parts.join(' ');
+}

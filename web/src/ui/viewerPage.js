@@ -55,6 +55,7 @@ export function createViewerPage(app) {
   const placeBtn = h('button.small#place-light', { type: 'button', title: 'click a surface of the scene: a point light of the bake form goes 0.3 m in front of it' }, 'Place a light…');
   const placeDone = h('button.small#place-done', { type: 'button', hidden: true }, 'Done placing');
   const placeNote = h('p#place-note.muted');
+  const lightNote = h('p#light-note.note', { hidden: true });
 
   const el = h('section.page#page-viewer',
     warningsBanner,
@@ -76,7 +77,7 @@ export function createViewerPage(app) {
         h('div.row', camSave), camNote,
         h('h3', 'Lights'),
         h('div.row', h('label', lightsBox, ' show lights'), placeBtn, placeDone),
-        placeNote,
+        placeNote, lightNote,
         h('h3', 'Probes'),
         h('div.row', h('label', probesBox, ' show probes'), probeColor),
         gridNote,
@@ -202,6 +203,7 @@ export function createViewerPage(app) {
       progressLabel.textContent = patch.loading >= 1 ? 'volumes loaded' : `streaming ${patch.loadingLabel || ''} ${(patch.loading * 100).toFixed(0)}%`;
     }
     if ('note' in patch) note.textContent = patch.note || '';
+    if ('lightNote' in patch) { lightNote.textContent = patch.lightNote || ''; lightNote.hidden = !patch.lightNote; }
     if ('exposureEV' in patch) { exposure.value = String(patch.exposureEV); exposureLabel.textContent = `EV ${patch.exposureEV}`; }
     if ('modeError' in patch) modeError.textContent = patch.modeError || '';
     if ('shaderError' in patch) shaderError.textContent = patch.shaderError || '';

@@ -15,10 +15,15 @@ import { parseNpy } from '../loader/npy.js';
 import { tableFromKTX2 } from '../loader/ktx2.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
 import { frameMatrix, mapLight, pointsToWorld, toBake, toWorld } from '../math/frame.js';
-import { GI_MODES, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
+import { GI_MODES, MAX_LIGHTS, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
+import { lightCoverage } from '../state/lighting.js';
+import { SHADOW_CUBES, SHADOW_DIRS } from '../renderer/shadows.js';
 import { autoCamera } from './autocamera.js';
 import { createControls } from './cameras.js';
 import { buildLightMarkers, disposeMarkers, pickSurface } from './lightMarkers.js';
+
+/** The renderer's light limits (a pass's lights, shadow maps), for the Lights panel's note (state/lighting.js). */
+const LIGHT_LIMITS = { maxLights: MAX_LIGHTS, cubes: SHADOW_CUBES, dirs: SHADOW_DIRS };
 
 /**
  * The grid of a bake, from its place stage's stats (the manifest's `grid`): counts, origin and spacing in the bake
@@ -256,6 +261,7 @@ export class Viewer {
     // direct light at once: the scene's own lights now, the bake's resolved lights (+ config lights, sky) soon
     this.bakeLights = gltfLights(root);
     this.renderer.setLights(this.bakeLights);
+    this.status({ lightNote: lightCoverage(this.bakeLights, LIGHT_LIMITS) });
     this.setLightMarkers(this.bakeLights);
     this.renderer.setSky([0, 0, 0]);
     this.renderer.setMaterialOptions((bake && bake.config && bake.config.scene) || {});
@@ -269,6 +275,7 @@ export class Viewer {
       if (stale()) return;
       this.bakeLights = lights.lights.lights || [];
       if (!this.prtLightsOn) this.renderer.setLights(this.bakeLights);
+      this.status({ lightNote: lightCoverage(this.bakeLights, LIGHT_LIMITS) });
       if (!this.editLightList) this.setLightMarkers(this.bakeLights);
       this.renderer.setSky(lights.lights.sky || [0, 0, 0]);
       if (!this.userExposure) {
