@@ -3,7 +3,8 @@
 The uniform numbers of path p at vertex k are a hash (splitmix64, Steele et al. 2014) of
 (seed, p, k, dimension), so an estimate depends only on the seed, the settings and the path's id — never on
 chunking, thread count or the other paths. Dimensions used by :mod:`workers.kernels.pathtrace`: 0, 1 the
-cosine direction, 2 Russian roulette; by :mod:`workers.kernels.emitters`: 3 the emitter, 4, 5 the point on it.
+cosine direction, 2 Russian roulette; by :mod:`workers.kernels.emitters`: 3 the emitter, 4, 5 the point on it; by
+:mod:`workers.kernels.light_spots`: 15 (path = virtual light, vertex = probe). A vertex has 16 dimensions.
 
 Stratified first directions (:func:`stratified_uniforms`, :func:`first_cosine_directions`): a point's ``spp``
 paths form G independent sets (path j in set ``j mod G``); set g's i-th path takes the i-th point of the Sobol

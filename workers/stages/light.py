@@ -181,7 +181,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     e_direct = split_direct(per_light, c_spot) if per_light else e_direct
     dmaps, dsh_l2, n_spots, spot_rays = spot_correction(     # L2 for the SH gather, whatever the stored order
         scene, caster, positions, states != OFF, lit["lights"], c_spot, double_sided_triangles(scene),
-        grid["spacing"], sec.irradiance_texels, eps, 2 if sec.gather == "sh" else sec.sh_order)
+        grid["spacing"], sec.irradiance_texels, eps, 2 if sec.gather == "sh" else sec.sh_order, seed=ctx.config.seed)
     dsh = dsh_l2[:, :(sec.sh_order + 1) ** 2]
     del per_light
     t_spots, t1 = time.perf_counter() - t0, time.perf_counter()
