@@ -428,35 +428,10 @@ def test_direct_irradiance_with_bent_normals(ground):
     np.testing.assert_array_equal(e2[1], plain[1])
 
 
-def _numpy_point_light(x, n, light, caster, eps, frame):
-    """The vectorized form :func:`shading._add_point_light` replaced (light stage 12): E of one point light."""
-    acc = np.zeros_like(x)
-    p = np.asarray(light["position"], np.float64)
-    color = np.asarray(light["color"], np.float64) * float(light["intensity"])
-    to_light = p - x
-    d2 = np.einsum("ij,ij->i", to_light, to_light)
-    d = np.sqrt(d2)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        l = to_light / d[:, None]
-        cos_n = np.einsum("ij,ij->i", n, l)
-        scale = cos_n / d2
-    lit = np.flatnonzero((d > 0) & (cos_n > 0))
-    scale = shading._bent_scale(scale[lit], lit, l[lit], n, frame)
-    o = x[lit] + eps * n[lit]
-    ray = p - o
-    dist = np.linalg.norm(ray, axis=1)
-    tfar = dist - 2.0 * eps
-    trace = np.flatnonzero(tfar > 0)
-    blocked = np.asarray(caster.occluded(o[trace], ray[trace] / dist[trace, None], tfar=tfar[trace]), bool)
-    scale[trace[blocked]] = 0.0
-    acc[lit] += scale[:, None] * color
-    return acc
-
-
 def test_point_light_pass_equals_the_numpy_form(ground_and_blocker):
-    """shading._add_point_light (one compiled pass) gives the numpy form's floats bit for bit: random points and
-    normals around a blocker, some lit from below the geometric normal (rejected), zero geometric normals, bent rows
-    with the bump term, a point at the light (d = 0) and one within 2·eps of it (no ray)."""
+    """shading._add_point_light (one compiled pass) gives the numpy form's floats (shading._add_local_light) bit for
+    bit: random points and normals around a blocker, some lit from below the geometric normal (rejected), zero
+    geometric normals, bent rows with the bump term, a point at the light (d = 0) and one within 2·eps of it (no ray)."""
     tris, caster = ground_and_blocker
     rng = np.random.default_rng(12)
     m = 5000
@@ -473,9 +448,10 @@ def test_point_light_pass_equals_the_numpy_form(ground_and_blocker):
     x[10] = light["position"]
     x[11] = np.asarray(light["position"]) + [1e-5, 0, 0]
     for frame in (None, (ng, None, None), (ng, sm, bent)):
-        want = _numpy_point_light(x, n, light, caster, 1e-4, frame)
-        got = np.zeros_like(x)
-        shading._add_point_light(got, x, n, np.asarray(light["position"], np.float64),
-                                 np.asarray(light["color"], np.float64) * light["intensity"], caster, 1e-4, frame)
+        p = np.asarray(light["position"], np.float64)
+        color = np.asarray(light["color"], np.float64) * light["intensity"]
+        want, got = np.zeros_like(x), np.zeros_like(x)
+        shading._add_local_light(want, x, n, light, p, color, None, caster, 1e-4, frame)     # the numpy form
+        shading._add_point_light(got, x, n, p, color, caster, 1e-4, frame)
         assert np.array_equal(got, want)
         assert (want > 0).any() and (want == 0).any()

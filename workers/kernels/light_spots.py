@@ -49,6 +49,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 from numba import njit
 
+from workers.kernels.chunks import CHUNK_THREADS, map_chunks
 from workers.kernels.octahedral import add_border, oct_texel_directions
 from workers.kernels.path_rng import _uniform
 from workers.kernels.sampling import fibonacci_sphere
@@ -201,11 +202,9 @@ def spot_correction(scene, caster, positions: np.ndarray, live: np.ndarray, ligh
     pos, nrm, power = (np.ascontiguousarray(np.concatenate([f[i] for f in found]), np.float64) for i in range(3))
     y_power = np.ascontiguousarray(_luma(power))
     bound = np.zeros(x.shape[0])                    # b_i: the roulette's bound per probe (0: every pair, exactly)
-    if roulette > 0:
-        cuts = np.linspace(0, x.shape[0], DELTA_THREADS + 1).astype(np.int64)
-        with ThreadPoolExecutor(DELTA_THREADS) as pool:
-            list(pool.map(lambda i: _pair_totals(pos, nrm, y_power, x, MIN_DISTANCE_FRACTION * h, bound,
-                                                 cuts[i], cuts[i + 1]), range(DELTA_THREADS)))
+    if roulette > 0:                                # each probe's total on its own: any chunking, the same floats
+        map_chunks(lambda lo, hi: _pair_totals(pos, nrm, y_power, x, MIN_DISTANCE_FRACTION * h, bound, lo, hi),
+                   x.shape[0], -(-x.shape[0] // CHUNK_THREADS))
         bound *= float(roulette)
     # virtual lights in batches of 2·SPOT_BATCH_RAYS pairs at most (cos θ_y > 0 leaves about half of them as shadow
     # rays), one caster call each so that its threads share them; the pair buffers are reused

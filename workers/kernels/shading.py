@@ -378,7 +378,14 @@ def _add_light(acc, x, n, light, caster, eps, frame=None) -> None:
     p = np.asarray(light["position"], np.float64)
     if kind == "point" and rng is None:                 # the common case in one compiled pass (the same floats)
         _add_point_light(acc, x, n, p, color, caster, eps, frame)
-        return
+    else:
+        _add_local_light(acc, x, n, light, p, color, rng, caster, eps, frame)
+
+
+def _add_local_light(acc, x, n, light, p, color, rng, caster, eps, frame) -> None:
+    """:func:`_add_light` for a point or spot light at p (float64 (3,)) in numpy: any range, the spot's cone; the
+    reference form of :func:`_add_point_light` (which gives its floats for a point light without range)."""
+    kind = light["type"]
     to_light = p - x
     d2 = np.einsum("ij,ij->i", to_light, to_light)
     d = np.sqrt(d2)
