@@ -71,8 +71,8 @@ def test_upload_formats_dedupe_and_listing(running, scene_files):
      422, "external_uri"),
     (b'{"asset": {"version": "2.0"}, "buffers": [{"uri": "../secret.bin", "byteLength": 4}]}',
      422, "path_traversal"),
-    (b'{"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_texture_basisu"],'
-     b' "extensionsUsed": ["KHR_texture_basisu"]}', 422, "unsupported_extension"),
+    (b'{"asset": {"version": "2.0"}, "extensionsRequired": ["KHR_gaussian_splatting_fake"],'
+     b' "extensionsUsed": ["KHR_gaussian_splatting_fake"]}', 422, "unsupported_extension"),
     (b"", 400, "empty_upload"),
 ])
 def test_bad_uploads_get_4xx_with_code(running, payload, status, code):

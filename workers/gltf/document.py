@@ -24,6 +24,7 @@ HONOURED_EXTENSIONS = frozenset(
         "KHR_texture_transform",
         "KHR_mesh_quantization",
         "EXT_texture_webp",
+        "KHR_texture_basisu",  # KTX2 images transcoded with opengl-basisu (workers.gltf.materials)
         "EXT_mesh_gpu_instancing",
         "KHR_materials_pbrSpecularGlossiness",
         "KHR_draco_mesh_compression",  # decoded with DracoPy (workers.gltf.compression)
@@ -34,11 +35,6 @@ HONOURED_EXTENSIONS = frozenset(
 #: Extensions read only to say what the bake does with them: their own warning (:mod:`workers.gltf.materials`)
 #: instead of a place in "extensions ignored"; still refused when required.
 EXPLAINED_EXTENSIONS = frozenset({"KHR_materials_transmission", "KHR_materials_volume"})
-#: Extensions refused by name when required, with the reason given to the user.
-_REFUSED_EXTENSIONS = {
-    "KHR_texture_basisu": "KTX2/Basis Universal textures cannot be decoded here; re-export with PNG, "
-    "JPEG or WebP textures",
-}
 
 
 def lookup(table: dict, key):
@@ -141,10 +137,6 @@ class Document:
         for name in required:
             if not isinstance(name, str):
                 raise invalid("extensionsRequired must hold strings")
-            if name in _REFUSED_EXTENSIONS:
-                raise err(
-                    "unsupported_extension", f"required extension {name} is not supported: {_REFUSED_EXTENSIONS[name]}"
-                )
             if name not in HONOURED_EXTENSIONS:
                 raise err("unsupported_extension", f"required extension {name} is not supported by this service")
         ignored = sorted({u for u in used if isinstance(u, str) and u not in HONOURED_EXTENSIONS

@@ -5,14 +5,18 @@ has no metallic-roughness block), metallic and roughness factors and texture, em
 ``KHR_materials_emissive_strength`` and emissive texture, ``doubleSided``, ``alphaMode`` and ``alphaCutoff``;
 ``KHR_materials_transmission`` only for a warning (the glass is baked opaque, as the Cycles Lambert reference bakes
 it); the texture slot whose UV set (and ``KHR_texture_transform``) ``uv0`` carries. Textures are decoded once per
-image with PIL to RGBA uint8 (PNG, JPEG, WebP via ``EXT_texture_webp``), their size checked from the header
-first. :data:`DEFAULT_MATERIAL` is glTF's default material (3.9.6), for primitives without one.
+image to RGBA uint8, their size checked from the header first: PNG, JPEG and WebP (``EXT_texture_webp``) with PIL,
+KTX2 with a Basis Universal payload (``KHR_texture_basisu``: ETC1S or UASTC, any supercompression) with Binomial's
+transcoder (opengl-basisu), level 0 transcoded to RGBA8 — the bytes as stored, sRGB-encoded like a PNG's. A texture's
+extension source is preferred to its ``source`` (the PNG/JPEG fallback the extensions allow), since that is what an
+engine that reads the extension shows. :data:`DEFAULT_MATERIAL` is glTF's default material (3.9.6), for primitives without one.
 Consumer: :mod:`workers.gltf.reader`. Inverse: :mod:`workers.scene_glb` (materials written back).
 
 References
 ----------
 .. [glTF] Khronos, "glTF 2.0 Specification", sections 3.8 (textures, images), 3.9 (materials).
 .. [KHR_texture_transform] Khronos glTF extension: offset, rotation, scale of texture coordinates.
+.. [KHR_texture_basisu] Khronos glTF extension: KTX2 images with ETC1S or UASTC payloads; 2D, top-left origin.
 """
 
 from __future__ import annotations
@@ -33,6 +37,11 @@ from workers.gltf.container import Files, decode_data_uri, split_uri
 from workers.gltf.document import Document, is_int, is_num, num, vec
 from workers.gltf.errors import IngestError, err, invalid
 from workers.gltf.limits import LFS_POINTER, IngestLimits, check_emissive
+
+KTX2_MAGIC = b"\xabKTX 20\xbb\r\n\x1a\n"
+"""The first 12 bytes of a KTX 2 file (KTX 2.0 specification, section 3.1)."""
+#: Texture extensions whose ``source`` is read, in order of preference, before the texture's own ``source``.
+TEXTURE_SOURCE_EXTENSIONS = ("KHR_texture_basisu", "EXT_texture_webp")
 
 __all__ = ["Materials", "TexRef", "DEFAULT_MATERIAL", "DEFAULT_MATERIAL_WARNING", "texture_transform_matrix"]
 
@@ -136,6 +145,47 @@ class Materials:
             return io.BytesIO(raw.tobytes())
         raise invalid(f"images[{img_idx}] has neither a uri nor a bufferView")
 
+    def _check_size(self, name: str, w: int, h: int) -> None:
+        """Refuse an image over the limits (``image_too_large``) from its header, before it is decoded."""
+        if w * h > self.limits.max_image_pixels:
+            raise err(
+                "image_too_large",
+                f"{name} is {w}x{h} pixels; the limit is {self.limits.max_image_pixels} pixels",
+            )
+        cap = self.limits.max_total_image_pixels
+        if cap is not None and self._image_pixels + w * h > cap:
+            raise err(
+                "image_too_large",
+                f"the images decode to more than {cap} pixels in all ({name} is {w}x{h}); "
+                "use smaller textures",
+            )
+        self._image_pixels += w * h
+
+    def _load_ktx2(self, data: bytes, name: str) -> np.ndarray:
+        """A KTX2 image with a Basis Universal payload ([KHR_texture_basisu]) -> (H, W, 4) uint8 RGBA of level 0.
+
+        The transcoder writes the stored values (sRGB-encoded for colour, as a PNG's); glTF's KTX2 images have
+        their origin top-left like PNGs, so rows are kept as they are. Cube maps, arrays, video and HDR codecs
+        are not glTF textures: ``invalid_image``.
+        """
+        import opengl_basisu
+
+        try:
+            tex = opengl_basisu.open(data)
+        except opengl_basisu.BasisuError as exc:  # UnsupportedError too: vkFormat without a Basis payload
+            raise err("invalid_image", f"{name} is a KTX2 file that cannot be read as Basis Universal ({exc})") from exc
+        if tex.faces != 1 or tex.is_array or tex.is_video:
+            raise err("invalid_image", f"{name} is a KTX2 cube map, array or video; a glTF texture is one 2D image")
+        if tex.codec.is_hdr:
+            raise err("invalid_image", f"{name} is a high dynamic range KTX2 ({tex.codec.name}); "
+                      "KHR_texture_basisu textures are ETC1S or UASTC LDR")
+        self._check_size(name, tex.width, tex.height)
+        try:
+            rgba = tex.transcode(opengl_basisu.Target.RGBA8, 0).data
+        except opengl_basisu.BasisuError as exc:
+            raise err("invalid_image", f"{name}: the KTX2 image could not be transcoded ({exc})") from exc
+        return np.ascontiguousarray(rgba.reshape(tex.height, tex.width, 4), dtype=np.uint8)
+
     def load_image(self, img_idx: int) -> np.ndarray:
         """Decode one image to (H, W, 4) uint8 RGBA, checking its header dimensions first."""
         src = self._image_source(img_idx)
@@ -143,24 +193,15 @@ class Materials:
         img = self.doc.g["images"][img_idx]
         if isinstance(img.get("uri"), str) and not img["uri"].startswith("data:"):
             name += f" '{urllib.parse.unquote(img['uri'])}'"
+        data = src.read_bytes() if isinstance(src, Path) else src.getvalue()
+        if data[: len(KTX2_MAGIC)] == KTX2_MAGIC:
+            return self._load_ktx2(data, name)
         try:
             with _pywarnings.catch_warnings():
                 _pywarnings.simplefilter("ignore", Image.DecompressionBombWarning)
-                with Image.open(src, formats=["PNG", "JPEG", "WEBP"]) as im:
+                with Image.open(io.BytesIO(data), formats=["PNG", "JPEG", "WEBP"]) as im:
                     w, h = im.size
-                    if w * h > self.limits.max_image_pixels:
-                        raise err(
-                            "image_too_large",
-                            f"{name} is {w}x{h} pixels; the limit is {self.limits.max_image_pixels} pixels",
-                        )
-                    cap = self.limits.max_total_image_pixels
-                    if cap is not None and self._image_pixels + w * h > cap:
-                        raise err(
-                            "image_too_large",
-                            f"the images decode to more than {cap} pixels in all ({name} is {w}x{h}); "
-                            "use smaller textures",
-                        )
-                    self._image_pixels += w * h
+                    self._check_size(name, w, h)
                     im.seek(0)
                     im.load()
                     if im.mode in ("I;16", "I;16B", "I;16L", "I"):
@@ -177,7 +218,7 @@ class Materials:
             raise err("image_too_large", f"{name} is too large to decode ({exc})") from exc
         except Image.UnidentifiedImageError as exc:  # its message names the file object or temp path: not shown
             lfs = " (it is a Git LFS pointer: fetch the real file with git lfs pull)" if is_lfs(src) else ""
-            raise err("invalid_image", f"{name} is not a PNG, JPEG or WebP image{lfs}") from exc
+            raise err("invalid_image", f"{name} is not a PNG, JPEG, WebP or KTX2 image{lfs}") from exc
         except Exception as exc:  # truncated data, unsupported modes
             raise err(
                 "invalid_image", f"{name} is not a readable PNG, JPEG or WebP image ({type(exc).__name__}: {exc})"
@@ -209,17 +250,17 @@ class Materials:
         return TexRef(tex_idx, texcoord, transform)
 
     def _texture_image(self, tex_idx: int) -> int | None:
-        """glTF texture -> image index (EXT_texture_webp preferred), None when no decodable source."""
+        """glTF texture -> image index (:data:`TEXTURE_SOURCE_EXTENSIONS` preferred), None when none."""
         tex = self.doc.item("textures", tex_idx, "a material")
         ext = self.doc.exts(tex)
-        for key in ("EXT_texture_webp",):
+        for key in TEXTURE_SOURCE_EXTENSIONS:
             e = ext.get(key)
             if isinstance(e, dict) and "source" in e:
                 self.doc.item("images", e["source"], f"textures[{tex_idx}].{key}")
                 return e["source"]
         src = tex.get("source")
         if src is None:
-            self.counts["texture(s) without a PNG/JPEG/WebP source ignored"] += 1
+            self.counts["texture(s) without a PNG/JPEG/WebP/KTX2 source ignored"] += 1
             return None
         self.doc.item("images", src, f"textures[{tex_idx}]")
         return src

@@ -22,6 +22,7 @@ import pytest
 from PIL import Image
 
 from workers.gltf import ERROR_CODES, IngestError, IngestLimits, ingest_file
+from workers.gltf.materials import KTX2_MAGIC
 from workers.scene import NormalizedScene
 
 
@@ -140,7 +141,8 @@ def write_glb(path: Path, g: Gltf) -> Path:
     """Images go into buffer views of the BIN chunk."""
     g = copy.deepcopy(g)
     for png in g.images:
-        g.doc.setdefault("images", []).append({"bufferView": g.view(png), "mimeType": "image/png"})
+        mime = "image/ktx2" if png[: len(KTX2_MAGIC)] == KTX2_MAGIC else "image/png"
+        g.doc.setdefault("images", []).append({"bufferView": g.view(png), "mimeType": mime})
     g.doc["buffers"] = [{"byteLength": len(g.bin)}]
     path.write_bytes(glb_bytes(g.doc, g.bin))
     return path

@@ -5,7 +5,10 @@ from __future__ import annotations
 import io
 import math
 
+from pathlib import Path
+
 import numpy as np
+import pytest
 from PIL import Image
 
 from tests.workers.gltf.builders import (
@@ -25,6 +28,59 @@ def test_webp_textures_decode(tmp_path):
     s = ingest_file(write_zip(tmp_path / "s.zip", g, image_names=["textures/a%20b.webp"]))
     assert s.textures[0].shape == (4, 8, 4)
     assert s.textures[0][0, 0].tolist() == [10, 200, 30, 255]
+
+
+KTX2_DIR = Path(__file__).resolve().parents[2] / "data" / "ktx2"
+
+
+def _ktx2_scene(name: str, fallback: bytes | None = None) -> Gltf:
+    """sample_scene with its texture a KHR_texture_basisu KTX2 (tests/data/ktx2), optionally a PNG fallback."""
+    g = sample_scene()
+    g.images[0] = (KTX2_DIR / name).read_bytes()
+    tex = {"extensions": {"KHR_texture_basisu": {"source": 0}}}
+    if fallback is not None:
+        g.images.append(fallback)
+        tex["source"] = 1
+    else:
+        g.doc["extensionsRequired"] = ["KHR_texture_basisu"]
+    g.doc["textures"][0] = tex
+    g.doc["extensionsUsed"].append("KHR_texture_basisu")
+    return g
+
+
+@pytest.mark.parametrize("name, tol", [("quadrants-etc1s.ktx2", 4), ("quadrants-uastc-zstd.ktx2", 1)])
+def test_ktx2_basisu_textures_decode(tmp_path, name, tol):
+    # ETC1S (BasisLZ) and UASTC (Zstandard), both with mipmaps: level 0 is the picture encoded, top row first,
+    # within the codec's error; as a GLB buffer view and as a file beside a .gltf
+    from tests.data.ktx2.make_fixtures import quadrants
+
+    g = _ktx2_scene(name)
+    for path in (write_glb(tmp_path / "s.glb", g), write_zip(tmp_path / "s.zip", g, image_names=["t/a b.ktx2"])):
+        s = ingest_file(path)
+        assert s.textures[0].shape == (16, 16, 4) and s.textures[0].dtype == np.uint8
+        assert np.abs(s.textures[0].astype(int) - quadrants()).max() <= tol
+        assert not any("basisu" in w for w in s.warnings), s.warnings
+
+
+def test_ktx2_source_is_preferred_to_the_fallback(tmp_path):
+    # what an engine reading the extension shows; without the extension the fallback is read
+    g = _ktx2_scene("quadrants-uastc-zstd.ktx2", fallback=png_bytes(4, 2, (0, 0, 0, 255)))
+    assert ingest_file(write_glb(tmp_path / "a.glb", g)).textures[0].shape == (16, 16, 4)
+    del g.doc["textures"][0]["extensions"]
+    assert ingest_file(write_glb(tmp_path / "b.glb", g)).textures[0].shape == (2, 4, 4)
+
+
+def test_ktx2_limits_and_bad_files(tmp_path):
+    g = _ktx2_scene("quadrants-etc1s.ktx2")
+    e = expect_error("image_too_large", write_glb(tmp_path / "big.glb", g), IngestLimits(max_image_pixels=16 * 15))
+    assert "16x16" in e.message  # from the header, before transcoding
+    good = (KTX2_DIR / "quadrants-etc1s.ktx2").read_bytes()
+    g.images[0] = good[:12] + b"\0" * 100  # the magic, then nothing a transcoder reads
+    assert "KTX2" in expect_error("invalid_image", write_glb(tmp_path / "junk.glb", g)).message
+    g.images[0] = good[:12] + (37).to_bytes(4, "little") + good[16:]  # vkFormat R8G8B8A8_UNORM: no Basis payload
+    expect_error("invalid_image", write_glb(tmp_path / "raw.glb", g))
+    g.images[0] = good[: len(good) // 2]  # truncated: its levels lie past the end
+    expect_error("invalid_image", write_glb(tmp_path / "cut.glb", g))
 
 
 def test_texture_transform_and_texcoord_choice(tmp_path):
