@@ -28,7 +28,7 @@ from workers.gltf.container import Files, NoFiles, parse_json, read_glb, sniff, 
 from workers.gltf.document import Document, is_int, vec
 from workers.gltf.errors import IngestError, err, invalid, plural, scrub
 from workers.gltf.lights import build_lights
-from workers.gltf.limits import LFS_POINTER, IngestLimits, check_extent
+from workers.gltf.limits import LFS_POINTER, IngestLimits, check_extent, far_from_origin
 from workers.gltf.materials import DEFAULT_MATERIAL, DEFAULT_MATERIAL_WARNING, Materials
 from workers.gltf.nodes import instances, morphed, scene_nodes, skin_matrices, world_matrices
 from workers.gltf.primitives import emit, planned_triangles, triangle_indices
@@ -349,6 +349,9 @@ class GltfReader:
                 "no_triangles", f"'{self.label}' has no triangles in its scene to bake" + (f" ({why})" if why else "")
             )
         check_extent(tri_out[:cursor], self.label)
+        far = far_from_origin(tri_out[:cursor])
+        if far:
+            self.warnings.append(far)
         if any_uv1 and not all_uv1:
             # ``uv1`` stays None (it promises every triangle); the coordinates live on in uv1_partial
             self.warnings.append("TEXCOORD_1 dropped: not every primitive has it")

@@ -115,6 +115,30 @@ def test_zero_extent(tmp_path):
     expect_error("zero_extent", write_glb(tmp_path / "a.glb", g), contains="one point")
 
 
+@pytest.mark.parametrize("offset, warned", [(0.0, False), (200.0, False), (20_000.0, True)])
+def test_a_scene_far_from_the_origin_is_warned_about(tmp_path, offset, warned):
+    # a 4 m room 20 km out: float32 positions there are 2 mm apart, the bake's ray offsets 0.6 mm (acne, leaks);
+    # 200 m out they are 15 um apart (baked as at the origin)
+    g = Gltf()
+    room = np.array([[0, 0, 0], [4, 0, 0], [4, 3, 4], [0, 3, 4]], np.float32)
+    g.node(mesh=g.mesh(room, [0, 1, 2, 0, 2, 3]), translation=[offset, 0.0, -offset])
+    s = ingest_file(write_glb(tmp_path / "far.glb", g))
+    far = [w for w in s.warnings if "from the glTF origin" in w]
+    assert bool(far) == warned, s.warnings
+    if warned:
+        assert "20,00" in far[0] and "2 mm apart" in far[0] and "Move the scene near the origin" in far[0]
+
+
+def test_far_from_origin_is_relative_to_the_scene_size():
+    from workers.gltf.limits import far_from_origin
+
+    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)          # 1.4 m across
+    assert far_from_origin(tri + np.float32(10.0)) is None
+    assert "10,00" in far_from_origin(tri + np.float32(10_000.0))
+    town = tri * np.float32(2000.0)                                         # 2.8 km across (truck-town's size)
+    assert far_from_origin(town + np.float32(10_000.0)) is None and far_from_origin(town + np.float32(4e6))
+
+
 def test_only_degenerate_triangles(tmp_path):
     line = np.array([[0, 0, 0], [1, 1, 1], [2, 2, 2], [3, 3, 3]], np.float32)
     g = Gltf()
