@@ -130,6 +130,24 @@ def test_wall_blocks_across_and_marks_inside():
     assert (theta[8:] == 255).all() and not dc[8:].any()  # the second cell has no wall
 
 
+def test_theta_does_not_depend_on_where_the_scene_stands():
+    # a wall 5-10 cm in front of the upper probes, and the same scene 2 km away: the rays stop short of their target
+    # by a length that follows the scene's size, not its distance from the origin (it was 1e-4 x the largest
+    # coordinate: 0.2 m there, so the rays stopped before the wall and saw through it)
+    wall = box((-5.0, -5.0, 0.85), (6.0, 6.0, 0.9))
+    thetas = []
+    for shift in (0.0, 2000.0):
+        off = np.array([shift, 0.0, shift])
+        origin = tuple(np.add(ORIGIN, off))
+        pos, st = grid_probes(COUNTS, origin)
+        theta, dc, _ = V.theta_slab(EmbreeRayCaster(wall + off.astype(np.float32)), COUNTS, origin, SPACING, pos, st,
+                                    S, (0, V.field_shape(COUNTS, S)[0]))
+        thetas.append(theta)
+    z = sample_z()[:8]
+    assert (thetas[0][:8][z < 0.85][..., 4:] == 0).all()  # the wall hides the upper probes from below it
+    np.testing.assert_array_equal(thetas[1], thetas[0])
+
+
 def test_double_sided_wall_has_no_inside():
     n = WALL.shape[0]
     theta_ds, dc_ds, _ = run(WALL, double_sided_tris=np.ones(n, bool))

@@ -33,7 +33,9 @@ ball of radius ``jitter · min(spacing)`` (min over axes with more than one prob
 ``splitmix64(seed, g, corner, ray) >> 52`` of a table of 4096 such offsets, itself hashed from the
 seed. So the result of a sample never depends on how the field is split into slabs or chunks,
 nor on the thread count. A ray is blocked when the scene has a hit (either side of any triangle)
-with ``t ≤ |target − sample| − 1e-4·caster.scale``; a ray with that length ≤ 0 (the sample is at
+with ``t ≤ |target − sample| − ε``, ``ε = max(1e-4·caster.diagonal, 16·caster.quantum)`` (the scene's size, not
+its distance from the origin: ``caster.scale`` counted that too, and two-rooms moved 2 km read normalized mask GI
+0.74 of its reference with ε 20x larger); a ray with that length ≤ 0 (the sample is at
 the target) is unblocked. ``θ = unblocked / rays`` (MD eq 2's θ_i(x)), stored as
 ``uint8 round(255·θ)`` (exact integer rounding). OFF probes (:data:`workers.kernels.grid.OFF`)
 get θ = 0.
@@ -82,7 +84,8 @@ from workers.kernels.grid import OFF
 
 __all__ = ["field_shape", "sample_positions", "theta_slab", "slab_ranges", "join_slabs", "TFAR_EPS"]
 
-TFAR_EPS = 1e-4  # rays stop this far (x caster.scale) before their target (dimensionless)
+TFAR_EPS = 1e-4  # rays stop this far (x caster.diagonal) before their target (dimensionless)
+TFAR_QUANTA = 16  # ... and at least this many float32 spacings at the scene's largest coordinate (caster.quantum)
 CHUNK_RAYS = 1 << 21  # rays built and cast per batch inside theta_slab; bounds memory (~70 MB)
 BALL_BITS = 12  # the jitter offsets come from a table of 2^BALL_BITS points uniform in the ball
 BALL_SIZE = 1 << BALL_BITS
@@ -444,7 +447,7 @@ def _prepare(caster, counts, origin, spacing, positions, states, S, rays, jitter
     live = sp[(counts > 1) & (sp > 0)]
     radius = jitter * float(live.min()) if live.size else 0.0
     key = _U(_mix(_U(int(seed) & 0xFFFFFFFFFFFFFFFF) ^ _SEED_SALT))  # numba returns a Python int
-    eps = TFAR_EPS * float(caster.scale)
+    eps = max(TFAR_EPS * float(caster.diagonal), TFAR_QUANTA * float(caster.quantum))
     return S, counts, probes, st == OFF, rays, _ball(key, radius, rays), key, eps
 
 

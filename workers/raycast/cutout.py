@@ -60,6 +60,8 @@ class CutoutRayCaster:
         self._opaque = opaque
         self.triangles = self._all.triangles
         self.scale = self._all.scale
+        self.diagonal = self._all.diagonal
+        self.quantum = self._all.quantum
         self.threads = self._all.threads
 
     def __repr__(self) -> str:

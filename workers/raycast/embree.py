@@ -144,6 +144,12 @@ class EmbreeRayCaster:
     scale : float
         max(bounding-box diagonal, largest absolute coordinate), metres; sets the step
         of :meth:`inside_parity`.
+    diagonal : float
+        The bounding box's diagonal, metres: the scene's size, whatever its distance from the
+        origin (offsets meant to scale with the scene use it; 1.0 without triangles).
+    quantum : float
+        float32 spacing at the largest absolute coordinate, metres: how finely the stored
+        triangles (and float32 ray origins) can place a point anywhere in the scene.
     """
 
     def __init__(self, triangles, *, threads: int = DEFAULT_THREADS, chunk_size: int = DEFAULT_CHUNK_RAYS,
@@ -158,9 +164,12 @@ class EmbreeRayCaster:
         self.triangles = tri
         if tri.shape[0]:
             lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
-            self.scale = float(max(np.linalg.norm(hi.astype(np.float64) - lo), np.abs(tri).max(), 1e-30))
+            self.diagonal = float(max(np.linalg.norm(hi.astype(np.float64) - lo), 1e-30))
+            self.scale = float(max(self.diagonal, np.abs(tri).max()))
+            self.quantum = float(np.spacing(np.float32(np.abs(tri).max())))
         else:
-            self.scale = 1.0
+            self.scale = self.diagonal = 1.0
+            self.quantum = float(np.spacing(np.float32(1.0)))
         self._scene = None
         self._pool: ThreadPoolExecutor | None = None
         if tri.shape[0]:
