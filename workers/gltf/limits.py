@@ -156,17 +156,17 @@ Measured on two-rooms (9.6 m across, ray offset 0.96 mm) moved along x and z: ev
 their origin values; 20 km DDGI 3.3x its reference."""
 
 
-def far_from_origin(tris: np.ndarray) -> str | None:
+def far_from_origin(lo: np.ndarray, hi: np.ndarray) -> str | None:
     """A warning (or None) for a scene so far from the glTF origin, for its size, that float32 world positions
     cannot resolve the bake's ray offsets: every bake stage and the reference then see shadow acne and light
     through walls (two-rooms moved 20 km: DDGI 3.3x its reference, normalized mask GI 3.3x, with acne in the
     direct light; docs/architecture.md "Far from the origin").
 
-    ``tris`` : (T, 3, 3) float32, world space, metres. The float32 spacing at the largest coordinate
-    (``np.spacing``) against :data:`RAY_OFFSET` x the bounds' diagonal, scaled by :data:`FAR_QUANTUM`.
+    ``lo``, ``hi`` : (3,) the scene's bounds (world space, metres; :func:`check_extent` returns them). The float32
+    spacing at the largest coordinate (``np.spacing``) against :data:`RAY_OFFSET` x the bounds' diagonal, scaled
+    by :data:`FAR_QUANTUM`.
     """
-    pts = tris.reshape(-1, 3)
-    lo, hi = pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     diag = max(float(np.linalg.norm(hi - lo)), 1e-3)
     reach = float(max(np.abs(lo).max(), np.abs(hi).max()))
     quantum = float(np.spacing(np.float32(reach)))
@@ -181,12 +181,13 @@ def far_from_origin(tris: np.ndarray) -> str | None:
             "the site or survey offset)")
 
 
-def check_extent(tris: np.ndarray, label: str) -> None:
+def check_extent(tris: np.ndarray, label: str) -> tuple[np.ndarray, np.ndarray]:
     """Refuse a scene with nothing to bake in it: all triangles in one point (``zero_extent``), or every
     triangle of zero area, on lines or points (``degenerate_triangles``). Probe spacing follows the extent,
     so such a scene bakes garbage (spacing 0) rather than failing.
 
-    ``tris`` : (T, 3, 3) float32, world space, metres; ``label`` names the upload in messages.
+    ``tris`` : (T, 3, 3) float32, world space, metres; ``label`` names the upload in messages. Returns the bounds
+    ``(lo, hi)``, (3,) float64 each.
     """
     pts = tris.reshape(-1, 3)
     lo, hi = pts.min(axis=0).astype(np.float64), pts.max(axis=0).astype(np.float64)
@@ -200,6 +201,6 @@ def check_extent(tris: np.ndarray, label: str) -> None:
         twice_area = np.linalg.norm(np.cross(e1, e2), axis=1)
         longest2 = np.maximum(np.maximum((e1 * e1).sum(1), (e2 * e2).sum(1)), (e3 * e3).sum(1))
         if np.any(twice_area > DEGENERATE_SINE * longest2):
-            return
+            return lo, hi
     raise err("degenerate_triangles", f"'{label}': every one of its "
               f"{plural(tris.shape[0], 'triangle(s)')} has zero area (its corners lie on a line or in a point)")

@@ -348,8 +348,7 @@ class GltfReader:
             raise err(
                 "no_triangles", f"'{self.label}' has no triangles in its scene to bake" + (f" ({why})" if why else "")
             )
-        check_extent(tri_out[:cursor], self.label)
-        far = far_from_origin(tri_out[:cursor])
+        far = far_from_origin(*check_extent(tri_out[:cursor], self.label))
         if far:
             self.warnings.append(far)
         if any_uv1 and not all_uv1:

@@ -164,9 +164,10 @@ class EmbreeRayCaster:
         self.triangles = tri
         if tri.shape[0]:
             lo, hi = tri.reshape(-1, 3).min(axis=0), tri.reshape(-1, 3).max(axis=0)
+            reach = np.maximum(-lo, hi).max()           # the largest absolute coordinate (float32)
             self.diagonal = float(max(np.linalg.norm(hi.astype(np.float64) - lo), 1e-30))
-            self.scale = float(max(self.diagonal, np.abs(tri).max()))
-            self.quantum = float(np.spacing(np.float32(np.abs(tri).max())))
+            self.scale = float(max(self.diagonal, reach))
+            self.quantum = float(np.spacing(reach))
         else:
             self.scale = self.diagonal = 1.0
             self.quantum = float(np.spacing(np.float32(1.0)))

@@ -132,11 +132,12 @@ def test_a_scene_far_from_the_origin_is_warned_about(tmp_path, offset, warned):
 def test_far_from_origin_is_relative_to_the_scene_size():
     from workers.gltf.limits import far_from_origin
 
-    tri = np.array([[[0, 0, 0], [1, 0, 0], [0, 1, 0]]], np.float32)          # 1.4 m across
-    assert far_from_origin(tri + np.float32(10.0)) is None
-    assert "10,00" in far_from_origin(tri + np.float32(10_000.0))
-    town = tri * np.float32(2000.0)                                         # 2.8 km across (truck-town's size)
-    assert far_from_origin(town + np.float32(10_000.0)) is None and far_from_origin(town + np.float32(4e6))
+    def far(size, shift):                                       # a box `size` m across, `shift` m out
+        return far_from_origin(np.full(3, shift), np.full(3, shift + size))
+
+    assert far(1.0, 10.0) is None
+    assert "10,00" in far(1.0, 10_000.0)
+    assert far(2000.0, 10_000.0) is None and far(2000.0, 4e6)  # a 3.5 km town (truck-town's size)
 
 
 def test_only_degenerate_triangles(tmp_path):
