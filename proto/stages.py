@@ -45,7 +45,8 @@ STAGES: tuple[StageDef, ...] = (
     # 7: stats["warnings"] grid_coarse (the default budget binds the automatic grid far above what the rooms ask);
     # 8: the automatic spacing room scale / 8 (was / 6; workers/kernels/autogrid.py ROOM_DIVISIONS)
     # 9: the bake frame: the grid turned about +Y to the walls (workers/kernels/frame.py; stats["frame"], grid.frame)
-    StageDef("place", 9, ("place", "seed"), ("ingest",), timeout=600),
+    # 10: no floor of 0.05 m on the automatic spacing (a scene of a few cm got a 4 x 3 x 3 grid; autogrid.choose_grid)
+    StageDef("place", 10, ("place", "seed"), ("ingest",), timeout=600),
     # relocate 3: the iterations after the first trace only the probes that can still move (kernels/relocation.py settled)
     StageDef("relocate", 3, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full

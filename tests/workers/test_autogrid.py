@@ -42,6 +42,19 @@ def test_a_larger_room_gets_more_probes(tmp_path):
         assert np.all((c - 1) * s >= np.array([4, 3, 4] if c is c_small else [12, 3, 12]) * 0.8)
 
 
+@pytest.mark.parametrize("scale", [0.01, 100.0])
+def test_the_grid_does_not_depend_on_the_unit(tmp_path, scale):
+    """A 4 x 3 x 4 m room, and the same room modelled at 1:100 (a tabletop diorama at its real size, 4 x 3 x 4 cm)
+    or in centimetres (400 x 300 x 400): the same probe counts, the spacing scaled with it. A floor of 0.05 m gave
+    the small one a 4 x 3 x 3 grid (and 1.8x the reference's light in a bake of two-rooms)."""
+    _, (c1, o1, s1, a1) = _plan(_room(tmp_path / "one", [4, 3, 4], "room"))
+    _, (ck, ok, sk, ak) = _plan(_room(tmp_path / "k", [4 * scale, 3 * scale, 4 * scale], "room"))
+    assert np.array_equal(c1, ck), (c1, ck)
+    np.testing.assert_allclose(sk, s1 * scale, rtol=1e-4)
+    np.testing.assert_allclose(ok, o1 * scale, rtol=1e-4, atol=1e-6 * scale)
+    assert ak["samples_per_cell"] == a1["samples_per_cell"] and ak["kind"] == a1["kind"]
+
+
 def test_budget_binds_and_says_so(tmp_path):
     s = ingest_file(_room(tmp_path, [12, 3, 12], "big"))
     fs = analyze_free_space(caster_for_scene(s), s.bounds, double_sided_triangles(s))

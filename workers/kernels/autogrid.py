@@ -21,7 +21,7 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    (a 4 x 3 x 4 m room gives about 1.5 m); spacing = ``ℓ / ROOM_DIVISIONS`` (8: about 0.19 m in such a
    room; 6 left the shadow pockets of a real Cornell box 1.12x Cycles and the dark room 5 cm behind two-rooms-vc's
    shared wall 1.10x, 8 gives 0.96-1.095 and 1.05 at about 2.2x the probes, 10 gives 0.98-1.06 and 1.02 at 3.6x
-   and about 3x the bake time: tests/bench/bench_fidelity.py), never finer than ``min_spacing``, and coarser where the probe budget requires:
+   and about 3x the bake time: tests/bench/bench_fidelity.py), and coarser where the probe budget requires:
    ``s ≥ (V / budget)^(1/3)`` for the box volume V (a uniform grid: the budget binds on large levels — the
    manifest says so). V is the whole box, solid included, on purpose: ``place.budget`` is the most probes the
    grid holds (the presets' and the server's cost estimates rest on it), and a probe in a solid costs memory in
@@ -207,7 +207,7 @@ def fit_layers(pos: np.ndarray, w: np.ndarray, lo: float, hi: float, s0: float,
     return best
 
 
-def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spacing: float = 0.05,
+def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spacing: float = 0.0,
                 divisions: float = ROOM_DIVISIONS, field_budget: int = FIELD_BUDGET) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Counts (3,), origin (3,), spacing (3,) of the default grid and the record of why (``grid.auto``).
 
@@ -217,6 +217,12 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     planning points in the box, outside solids), ``budget_volume`` ("box": the volume the budget is spread over,
     solid included), ``spacing_free_volume`` (m) and ``probes_free_volume`` (what spreading it over the free volume
     alone would give, before the layer fit; the spacing when the budget does not bind) and ``reason``.
+
+    ``min_spacing`` (m): a floor on the wanted spacing; 0 (the default) sets none. Any length fixed in metres is
+    wrong for some scene: the floor of 0.05 m that stood here gave a 4 x 3 x 4 cm model of two-rooms (a tabletop or
+    dollhouse diorama at its real size) a 4 x 3 x 3 grid, 1.82x the reference's light, where the same scene at 1:1
+    and at 100:1 bakes alike (tests/workers/test_autogrid.py). The probe count is bounded by ``budget`` whatever
+    the scale.
     """
     lo, hi = (np.asarray(b, np.float64) for b in bounds)
     free = ~fs.inside
@@ -239,7 +245,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     ext = np.maximum(bhi - blo, 0.0)
     if not math.isfinite(scale) or scale <= 0:
         scale = float(np.linalg.norm(ext)) / 4 or 1.0
-    wanted = max(scale / divisions, min_spacing)
+    wanted = max(scale / divisions, float(min_spacing))
     live = ext[ext > 1e-9]
     volume = float(np.prod(live)) if live.size else 0.0
 
@@ -290,16 +296,16 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     field_bound = S > s_budget
     S = min(S, s_budget)
     bound = bound_now
-    reason = (f"{kind} scene: room scale {scale:.2f} m (median free distance of the planning rays) / "
-              f"{divisions:g} = {wanted:.3f} m")
+    reason = (f"{kind} scene: room scale {scale:.3g} m (median free distance of the planning rays) / "
+              f"{divisions:g} = {wanted:.3g} m")
     if bound:
-        reason += f"; the budget of {budget} probes sets {s:.3f} m (a uniform grid: coarser than the rooms ask"
+        reason += f"; the budget of {budget} probes sets {s:.3g} m (a uniform grid: coarser than the rooms ask"
         if free_fraction < 0.95:
             reason += (f"; the budget counts the whole box, {1 - free_fraction:.0%} of it solid: spread over the free "
-                       f"volume alone it would give {s_free:.3f} m and {count(s_free)} probes")
+                       f"volume alone it would give {s_free:.3g} m and {count(s_free)} probes")
         reason += ")"
     if w5 is not None:
-        reason += f"; thinnest walls {w5:.3f} m -> {S} visibility samples per cell"
+        reason += f"; thinnest walls {w5:.3g} m -> {S} visibility samples per cell"
         if field_bound:
             reason += f" (the field budget of {field_budget} samples allows no more)"
     auto = {"box": [blo.tolist(), bhi.tolist()], "kind": kind, "enclosed_fraction": frac_enclosed,

@@ -60,7 +60,7 @@ def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
         return None
     need = int(budget * (spacing / wanted) ** 3)
     return {"code": "grid_coarse", "message": (
-        f"the automatic probe grid is {spacing:.2f} m apart where this scene's rooms ask for {wanted:.2f} m: the "
+        f"the automatic probe grid is {spacing:.3g} m apart where this scene's rooms ask for {wanted:.3g} m: the "
         f"default budget of {budget} probes binds (that spacing needs about {need} probes). The light loses its detail "
         "(and the leaking and DDGI modes cross walls thinner than a cell); set place.box to the part of the scene "
         "that matters, or raise place.budget "

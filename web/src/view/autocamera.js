@@ -25,6 +25,19 @@ function outsideView(box) {
 }
 
 /**
+ * Clip planes and fly speed for a scene of this size, whatever its unit: a 4 cm diorama (a tabletop AR scene at
+ * its real size) must not lose 5 mm to the near plane nor be crossed ten times a second; a 2 km town keeps a
+ * depth range of 1 m to 40 km. Proportional to the size (the near plane 1/2000 of it, the far 20x).
+ * @param {number} size  the bounds' diagonal, scene units (metres)
+ * @returns {{near: number, far: number, speed: number}}  speed in units per second
+ */
+export function viewScale(size) {
+  const s = Number.isFinite(size) && size > 0 ? size : 10;
+  const near = Math.max(1e-6, s / 2000);
+  return { near, far: s * 20 + 10 * near, speed: Math.max(1e-5, s / 8) };
+}
+
+/**
  * @param {import('three').Object3D|null} root  the scene (null: only bounds are known)
  * @param {number[][]} [bounds]  [[minx, miny, minz], [maxx, maxy, maxz]] when known
  * @returns {{position: number[], target: number[], inside: boolean}}

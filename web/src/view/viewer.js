@@ -18,7 +18,7 @@ import { frameMatrix, mapLight, pointsToWorld, toBake, toWorld } from '../math/f
 import { GI_MODES, MAX_LIGHTS, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
 import { lightCoverage } from '../state/lighting.js';
 import { SHADOW_CUBES, SHADOW_DIRS } from '../renderer/shadows.js';
-import { autoCamera } from './autocamera.js';
+import { autoCamera, viewScale } from './autocamera.js';
 import { createControls } from './cameras.js';
 import { buildLightMarkers, disposeMarkers, pickSurface } from './lightMarkers.js';
 
@@ -249,10 +249,11 @@ export class Viewer {
     const bounds = bakeBounds(bake);
     const cam = camera || autoCamera(root, bounds);
     const size = bounds ? Math.hypot(...bounds[1].map((x, i) => x - bounds[0][i])) : 10;
-    this.camera.near = Math.max(0.005, size / 2000);
-    this.camera.far = size * 20 + 10;
+    const scale = viewScale(size);        // clip planes and fly speed follow the scene's size, whatever its unit
+    this.camera.near = scale.near;
+    this.camera.far = scale.far;
     this.camera.updateProjectionMatrix();
-    this.controls.fly.speed = Math.max(0.5, size / 8);
+    this.controls.fly.speed = scale.speed;
     this.setView(cam);
     this.userExposure = false;
     const ev = autoExposureEV(bake, gltfLights(root));
