@@ -108,14 +108,16 @@ if [ -f web/package.json ]; then
   fi
 fi
 
-# Compile the bake's numba kernels once per change of the code (workers/warmup.py: a small bake of the procedural
-# Cornell box), so that the first bake after an install does not spend half its time compiling (two-rooms: 65 s
-# -> 33 s). KILN_SKIP_WARMUP=1 skips it; a failure here only warns (the kernels then compile on first use).
+# Compile the bake's numba kernels and the preview shaders (Mesa's shader cache) once per change of the code
+# (workers/warmup.py: small bakes of three procedural scenes), so that the first bake after an install does not spend
+# half its time compiling (two-rooms: 65 s -> 33 s). KILN_SKIP_WARMUP=1 skips it; a failure here only warns (the
+# kernels then compile on first use).
 if [ "${KILN_SKIP_WARMUP:-0}" != 1 ]; then
-  warm_hash=$( { find workers proto -name '*.py' -type f -print0 | LC_ALL=C sort -z | xargs -0 sha256sum;
+  warm_hash=$( { find workers proto -type f \( -name '*.py' -o -name '*.glsl' -o -name '*.json' \) -print0 |
+                   LC_ALL=C sort -z | xargs -0 sha256sum;
                  cat "$stamp"; } | sha256sum | cut -d' ' -f1)
   if [ "$(cat .venv/.kiln-warm 2>/dev/null || true)" != "$warm_hash" ]; then
-    log "compiling the bake kernels (numba, once per change of the code; about 30 s)"
+    log "compiling the bake kernels and shaders (numba, Mesa; once per change of the code; about 30 s)"
     if .venv/bin/python -m workers.warmup --quiet; then
       echo "$warm_hash" > .venv/.kiln-warm
     else
