@@ -46,7 +46,9 @@ STAGES: tuple[StageDef, ...] = (
     # 8: the automatic spacing room scale / 8 (was / 6; workers/kernels/autogrid.py ROOM_DIVISIONS)
     # 9: the bake frame: the grid turned about +Y to the walls (workers/kernels/frame.py; stats["frame"], grid.frame)
     # 10: no floor of 0.05 m on the automatic spacing (a scene of a few cm got a 4 x 3 x 3 grid; autogrid.choose_grid)
-    StageDef("place", 10, ("place", "seed"), ("ingest",), timeout=600),
+    # 11: a thin open scene's box grown to the room scale along its thin axes (a lone floor's one layer of probes lay
+    # in its plane); a flat axis left gets two layers with the plane midway (autogrid.choose_grid)
+    StageDef("place", 11, ("place", "seed"), ("ingest",), timeout=600),
     # relocate 3: the iterations after the first trace only the probes that can still move (kernels/relocation.py settled)
     StageDef("relocate", 3, ("trace", "seed"), ("ingest", "place"), timeout=3600),
     # trace 2: depth_moments stored as RG16F (workers/kernels/precision.py), float32 kept as internal depth_moments_full

@@ -55,6 +55,25 @@ def test_the_grid_does_not_depend_on_the_unit(tmp_path, scale):
     assert ak["samples_per_cell"] == a1["samples_per_cell"] and ak["kind"] == a1["kind"]
 
 
+def test_a_lone_floor_gets_probes_above_it_not_in_its_plane(tmp_path):
+    """A 10 x 10 m ground plane alone (an open lit floor, a flat terrain tile): the box had no extent along y and its
+    one layer of probes lay in the plane (a bake under a sun and a sky read 0 in every mode but leaking). The box is
+    grown to the room scale along y and the plane lies between two layers."""
+    b = GltfBuilder()
+    m = b.material(pbrMetallicRoughness={"baseColorFactor": [0.5, 0.5, 0.5, 1], "metallicFactor": 0.0})
+    p, n, uv, ix = quad([-5, 0, 5], [10, 0, 0], [0, 0, -10], [0, 1, 0])
+    b.mesh(p, ix, normals=n, material=m)
+    (tmp_path / "floor.glb").write_bytes(b.glb())
+    s, (counts, origin, spacing, auto) = _plan(tmp_path / "floor.glb")
+    assert auto["kind"] == "open" and "grown to the room scale along y" in auto["reason"]
+    layers = origin[1] + spacing[1] * np.arange(counts[1])
+    above = layers[layers > 0]
+    assert counts[1] >= 4 and spacing[1] > 0
+    assert above.max() >= 0.45 * auto["room_scale"]                     # probes up to head height, not 0.2 m
+    assert np.abs(layers).min() >= 0.25 * spacing[1]                      # none in the plane
+    assert counts[0] == counts[2] and np.prod(counts) <= auto["budget"]
+
+
 def test_budget_binds_and_says_so(tmp_path):
     s = ingest_file(_room(tmp_path, [12, 3, 12], "big"))
     fs = analyze_free_space(caster_for_scene(s), s.bounds, double_sided_triangles(s))

@@ -16,7 +16,10 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
 2. **Box**: the scene is "enclosed" when at least half of the near points are enclosed (rooms, a building on a
    slab), else "open" (a town, a terrain, objects on a floor). An enclosed scene's box is the bounds of the
    near points, grown by one lattice step — the building and its surroundings, not its ground slab; an open
-   scene's box is the scene bounds.
+   scene's box is the scene bounds, grown to the room scale ``ℓ`` (step 3) along any axis where it is thinner than
+   that, centred on it: a lone floor or a flat terrain tile has no extent along its normal, and its one layer of
+   probes lay in the plane itself (a 10 m ground plane under a sun and a sky read 0 in every mode but leaking, mean
+   ratio 0.19-0.20; now 0.99-1.00, and sideways irradiance 2 m above it 1.0 instead of 1.12 of the reference).
 3. **Spacing**: the room scale ``ℓ`` = the median over enclosed points of the mean free distance of their rays
    (a 4 x 3 x 4 m room gives about 1.5 m); spacing = ``ℓ / ROOM_DIVISIONS`` (8: about 0.19 m in such a
    room; 6 left the shadow pockets of a real Cornell box 1.12x Cycles and the dark room 5 cm behind two-rooms-vc's
@@ -245,12 +248,20 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     ext = np.maximum(bhi - blo, 0.0)
     if not math.isfinite(scale) or scale <= 0:
         scale = float(np.linalg.norm(ext)) / 4 or 1.0
+    thin = (ext < scale) if kind == "open" else np.zeros(3, bool)
+    if thin.any():                                   # module doc, step 2: a thin open scene's box spans the room scale
+        centre, half = (blo + bhi) / 2, np.maximum(ext, scale) / 2
+        blo, bhi = np.where(thin, centre - half, blo), np.where(thin, centre + half, bhi)
+        ext = np.maximum(bhi - blo, 0.0)
     wanted = max(scale / divisions, float(min_spacing))
-    live = ext[ext > 1e-9]
+    # a flat axis left (no extent along it) gets two layers with the plane midway, not one layer in the plane, whose
+    # probes would all lie on the surface
+    flat = ext <= 1e-6 * float(ext.max()) if float(ext.max()) > 0 else np.ones(3, bool)
+    live = ext[~flat]
     volume = float(np.prod(live)) if live.size else 0.0
 
     def count(sp):
-        return int(np.prod([math.ceil(e / sp - 1e-9) + 1 if e > 1e-9 else 1 for e in ext]))
+        return int(np.prod([2 if f else math.ceil(e / sp - 1e-9) + 1 for e, f in zip(ext, flat)]))
 
     def fit(b):                                      # the spacing that fits b probes over the box
         sp = wanted
@@ -266,7 +277,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     free_fraction = float((~fs.inside[in_box]).mean()) if in_box.any() else 1.0
     # not used (module doc, step 3): the budget spread over the free volume alone, i.e. budget / f probes in the box
     s_free = fit(budget / max(free_fraction, 1e-3))
-    counts = np.array([math.ceil(e / s - 1e-9) + 1 if e > 1e-9 else 1 for e in ext], np.int64)
+    counts = np.array([2 if f else math.ceil(e / s - 1e-9) + 1 for e, f in zip(ext, flat)], np.int64)
     spacing = np.where(counts > 1, s, 0.0)
     origin = (blo + bhi) / 2 - spacing * (counts - 1) / 2
     phases = [None, None, None]
@@ -304,6 +315,9 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
             reason += (f"; the budget counts the whole box, {1 - free_fraction:.0%} of it solid: spread over the free "
                        f"volume alone it would give {s_free:.3g} m and {count(s_free)} probes")
         reason += ")"
+    if thin.any():
+        reason += (f"; the box grown to the room scale along {'/'.join('xyz'[a] for a in range(3) if thin[a])} "
+                   "(a thin open scene: light above a floor, not only in its plane)")
     if w5 is not None:
         reason += f"; thinnest walls {w5:.3g} m -> {S} visibility samples per cell"
         if field_bound:
