@@ -30,6 +30,7 @@ HONOURED_EXTENSIONS = frozenset(
         "KHR_draco_mesh_compression",  # decoded with DracoPy (workers.gltf.compression)
         "EXT_meshopt_compression",  # decoded with meshoptimizer (workers.gltf.compression)
         "KHR_meshopt_compression",
+        "KHR_materials_unlit",  # its primitives left out of the bake, as Blender's importer does (workers.gltf.reader)
     }
 )
 #: Extensions read only to say what the bake does with them: their own warning (:mod:`workers.gltf.materials`)

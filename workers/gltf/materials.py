@@ -4,7 +4,7 @@ Per material: base colour factor and texture (``KHR_materials_pbrSpecularGlossin
 has no metallic-roughness block), metallic and roughness factors and texture, emissive factor x
 ``KHR_materials_emissive_strength`` and emissive texture, ``doubleSided``, ``alphaMode`` and ``alphaCutoff``;
 ``KHR_materials_transmission`` only for a warning (the glass is baked opaque, as the Cycles Lambert reference bakes
-it); the texture slot whose UV set (and ``KHR_texture_transform``) ``uv0`` carries. Textures are decoded once per
+it); ``KHR_materials_unlit`` as the flag ``unlit`` (the reader leaves such primitives out of the bake); the texture slot whose UV set (and ``KHR_texture_transform``) ``uv0`` carries. Textures are decoded once per
 image to RGBA uint8, their size checked from the header first: PNG, JPEG and WebP (``EXT_texture_webp``) with PIL,
 KTX2 with a Basis Universal payload (``KHR_texture_basisu``: ETC1S or UASTC, any supercompression) with Binomial's
 transcoder (opengl-basisu), level 0 transcoded to RGBA8 — the bytes as stored, sRGB-encoded like a PNG's. A texture's
@@ -339,6 +339,7 @@ class Materials:
                 raise invalid(f"{what}.alphaCutoff must not be negative")
             if alpha == "BLEND":
                 alpha_modes[alpha] += 1
+            unlit = isinstance(ext.get("KHR_materials_unlit"), dict)
             tr = ext.get("KHR_materials_transmission")
             if isinstance(tr, dict) and is_num(tr.get("transmissionFactor")) and tr["transmissionFactor"] > 0:
                 name = m.get("name")
@@ -362,6 +363,7 @@ class Materials:
                     "metallic_roughness_texture": tex_index(mr_ref),
                     "alpha_mode": alpha,
                     "alpha_cutoff": cutoff,
+                    **({"unlit": True} if unlit else {}),
                 }
             )
             uv_refs.append(uv_ref)

@@ -233,6 +233,12 @@ class GltfReader:
         materials, textures, uv_refs = Materials(self.doc, self.acc, self.files, self.limits, self._counts,
                                                  self.warnings).build()
         default_material: int | None = None
+        # KHR_materials_unlit: drawn without lighting (sky domes, backgrounds, baked-lighting meshes). Blender's
+        # importer makes them an emission seen by camera rays only, transparent to every other ray, so the Cycles
+        # oracle's light passes through them; the bake leaves them out, unless nothing else is left to bake
+        unlit = {i for i, m in enumerate(materials) if m.get("unlit")}
+        skip_unlit = bool(unlit) and any(p.get("material") not in unlit for _, _, _, p in draws)
+        unlit_skipped: Counter = Counter()
 
         tri_out = np.empty((planned, 3, 3), np.float32)
         nrm_out = np.empty((planned, 3, 3), np.float32)
@@ -285,6 +291,9 @@ class GltfReader:
                     self.warnings.append(DEFAULT_MATERIAL_WARNING)
                 mat = default_material
                 uv_ref = None
+            if mat in unlit and skip_unlit:
+                unlit_skipped[materials[mat]["name"]] += 1
+                continue
             uv_set = uv_ref.texcoord if uv_ref is not None else 0
             color = None
             if "COLOR_0" in attrs:
@@ -348,6 +357,17 @@ class GltfReader:
             raise err(
                 "no_triangles", f"'{self.label}' has no triangles in its scene to bake" + (f" ({why})" if why else "")
             )
+        if unlit_skipped:
+            n = sum(unlit_skipped.values())
+            names = ", ".join(repr(k) for k in list(unlit_skipped)[:3]) + (" ..." if len(unlit_skipped) > 3 else "")
+            self.warnings.append(
+                f"{n} primitive{'s' * (n != 1)} with unlit materials (KHR_materials_unlit: {names}) left out of the "
+                "bake: drawn without lighting, they neither block nor reflect light (as Blender's importer makes "
+                "them); a sky dome's light comes from the bake config's scene.sky")
+        elif unlit:
+            self.warnings.append(
+                "every primitive is unlit (KHR_materials_unlit): baked as diffuse surfaces of their base colour (a "
+                "scanned or baked-lighting model), where an engine and Blender's importer let light through them")
         far = far_from_origin(*check_extent(tri_out[:cursor], self.label))
         if far:
             self.warnings.append(far)

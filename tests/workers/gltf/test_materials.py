@@ -219,3 +219,34 @@ def test_transmissive_glass_is_named_in_its_own_warning(tmp_path):
     # required, it is still refused (the bake cannot honour it)
     g.doc["extensionsRequired"] = ["KHR_materials_transmission"]
     expect_error("unsupported_extension", write_glb(tmp_path / "r.glb", g))
+
+
+def test_unlit_primitives_are_left_out_of_the_bake(tmp_path):
+    """KHR_materials_unlit (a sky dome, a background, a baked-lighting mesh): an engine draws it without lighting and
+    Blender's importer makes it transparent to every ray but the camera's, so the Cycles oracle's light passes through
+    it. Kept in, a sky dome around a level blocked the config's sky and sun and became the scene's bounds. The bake
+    leaves unlit primitives out (named in a warning), unless every primitive is unlit; required, it is honoured."""
+    g = Gltf()
+    g.doc["materials"] = [{"name": "floor"},
+                          {"name": "SkyDome", "extensions": {"KHR_materials_unlit": {}},
+                           "pbrMetallicRoughness": {"baseColorFactor": [0.4, 0.6, 1.0, 1.0], "metallicFactor": 0}}]
+    g.doc["extensionsUsed"] = ["KHR_materials_unlit"]
+    g.node(mesh=g.mesh(QUAD[:3], material=0))
+    g.node(mesh=g.mesh(QUAD * 1000.0 - 500.0, np.array([0, 1, 2, 0, 2, 3], np.uint32), material=1))
+    s = ingest_file(write_glb(tmp_path / "dome.glb", g))
+    assert s.triangles.shape[0] == 1 and set(np.asarray(s.material).tolist()) == {0}
+    assert float(np.abs(s.triangles).max()) <= 1.0                     # the dome is not the scene's bounds
+    said = [w for w in s.warnings if "KHR_materials_unlit" in w]
+    assert len(said) == 1 and "2 primitives" not in said[0] and "'SkyDome'" in said[0] and "scene.sky" in said[0]
+    assert not any(w.startswith("extensions ignored") for w in s.warnings), s.warnings
+    assert s.materials[1].get("unlit") is True and not s.materials[0].get("unlit")
+    g.doc["extensionsRequired"] = ["KHR_materials_unlit"]                 # required: honoured, not refused
+    assert ingest_file(write_glb(tmp_path / "req.glb", g)).triangles.shape[0] == 1
+    # every primitive unlit (a scan with its lighting in the texture): kept, as diffuse surfaces, and said so
+    h = Gltf()
+    h.doc["materials"] = g.doc["materials"][1:]
+    h.doc["extensionsUsed"] = ["KHR_materials_unlit"]
+    h.node(mesh=h.mesh(QUAD[:3], material=0))
+    s = ingest_file(write_glb(tmp_path / "scan.glb", h))
+    assert s.triangles.shape[0] == 1
+    assert any("every primitive is unlit" in w for w in s.warnings), s.warnings
