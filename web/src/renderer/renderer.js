@@ -3,6 +3,7 @@
  * probe grid, GI textures, exposure), replaces the glTF's materials with our proto/glsl programs for the
  * current GI mode, draws the probe spheres, and times frames.
  */
+import { isUnlitMesh } from './unlit.js';
 import {
   Color, DoubleSide, GLSL3, FrontSide, Group, InstancedBufferAttribute, InstancedBufferGeometry, Matrix3, Mesh, RawShaderMaterial,
   Scene, SphereGeometry, Vector3, Vector4, WebGLRenderer,
@@ -278,6 +279,7 @@ export class GIRenderer {
     if (!root) return;
     root.traverse((obj) => {
       if (!obj.isMesh) return;
+      if (isUnlitMesh(obj)) { obj.castShadow = false; return; }  // drawn as the file says: the bake left it out
       const geo = obj.geometry;
       if (!geo.attributes.normal) geo.computeVertexNormals();
       const mats = Array.isArray(obj.material) ? obj.material : [obj.material];

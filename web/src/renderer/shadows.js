@@ -3,8 +3,9 @@
  * an orthographic distance map per directional light, re-rendered only when the lights or the scene change.
  * Distances are packed into RGBA8 (renderable on every WebGL2 device) and read with NEAREST filtering.
  */
+import { isUnlitMesh, litBounds } from './unlit.js';
 import {
-  Box3, Color, CubeCamera, DoubleSide, GLSL3, Matrix4, NearestFilter, OrthographicCamera, RawShaderMaterial, Vector3, Vector4,
+  Color, CubeCamera, DoubleSide, GLSL3, Matrix4, NearestFilter, OrthographicCamera, RawShaderMaterial, Vector3, Vector4,
   WebGLCubeRenderTarget, WebGLRenderTarget,
 } from 'three';
 
@@ -47,12 +48,14 @@ export class ShadowMaps {
   update(world, root, lights) {
     const three = this.gi.three;
     const u = this.gi.shared;
-    const box = new Box3().setFromObject(root);
+    const box = litBounds(root);          // unlit meshes (a sky dome) neither cast shadows nor set the maps' extent
     if (box.isEmpty()) return;
     const centre = box.getCenter(new Vector3());
     const radius = Math.max(1e-3, box.getSize(new Vector3()).length() * 0.5);
     const hidden = [];
-    world.traverse((o) => { if (o.isMesh && !root.getObjectById(o.id) && o.visible) { hidden.push(o); o.visible = false; } });
+    world.traverse((o) => {
+      if (o.isMesh && (!root.getObjectById(o.id) || isUnlitMesh(o)) && o.visible) { hidden.push(o); o.visible = false; }
+    });
     const prevOverride = world.overrideMaterial;
     const prevClear = three.getClearColor(new Color());
     const prevAlpha = three.getClearAlpha();
