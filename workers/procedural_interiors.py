@@ -1,8 +1,9 @@
 """Held-out procedural interiors for the fidelity benchmark: scenes the default config was never tuned on.
 
 Issue 12 ("right by default") asks for light within 0.9-1.1 of Cycles on scenes Kiln has never seen. The scenes of
-:mod:`workers.procedural` are the ones the defaults were measured on; these six differ from them the way a user's
-interior would (room sizes, wall thickness, a zero-thickness wall, a sun through a window, a corridor), and are used
+:mod:`workers.procedural` are the ones the defaults were measured on; these seven differ from them the way a user's
+interior would (room sizes, wall thickness, a zero-thickness wall, a sun through a window, a corridor, a building
+larger than the default probe budget covers at its rooms' spacing), and are used
 ONLY by tests/bench/bench_fidelity.py and tests/data/fidelity/make_references.py (check points and Cycles references
 in tests/data/fidelity/<scene>.*). They are kept out of :data:`workers.procedural.SCENES` / ``ALL_SCENES``, which the
 unit tests iterate. Same conventions as :mod:`workers.procedural` (metres, +Y up, watertight grid solids from
@@ -36,6 +37,13 @@ directional lights in lux). Materials: walls and ceilings white-ish 0.8, floors 
     Room A (lit) [0, 4] x [0, 3] x [0, 4]; room B (dark) [4.4, 8.4] x [0, 3] x [0, 4]; wall x in [4, 4.4] with a
     door through it z in [2.6, 3.5], y < 2.0. Outer shell 10 cm. One 20 cd point light at (1.2, 2.4, 1.2) in A.
 
+``apartments`` (a building larger than the default probe budget covers at the rooms' spacing)
+    5 x 3 rooms on each of 3 floors, 4 x 2.8 x 4 m each (:func:`apartment_room`), 10 cm walls and slabs, a door
+    0.9 x 2 m from each room to its +x neighbour (z 1.4-2.3 m into the room); solid block [0, 20.6] x [0, 8.8] x
+    [0, 12.4]. One 20 cd point light in room (2, 1, 1), 1 m from its low corner in x and z, 2.4 m up: the rooms of
+    its row get its light through the doors; the rooms beside it in z and over and under it share only a wall or a
+    slab with it (Cycles: exactly 0 there). The default grid is budget-bound (0.52 m where the rooms ask 0.21 m).
+
 ``two-storey`` (a lit upper floor over a dark lower one: a thin floor slab, a stairwell opening)
     Lower room D (dark) [0, 5] x [0, 2.6] x [0, 4]; upper room U (lit) [0, 5] x [2.62, 5.0] x [0, 4]; the slab
     between them y in [2.6, 2.62] (2 cm: U's floor is D's ceiling) with a stairwell opening x in [3.9, 4.9],
@@ -49,7 +57,7 @@ import numpy as np
 
 from workers.procedural_glb import EPS, Box3, Light, Material, SceneSpec, encode_glb, quads_to_primitive, solid_mesh
 
-__all__ = ["INTERIOR_SCENES", "CONFIGS", "make_interior"]
+__all__ = ["INTERIOR_SCENES", "CONFIGS", "make_interior", "apartment_room"]
 
 INTERIOR_SCENES: dict[str, str] = {
     "rooms-unequal": "lit 6 x 3 x 5 m room beside a dark 3 x 2.6 x 3 m room, 2 cm shared wall, off-centre door, "
@@ -62,6 +70,8 @@ INTERIOR_SCENES: dict[str, str] = {
                   "light in one",
     "two-storey": "lit 5 x 2.38 x 4 m upper floor over a dark 5 x 2.6 x 4 m lower one, 2 cm floor slab with a "
                   "1 x 1.4 m stairwell opening, 25 cd point light upstairs",
+    "apartments": "a block of 5 x 3 rooms on 3 floors (4 x 2.8 x 4 m, 10 cm walls and slabs, doors along each row), "
+                  "the middle room lit by a 20 cd point light: the default budget binds",
 }
 
 # Bake-config additions of each scene (the bench bakes the default config plus this; the Cycles reference gets the
@@ -174,8 +184,36 @@ def _two_storey() -> SceneSpec:
                      lights=[Light("upstairs", "point", 25.0, position=(1.5, 4.6, 2.5))], bake_box=_bounds(ops))
 
 
+APARTMENT_ROOMS = (5, 3, 3)
+"""Rooms of ``apartments`` along x, y (floors), z."""
+APARTMENT_ROOM = (4.0, 2.8, 4.0)
+APARTMENT_WALL = 0.10
+
+
+def apartment_room(i: int, j: int, k: int) -> tuple[float, float, float]:
+    """The low corner of room (i, j, k) of ``apartments`` (metres)."""
+    (w, h, d), t = APARTMENT_ROOM, APARTMENT_WALL
+    return (t + i * (w + t), t + j * (h + t), t + k * (d + t))
+
+
+def _apartments() -> SceneSpec:
+    (nx, ny, nz), (w, h, d), t = APARTMENT_ROOMS, APARTMENT_ROOM, APARTMENT_WALL
+    ops = [(True, ((0.0, 0.0, 0.0), (nx * (w + t) + t, ny * (h + t) + t, nz * (d + t) + t)))]
+    for i in range(nx):
+        for j in range(ny):
+            for k in range(nz):
+                x, y, z = apartment_room(i, j, k)
+                ops.append((False, ((x, y, z), (x + w, y + h, z + d))))
+                if i + 1 < nx:                                      # a door to the +x neighbour, off-centre
+                    ops.append((False, ((x + w, y, z + 1.4), (x + w + t, y + 2.0, z + 2.3))))
+    x, y, z = apartment_room(2, 1, 1)
+    return SceneSpec(name="apartments", materials=_materials(), meshes=[solid_mesh("block", ops, _floor_or_wall)],
+                     lights=[Light("lamp", "point", 20.0, position=(x + 1.0, y + 2.4, z + 1.0))], bake_box=ops[0][1])
+
+
 _BUILDERS = {"rooms-unequal": _rooms_unequal, "sun-window": _sun_window, "corridor-l": _corridor_l,
-             "thick-wall": _thick_wall, "plane-wall": _plane_wall, "two-storey": _two_storey}
+             "thick-wall": _thick_wall, "plane-wall": _plane_wall, "two-storey": _two_storey,
+             "apartments": _apartments}
 
 
 def make_interior(name: str) -> bytes:

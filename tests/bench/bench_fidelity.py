@@ -60,12 +60,12 @@ with a points file in tests/data/fidelity (:data:`DEFAULT_SCENES`). Per scene:
    absolute mean instead (``=<value>``). The JSON (``--json``) also holds per-channel ratios and per-receiver
    relative RMS errors.
 
-``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall``, ``plane-wall`` and ``two-storey`` are held-out interiors
+``rooms-unequal``, ``sun-window``, ``corridor-l``, ``thick-wall``, ``plane-wall``, ``two-storey`` and ``apartments`` are held-out interiors
 (:mod:`workers.procedural_interiors`, kept out of ``workers.procedural``'s scene lists): scenes the default config was
 never tuned on, as issue 12's filer will measure (a lit room beside a smaller dark one through a 2 cm wall; a sunlit
 room with a window and sky on a ground slab beside a closed room; an L-shaped corridor lit at one end; a 40 cm wall
 with a door through it; two rooms divided by one double-sided plane; a lit upper floor over a dark lower one, a 2 cm
-slab and a stairwell between them). Baked like the procedural scenes, plus the points file's ``config`` (sun-window's sky).
+slab and a stairwell between them; a block of 45 rooms, one lit, where the default budget binds). Baked like the procedural scenes, plus the points file's ``config`` (sun-window's sky).
 
 ``--rotate DEG`` bakes each scene rotated DEG degrees about +Y (one new root node over its meshes and lights, a real
 scene's files embedded in one GLB first; the points file's added lights rotated too) and reads it at the receivers and normals rotated the same way:

@@ -24,7 +24,7 @@ def _ingest(name: str):
 
 def test_kept_out_of_the_procedural_scene_lists():
     assert set(INTERIOR_SCENES) == {"rooms-unequal", "sun-window", "corridor-l", "thick-wall", "plane-wall",
-                                     "two-storey"}
+                                     "two-storey", "apartments"}
     assert not set(INTERIOR_SCENES) & set(ALL_SCENES)
     assert set(CONFIGS) <= set(INTERIOR_SCENES)
     with pytest.raises(ValueError, match="unknown interior"):
@@ -49,7 +49,9 @@ def test_closed_deterministic_and_lit(name):
 ROOMS = {"rooms-unequal": [(3.0, 1.5, 2.5), (7.5, 1.3, 1.5)], "thick-wall": [(2.0, 1.5, 2.0), (6.4, 1.5, 2.0)],
          "sun-window": [(2.5, 1.5, 2.0), (6.8, 1.5, 2.0)], "plane-wall": [(2.0, 1.5, 2.0), (6.3, 1.4, 2.0)],
          # upstairs, and downstairs under the stairwell's edge (the slab hides the lamp)
-         "two-storey": [(2.5, 3.8, 2.0), (4.4, 2.0, 0.8)]}
+         "two-storey": [(2.5, 3.8, 2.0), (4.4, 2.0, 0.8)],
+         # the lit room (2, 1, 1) and the dark one through the door beside it (3, 1, 1)
+         "apartments": [(10.3, 4.4, 6.2), (14.4, 4.4, 5.2)]}
 
 
 @pytest.mark.parametrize("name", sorted(ROOMS))

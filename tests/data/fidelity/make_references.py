@@ -36,7 +36,8 @@ file's and the reference's ``config``), handled as a real scene's sky (E_probe =
 Made with ``--samples 4096 --seeds 0,1`` (corridor-l and sun-window ``--seeds 0,1,2,3``, the first two reused),
 under ``nice -n 10`` on 2 cores shared with other benchmarks: thick-wall 288 s, rooms-unequal 161 s, corridor-l
 93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s, plane-wall 152 s + 364 s (seeds 0-3; ``wall_seconds`` in the references);
-two-storey with ``--samples 8192 --seeds 0,1,2,3``: 592 s.
+two-storey with ``--samples 8192 --seeds 0,1,2,3``: 592 s; apartments (a 45-room block, the default budget binding)
+``--samples 4096 --seeds 0,1``: 258 s.
 
 Real scenes (:data:`EXTERNAL`, e.g. ``living-room``: ``godot-living-room/living_room.glb``, which has no lights of its
 own) are baked by the bench with the default config plus the entry's ``config`` (``scene.lights`` and ``scene.sky``).
@@ -105,7 +106,7 @@ ROOT = HERE.parents[2]
 sys.path.insert(0, str(ROOT))
 
 from workers.procedural import ALL_SCENES, make_scene  # noqa: E402
-from workers.procedural_interiors import CONFIGS as INTERIOR_CONFIGS, INTERIOR_SCENES, make_interior  # noqa: E402
+from workers.procedural_interiors import CONFIGS as INTERIOR_CONFIGS, INTERIOR_SCENES, apartment_room, make_interior  # noqa: E402
 
 SHARED_SCENES = Path(os.environ.get("KILN_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
 
@@ -395,6 +396,31 @@ REGIONS["two-storey"] = {
     "stairwell": [(4.4, 2.0, 0.8), (4.4, 1.2, 0.8), (4.2, 2.3, 1.2)],
     # 10 cm above the sideboard's top and in front of it
     "sideboard": [(0.8, 1.0, 3.65), (1.4, 1.0, 3.65), (1.1, 0.5, 3.3)],
+}
+# apartments: the dark room (3, 1, 1) beside the lit one (2, 1, 1), through the door in their shared 10 cm wall
+# (its dark face at x = 12.4; door z in [5.6, 6.5], y < 5.0): 5 / 10 / 25 cm from the wall at 3 heights and 4 depths
+# (two either side of the door); the middles of the dark room, the lit one and the room two doors on; 5 cm inside the
+# rooms that share only a wall (2, 1, 2) or a slab (2, 2, 1) with the lit one (no door between: Cycles 0)
+_AP_D, _AP_L = apartment_room(3, 1, 1), apartment_room(2, 1, 1)
+_AP_YZ = [(_AP_D[1] + y, _AP_D[2] + z) for y in (0.8, 1.6, 2.2) for z in (0.5, 1.0, 3.0, 3.5)]
+_AP_MID = [(1.5, 1.4, 1.5), (2.5, 1.4, 1.5), (1.5, 1.4, 2.5), (2.5, 1.4, 2.5)]
+
+
+def _ap_mid(room):
+    return [tuple(round(c + o, 4) for c, o in zip(room, m)) for m in _AP_MID]
+
+
+REGIONS["apartments"] = {
+    "dark-5cm": [(round(_AP_D[0] + 0.05, 4), y, z) for y, z in _AP_YZ],
+    "dark-10cm": [(round(_AP_D[0] + 0.10, 4), y, z) for y, z in _AP_YZ],
+    "dark-25cm": [(round(_AP_D[0] + 0.25, 4), y, z) for y, z in _AP_YZ],
+    "dark-middle": _ap_mid(_AP_D),
+    "lit": _ap_mid(_AP_L),
+    "two-doors-on": _ap_mid(apartment_room(4, 1, 1)),
+    "beside-5cm": [tuple(round(c + o, 4) for c, o in zip(apartment_room(2, 1, 2), (x, 1.4, 0.05)))
+                   for x in (0.5, 2.0, 3.5)],
+    "above-5cm": [tuple(round(c + o, 4) for c, o in zip(apartment_room(2, 2, 1), (x, 0.05, z)))
+                  for x in (1.0, 3.0) for z in (1.0, 3.0)],
 }
 CHECK_RAYS = 512  # ray directions (spherical Fibonacci) of the free-space check of a real scene's points
 UNITS_NOTE = "E in W/m^2 (glTF units: cd / m^2, lux); RGB mean per receiver; dirs = the 6 axis normals per point"
