@@ -1,9 +1,9 @@
 """Held-out procedural interiors for the fidelity benchmark: scenes the default config was never tuned on.
 
 Issue 12 ("right by default") asks for light within 0.9-1.1 of Cycles on scenes Kiln has never seen. The scenes of
-:mod:`workers.procedural` are the ones the defaults were measured on; these seven differ from them the way a user's
+:mod:`workers.procedural` are the ones the defaults were measured on; these eight differ from them the way a user's
 interior would (room sizes, wall thickness, a zero-thickness wall, a sun through a window, a corridor, a building
-larger than the default probe budget covers at its rooms' spacing), and are used
+larger than the default probe budget covers at its rooms' spacing, a lone floor), and are used
 ONLY by tests/bench/bench_fidelity.py and tests/data/fidelity/make_references.py (check points and Cycles references
 in tests/data/fidelity/<scene>.*). They are kept out of :data:`workers.procedural.SCENES` / ``ALL_SCENES``, which the
 unit tests iterate. Same conventions as :mod:`workers.procedural` (metres, +Y up, watertight grid solids from
@@ -44,6 +44,11 @@ directional lights in lux). Materials: walls and ceilings white-ish 0.8, floors 
     its row get its light through the doors; the rooms beside it in z and over and under it share only a wall or a
     slab with it (Cycles: exactly 0 there). The default grid is budget-bound (0.52 m where the rooms ask 0.21 m).
 
+``open-floor`` (issue 12's "open lit floor", as a user's first upload would be)
+    One single-sided quad [-5, 5] x {0} x [-5, 5] facing +Y, grey 0.5, nothing else; a 3 lux sun travelling along
+    normalize(-0.3, -1, -0.2) and a sky of radiance (0.3, 0.35, 0.4) from the bake config (:data:`CONFIGS`). No
+    extent along y: the automatic grid once put its one layer of probes in the plane.
+
 ``two-storey`` (a lit upper floor over a dark lower one: a thin floor slab, a stairwell opening)
     Lower room D (dark) [0, 5] x [0, 2.6] x [0, 4]; upper room U (lit) [0, 5] x [2.62, 5.0] x [0, 4]; the slab
     between them y in [2.6, 2.62] (2 cm: U's floor is D's ceiling) with a stairwell opening x in [3.9, 4.9],
@@ -70,13 +75,15 @@ INTERIOR_SCENES: dict[str, str] = {
                   "light in one",
     "two-storey": "lit 5 x 2.38 x 4 m upper floor over a dark 5 x 2.6 x 4 m lower one, 2 cm floor slab with a "
                   "1 x 1.4 m stairwell opening, 25 cd point light upstairs",
+    "open-floor": "a lone 10 x 10 m ground plane (one single-sided quad, no thickness) under a sun and a sky",
     "apartments": "a block of 5 x 3 rooms on 3 floors (4 x 2.8 x 4 m, 10 cm walls and slabs, doors along each row), "
                   "the middle room lit by a 20 cd point light: the default budget binds",
 }
 
 # Bake-config additions of each scene (the bench bakes the default config plus this; the Cycles reference gets the
 # same sky): only the sun room has a sky.
-CONFIGS: dict[str, dict] = {"sun-window": {"scene": {"sky": [0.3, 0.35, 0.4]}}}
+CONFIGS: dict[str, dict] = {"sun-window": {"scene": {"sky": [0.3, 0.35, 0.4]}},
+                            "open-floor": {"scene": {"sky": [0.3, 0.35, 0.4]}}}
 
 _WALL = (0.8, 0.8, 0.8)
 _FLOOR = (0.45, 0.33, 0.22)
@@ -211,9 +218,17 @@ def _apartments() -> SceneSpec:
                      lights=[Light("lamp", "point", 20.0, position=(x + 1.0, y + 2.4, z + 1.0))], bake_box=ops[0][1])
 
 
+def _open_floor() -> SceneSpec:
+    ground = [np.array([[-5.0, 0.0, 5.0], [5.0, 0.0, 5.0], [5.0, 0.0, -5.0], [-5.0, 0.0, -5.0]])]   # CCW from +Y
+    return SceneSpec(name="open-floor", materials=[Material("ground", (0.5, 0.5, 0.5))],
+                     meshes=[("floor", {"ground": quads_to_primitive(ground)})],
+                     lights=[Light("sun", "directional", 3.0, direction=(-0.3, -1.0, -0.2))],
+                     bake_box=((-5.0, 0.0, -5.0), (5.0, 2.5, 5.0)))
+
+
 _BUILDERS = {"rooms-unequal": _rooms_unequal, "sun-window": _sun_window, "corridor-l": _corridor_l,
              "thick-wall": _thick_wall, "plane-wall": _plane_wall, "two-storey": _two_storey,
-             "apartments": _apartments}
+             "apartments": _apartments, "open-floor": _open_floor}
 
 
 def make_interior(name: str) -> bytes:

@@ -24,7 +24,7 @@ def _ingest(name: str):
 
 def test_kept_out_of_the_procedural_scene_lists():
     assert set(INTERIOR_SCENES) == {"rooms-unequal", "sun-window", "corridor-l", "thick-wall", "plane-wall",
-                                     "two-storey", "apartments"}
+                                     "two-storey", "apartments", "open-floor"}
     assert not set(INTERIOR_SCENES) & set(ALL_SCENES)
     assert set(CONFIGS) <= set(INTERIOR_SCENES)
     with pytest.raises(ValueError, match="unknown interior"):
@@ -40,9 +40,17 @@ def test_closed_deterministic_and_lit(name):
     assert double.any() == (name == "plane-wall")          # plane-wall's divider: one double-sided plane
     tris = np.round(np.asarray(sc.triangles, np.float64)[~double], 6)
     edges = Counter((tuple(t[a]), tuple(t[b])) for t in tris for a, b in ((0, 1), (1, 2), (2, 0)))
-    # watertight and consistently oriented: every directed edge once, its reverse once
-    assert all(n == 1 and edges.get((b, a)) == 1 for (a, b), n in edges.items())
+    # watertight and consistently oriented: every directed edge once, its reverse once (open-floor: one lone quad,
+    # a surface without an inside, facing up)
+    if name == "open-floor":
+        assert len(tris) == 2 and np.allclose(tris[:, :, 1], 0.0) and (face_up(tris) > 0).all()
+    else:
+        assert all(n == 1 and edges.get((b, a)) == 1 for (a, b), n in edges.items())
     assert len(sc.lights) == 1
+
+
+def face_up(tris):
+    return np.cross(tris[:, 1] - tris[:, 0], tris[:, 2] - tris[:, 0])[:, 1]
 
 
 # a point in each room, the light's room first: the rooms are joined only through their door

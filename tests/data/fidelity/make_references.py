@@ -37,7 +37,7 @@ Made with ``--samples 4096 --seeds 0,1`` (corridor-l and sun-window ``--seeds 0,
 under ``nice -n 10`` on 2 cores shared with other benchmarks: thick-wall 288 s, rooms-unequal 161 s, corridor-l
 93 s (seeds 0, 1) + 419 s (all four), sun-window 122 s + 161 s, plane-wall 152 s + 364 s (seeds 0-3; ``wall_seconds`` in the references);
 two-storey with ``--samples 8192 --seeds 0,1,2,3``: 592 s; apartments (a 45-room block, the default budget binding)
-``--samples 4096 --seeds 0,1``: 258 s.
+``--samples 4096 --seeds 0,1``: 258 s; open-floor (a lone ground plane, sun and sky) the same: 33 s.
 
 Real scenes (:data:`EXTERNAL`, e.g. ``living-room``: ``godot-living-room/living_room.glb``, which has no lights of its
 own) are baked by the bench with the default config plus the entry's ``config`` (``scene.lights`` and ``scene.sky``).
@@ -421,6 +421,16 @@ REGIONS["apartments"] = {
                    for x in (0.5, 2.0, 3.5)],
     "above-5cm": [tuple(round(c + o, 4) for c, o in zip(apartment_room(2, 2, 1), (x, 0.05, z)))
                   for x in (1.0, 3.0) for z in (1.0, 3.0)],
+}
+# open-floor: above a lone 10 x 10 m ground plane (y = 0) under a sun and a sky, at 5 cm, 25 cm, 1 m and 2 m, in the
+# middle and towards an edge (issue 12's "open lit floor": each of the 6 axis normals within 10%)
+_OF_XZ = [(0.0, 0.0), (2.0, 1.0), (-2.0, -1.5), (1.0, -2.5)]
+REGIONS["open-floor"] = {
+    "floor-5cm": [(x, 0.05, z) for x, z in _OF_XZ],
+    "floor-25cm": [(x, 0.25, z) for x, z in _OF_XZ],
+    "floor-1m": [(x, 1.0, z) for x, z in _OF_XZ],
+    "floor-2m": [(x, 2.0, z) for x, z in _OF_XZ],
+    "edge-25cm": [(4.5, 0.25, 0.0), (-4.5, 0.25, 2.0), (0.0, 0.25, 4.5), (3.0, 0.25, -4.5)],
 }
 CHECK_RAYS = 512  # ray directions (spherical Fibonacci) of the free-space check of a real scene's points
 UNITS_NOTE = "E in W/m^2 (glTF units: cd / m^2, lux); RGB mean per receiver; dirs = the 6 axis normals per point"
