@@ -167,18 +167,26 @@ def test_the_budget_counts_the_whole_box_and_the_record_says_what_free_space_wou
 def test_the_default_budget_binding_far_above_the_rooms_is_a_warning(tmp_path):
     """Right by default: where the default budget (24,000) holds the automatic grid far coarser than the rooms ask
     (truck-town, a 2 km town: 25 m where 1.39 m is wanted), the bake says so (``grid_coarse``,
-    workers/stages/place.py) with what to do. A budget the user chose, or a grid within COARSE_FACTOR of what the
-    rooms ask (zdm2 2.2x, sealed-box 2.8x, whose light is right: bench_fidelity), gets no warning."""
+    workers/stages/place.py) with what to do. So does an enclosed scene held above ENCLOSED_COARSE_FACTOR (rooms whose
+    walls the light changes faster near than the grid resolves: apartments 2.5x, zdm2 3.0x). A budget the user chose,
+    or a grid within the factor of what the rooms ask (an open scene: sealed-box 3.8x, whose light is right), gets no
+    warning."""
     from tests.conftest import shared_path
     from workers.gltf.pack import pack_model
-    from workers.stages.place import COARSE_FACTOR, coarse_grid_warning
+    from workers.stages.place import COARSE_FACTOR, ENCLOSED_COARSE_FACTOR, coarse_grid_warning
 
-    auto = {"budget_bound": True, "spacing_wanted": 1.0, "spacing": COARSE_FACTOR * 1.01}
+    auto = {"budget_bound": True, "spacing_wanted": 1.0, "spacing": COARSE_FACTOR * 1.01, "kind": "open"}
     w = coarse_grid_warning(auto, 24000)
     assert w["code"] == "grid_coarse" and "place.box" in w["message"] and "place.budget" in w["message"]
+    assert "reads high" not in w["message"]
     assert coarse_grid_warning(auto, 5000) is None                           # the user's own budget
     assert coarse_grid_warning({**auto, "spacing": COARSE_FACTOR * 0.99}, 24000) is None
     assert coarse_grid_warning({**auto, "budget_bound": False}, 24000) is None
+    rooms = {**auto, "kind": "enclosed", "spacing": ENCLOSED_COARSE_FACTOR * 1.01}
+    w = coarse_grid_warning(rooms, 24000)
+    assert w["code"] == "grid_coarse" and "reads high" in w["message"] and "place.budget" in w["message"]
+    assert coarse_grid_warning({**rooms, "spacing": ENCLOSED_COARSE_FACTOR * 0.99}, 24000) is None
+    assert coarse_grid_warning({**rooms, "kind": "open"}, 24000) is None     # an open scene at 2x: no warning
     town = shared_path("scenes", "truck-town", "town_model.gltf")
     assert pack_model(town, tmp_path / "town.zip")
     _, s = bake_until(tmp_path / "a", tmp_path / "town.zip", {}, "place")
