@@ -19,11 +19,17 @@ function markerColor(c) {
   return col.lerp(new Color(1, 0.93, 0.55), 0.35);
 }
 
-/** Marker size from scene bounds: 1.2 % of the diagonal, 3..30 cm. */
+/**
+ * Marker size from scene bounds: 1.2 % of the diagonal, within 3..30 cm for scenes of human size; the limits scale
+ * with the scene beyond it (a 4 cm diorama: 5 % of its diagonal, not a 3 cm ball over the whole scene; a 2 km town or
+ * a room in centimetres: up to 0.3 % of the diagonal, not a 30 cm dot).
+ */
 export function markerSize(bounds) {
   if (!bounds) return 0.08;
   const d = Math.hypot(...bounds[1].map((x, i) => x - bounds[0][i]));
-  return Math.min(0.3, Math.max(0.03, 0.012 * d));
+  if (!(d > 0)) return 0.08;
+  const lo = Math.min(0.03, 0.05 * d), hi = Math.max(0.3, 0.003 * d);
+  return Math.min(hi, Math.max(lo, 0.012 * d));
 }
 
 /**
