@@ -261,7 +261,7 @@ export function createViewerPage(app) {
   // ------------------------------------------------------------------ lights: show, place by clicking, drag
   let placing = null;  // {index: number|null}: placing the bake form's light `index` (null: a new one)
   const formLights = () => (app.configForm ? app.configForm.values().scene.lights || [] : []);
-  const fmtP = (p) => p.map((x) => x.toFixed(2)).join(', ');
+  const fmtP = (p) => p.map((x) => (x !== 0 && Math.abs(x) < 0.1 ? x.toPrecision(2) : x.toFixed(2))).join(', ');
   lightsBox.addEventListener('change', () => viewer && viewer.showLightMarkers(lightsBox.checked));
 
   function onGizmoMove(index, p) {
@@ -281,8 +281,8 @@ export function createViewerPage(app) {
     viewer.showLightMarkers(true);
     viewer.editLights(formLights(), index, onGizmoMove);
     placeNote.textContent = index == null
-      ? 'Click a surface: a point light goes 0.3 m in front of it (then drag the gizmo to adjust).'
-      : `Click a surface to move light ${index + 1} there (0.3 m in front of it), or drag the gizmo.`;
+      ? 'Click a surface: a point light goes 0.3 m in front of it, or 15% of your distance to it when nearer (then drag the gizmo to adjust).'
+      : `Click a surface to move light ${index + 1} there (0.3 m in front of it, or 15% of your distance to it when nearer), or drag the gizmo.`;
   }
 
   function stopPlacing() {
@@ -304,14 +304,14 @@ export function createViewerPage(app) {
     if (!hit) { placeNote.textContent = 'Nothing there: click a surface of the scene.'; return; }
     let index = placing.index;
     if (index == null) {
-      index = app.configForm.addLight({ ...defaultLight('point'), position: hit.position.map((x) => Math.round(x * 1000) / 1000) });
+      index = app.configForm.addLight({ ...defaultLight('point'), position: hit.position.map((x) => Math.round(x * 1e6) / 1e6) });
       placing.index = index;
     } else {
       app.configForm.setLightPosition(index, hit.position);
     }
     viewer.lastPick = hit;
     viewer.editLights(formLights(), index, onGizmoMove);
-    placeNote.textContent = `Light ${index + 1} placed at (${fmtP(hit.position)}) m, 0.3 m off the surface. Drag the gizmo to adjust, `
+    placeNote.textContent = `Light ${index + 1} placed at (${fmtP(hit.position)}) m, ${Number(hit.offset.toPrecision(2))} m off the surface. Drag the gizmo to adjust, `
       + 'click again to move it, or “Done placing”. Start the bake on “Upload & bake”.';
   });
 
