@@ -72,7 +72,7 @@ export function createControls(camera, dom, onChange) {
       if (mode === 'orbit') {
         // keep looking where the fly camera looked: put the orbit target in front of it
         const dir = new Vector3(0, 0, -1).applyQuaternion(camera.quaternion);
-        const dist = Math.max(0.5, camera.position.distanceTo(orbit.target));
+        const dist = Math.max(20 * camera.near, camera.position.distanceTo(orbit.target));  // near: the scene's size / 2000
         orbit.target.copy(camera.position).addScaledVector(dir, dist);
         orbit.update();
       }
