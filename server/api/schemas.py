@@ -351,6 +351,7 @@ class BakeSnapshot(_Out):
     events; ``deleted`` carries only ``{"id"}``)."""
 
     id: str
+    scene_id: str
     status: BakeStatus
     error: BakeError | None
     stages: list[StageSnapshot]

@@ -39,8 +39,15 @@ def baked(browser, kiln_server, tmp_path_factory, shots):
         assert status.startswith("Bake "), status
         card = page.wait_for_selector(f'.bake-card[data-status=succeeded][data-bake^="{status.split()[1]}"]', timeout=150000)
         bake_id = card.get_attribute("data-bake")
-        # the bake card names the scene by its file name
-        assert page.inner_text(f'.bake-card[data-bake="{bake_id}"] .scene-name') == glb.name
+        # the bake card names the scene by its file name (once the bake list has the bake's scene: a card can be
+        # drawn a moment before, from the status poll; seen once on a loaded machine)
+        sel = f'.bake-card[data-bake="{bake_id}"] .scene-name'
+        try:
+            page.wait_for_function("([sel, name]) => document.querySelector(sel)?.textContent === name",
+                                   arg=[sel, glb.name], timeout=15000)
+        except Exception:
+            pass
+        assert page.inner_text(sel) == glb.name
         _after(page, lambda: page.click(f'a[data-open="{bake_id}"]'), "direct")
         assert page.get_attribute("#viewer-canvas", "data-scene") == "file"
         page.wait_for_function("document.getElementById('stream-label').textContent === 'volumes loaded'", timeout=60000)

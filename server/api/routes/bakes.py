@@ -288,7 +288,7 @@ def delete_bake(bake_id: str, team: str = Depends(deps.team), catalog: Catalog =
 
 
 def _snapshot(bake: dict, scene_warnings: list[str] | None = None) -> dict:
-    return {"id": bake["id"], "status": bake["status"], "error": bake["error"],
+    return {"id": bake["id"], "scene_id": bake["scene_id"], "status": bake["status"], "error": bake["error"],
             "stages": [{k: s[k] for k in ("name", "status", "progress", "seconds", "cached")} for s in bake["stages"]],
             "warnings": bake_warnings(bake, scene_warnings)}
 
