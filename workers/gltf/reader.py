@@ -237,7 +237,8 @@ class GltfReader:
         # importer makes them an emission seen by camera rays only, transparent to every other ray, so the Cycles
         # oracle's light passes through them; the bake leaves them out, unless nothing else is left to bake
         unlit = {i for i, m in enumerate(materials) if m.get("unlit")}
-        skip_unlit = bool(unlit) and any(p.get("material") not in unlit for _, _, _, p in draws)
+        skip_unlit = bool(unlit) and any(not (is_int(p.get("material")) and p["material"] in unlit)
+                                         for _, _, _, p in draws)     # (a malformed index is refused below)
         unlit_skipped: Counter = Counter()
 
         tri_out = np.empty((planned, 3, 3), np.float32)

@@ -250,3 +250,6 @@ def test_unlit_primitives_are_left_out_of_the_bake(tmp_path):
     s = ingest_file(write_glb(tmp_path / "scan.glb", h))
     assert s.triangles.shape[0] == 1
     assert any("every primitive is unlit" in w for w in s.warnings), s.warnings
+    # a material index that is not an integer: refused with a sentence, not a crash, unlit materials or not
+    h.doc["meshes"][0]["primitives"][0]["material"] = [0]
+    expect_error("invalid_gltf", write_glb(tmp_path / "bad.glb", h))
