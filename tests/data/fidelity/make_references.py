@@ -106,7 +106,8 @@ ROOT = HERE.parents[2]
 sys.path.insert(0, str(ROOT))
 
 from workers.procedural import ALL_SCENES, make_scene  # noqa: E402
-from workers.procedural_interiors import CONFIGS as INTERIOR_CONFIGS, INTERIOR_SCENES, apartment_room, make_interior  # noqa: E402
+from workers.procedural_interiors import (  # noqa: E402
+    CONFIGS as INTERIOR_CONFIGS, INTERIOR_SCENES, apartment_room, make_interior)
 
 SHARED_SCENES = Path(os.environ.get("KILN_SHARED_SCENES", ROOT.parent / "shared" / "scenes"))
 
