@@ -47,7 +47,7 @@ STAGES: tuple[StageDef, ...] = (
     # 9: the bake frame: the grid turned about +Y to the walls (workers/kernels/frame.py; stats["frame"], grid.frame)
     # 10: no floor of 0.05 m on the automatic spacing (a scene of a few cm got a 4 x 3 x 3 grid; autogrid.choose_grid)
     # 11: a thin open scene's box grown to the room scale along its thin axes (a lone floor's one layer of probes lay
-    # in its plane); a flat axis left gets two layers with the plane midway (autogrid.choose_grid); grid_coarse from
+    # in its plane) (autogrid.choose_grid); grid_coarse from
     # 2x the wanted spacing in an enclosed scene (stats["warnings"])
     StageDef("place", 11, ("place", "seed"), ("ingest",), timeout=600),
     # relocate 3: the iterations after the first trace only the probes that can still move (kernels/relocation.py settled)

@@ -254,14 +254,11 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
         blo, bhi = np.where(thin, centre - half, blo), np.where(thin, centre + half, bhi)
         ext = np.maximum(bhi - blo, 0.0)
     wanted = max(scale / divisions, float(min_spacing))
-    # a flat axis left (no extent along it) gets two layers with the plane midway, not one layer in the plane, whose
-    # probes would all lie on the surface
-    flat = ext <= 1e-6 * float(ext.max()) if float(ext.max()) > 0 else np.ones(3, bool)
-    live = ext[~flat]
+    live = ext[ext > 1e-9]
     volume = float(np.prod(live)) if live.size else 0.0
 
     def count(sp):
-        return int(np.prod([2 if f else math.ceil(e / sp - 1e-9) + 1 for e, f in zip(ext, flat)]))
+        return int(np.prod([math.ceil(e / sp - 1e-9) + 1 if e > 1e-9 else 1 for e in ext]))
 
     def fit(b):                                      # the spacing that fits b probes over the box
         sp = wanted
@@ -277,7 +274,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     free_fraction = float((~fs.inside[in_box]).mean()) if in_box.any() else 1.0
     # not used (module doc, step 3): the budget spread over the free volume alone, i.e. budget / f probes in the box
     s_free = fit(budget / max(free_fraction, 1e-3))
-    counts = np.array([2 if f else math.ceil(e / s - 1e-9) + 1 for e, f in zip(ext, flat)], np.int64)
+    counts = np.array([math.ceil(e / s - 1e-9) + 1 if e > 1e-9 else 1 for e in ext], np.int64)
     spacing = np.where(counts > 1, s, 0.0)
     origin = (blo + bhi) / 2 - spacing * (counts - 1) / 2
     phases = [None, None, None]
