@@ -101,8 +101,9 @@ STAGES: tuple[StageDef, ...] = (
     # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by
     # the delta method (the bootstrap understated them); 5: the mask modes' lookup blend takes from the offset read
     # only the clusters the point sees (compress.lookup_blend, gi_mask.glsl); 6: the eval_points artifact (each mode
-    # at the points: GET /v1/compare's paired standard errors)
-    StageDef("evaluate", 6, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
+    # at the points: GET /v1/compare's paired standard errors); 7: the preview reference picture and the error
+    # heatmaps denoised (workers/render/previews.py denoised_radiance; the image metrics still the noisy image)
+    StageDef("evaluate", 7, ("evaluate", "light.self_shadow_bias", "visibility.samples_per_cell", "seed"),
              ("ingest", "place", "relocate", "trace", "light", "visibility", "anneal", "masks", "clusters", "compress",
               "prt", "reference"), timeout=7200),
 )

@@ -7,8 +7,11 @@
   the proto/glsl mode shaders) on the reference's G-buffer: the tone-mapped image, its error heatmap (MD Fig 3
   bottom row, :data:`HEATMAP_VMAX`), the pass's wall time (median of ``repeats`` after a warm-up; with ``repeats``
   0, the default, the wall time of the preview's second draw: no draw beyond the two pictures), image-space RMSE (MD §4.2),
-  FLIP and leak against the preview reference, and a contact sheet.
+  FLIP and leak against the (noisy) preview reference, and a contact sheet.
 - :func:`prt_resources`: the PRT mode's textures and uniforms for the bake's lights.
+- :func:`denoised_radiance`: the preview reference with its path-traced part denoised (Intel Open Image Denoise,
+  ``pyoidn``): the picture the dashboard shows and the heatmaps compare against. Pictures only: ``image_rmse``,
+  ``flip`` and ``image_leak`` stay against the noisy image, and every point metric comes from the reference's points.
 
 Without EGL both return no pictures and the warning ``previews_unavailable``. Consumers: stages ``reference``
 and ``evaluate``.
@@ -25,7 +28,7 @@ from proto.gi_modes import MAX_LIGHTS
 from workers.kernels.reference_layout import pack_gbuffer, unpack_gbuffer
 
 __all__ = ["HEATMAP_VMAX", "GBUFFER_FETCHES", "reference_previews", "mode_previews", "mode_resources",
-           "prt_resources", "png_supported"]
+           "prt_resources", "png_supported", "denoised_radiance"]
 
 HEATMAP_VMAX = 0.25  # LDR error at the red end of the heatmaps
 GBUFFER_FETCHES = 4  # position, normal, albedo, emission (+1 per 4 lights: shadow mask)
@@ -57,6 +60,42 @@ def _picture(name: str, img: np.ndarray, description: str, meta=None) -> tuple:
     if png_supported():
         return name, MT.png_bytes(img), "png", description, {**(meta or {}), "shape": list(img.shape)}
     return name, np.ascontiguousarray(img), "npy", description + " (PNG pending: uint8 image)", dict(meta or {})
+
+
+def denoised_radiance(image: np.ndarray, gb: dict) -> np.ndarray | None:
+    """The preview reference's exitant radiance with its path-traced part denoised; None without a denoiser.
+
+    ``image`` (H, W, 9) float32: e_direct, e_indirect, radiance (:func:`reference_previews`); ``gb``: the G-buffer
+    (:func:`workers.kernels.reference_layout.unpack_gbuffer`: ``albedo``, ``normal``, ``emission``, ``shaded``).
+    Returns (H, W, 3) float32 ``emission + albedo/π·E_direct + D(albedo/π·E_indirect)``: only the indirect term is
+    noisy (the punctual lights' direct light is exact at each pixel, shadow rays included), so only it goes through
+    the denoiser D, Intel Open Image Denoise's RT filter (HDR, the G-buffer's albedo and world normal as clean
+    auxiliary images), and hard shadows keep their edges. Unshaded pixels keep the image's radiance.
+
+    Measured (two-rooms, the default 160 x 120 preview, against 512 spp of the same G-buffer, tone-mapped): the
+    4-spp image's RMSE 0.215 (0.269 in the dark room, mostly salt-and-pepper), denoised 0.027 (0.034), which is about
+    the 512-spp image's own noise; the dark room's mean 0.988-1.013 of the 512-spp one, as the noisy image's
+    (0.982-1.009); 16 spp noisy 0.13. OIDN takes 35-70 ms on this machine. ``pyoidn`` ships x86-64 Linux wheels only:
+    elsewhere this returns None and the previews show the noisy image, as they did before (2026-12-06).
+    """
+    try:
+        import pyoidn
+    except Exception:                                           # not installed, or no library for this machine
+        return None
+    img = np.asarray(image, np.float32)
+    alb = np.clip(np.asarray(gb["albedo"], np.float32), 0.0, 1.0)
+    nrm = np.asarray(gb["normal"], np.float32)
+    sel = np.asarray(gb["shaded"], bool)
+    inv_pi = np.float32(1.0 / math.pi)
+    noisy = np.where(sel[..., None], alb * inv_pi * img[..., 3:6], 0.0).astype(np.float32)
+    try:
+        clean = pyoidn.denoise(np.ascontiguousarray(noisy), np.ascontiguousarray(alb), np.ascontiguousarray(nrm),
+                               hdr=True, clean_aux=True)
+    except Exception:                                           # e.g. a CPU the library does not support
+        return None
+    exact = np.asarray(gb["emission"], np.float32) + alb * inv_pi * img[..., 0:3]
+    out = exact + np.maximum(np.asarray(clean, np.float32), 0.0)
+    return np.where(sel[..., None], out, img[..., 6:9]).astype(np.float32)
 
 
 def reference_previews(scene, cams, lights, sky, caster, eps, *, spp: int, bounces: int, seed: int,
@@ -165,18 +204,25 @@ def mode_previews(ref, rdoc: dict, modes: list[str], resources: dict, lights, su
                 shader.set_gbuffer(GBufferInputs(gb["position"], gb["normal"], gb["albedo"], gb["emission"], sel, sm))
                 ref_rad, ref_ind = img[..., 6:9], img[..., 3:6]
                 k = MT.exposure_for(ref_rad, sel)
-                ref_ldr = MT.tonemap(ref_rad, k)
-                tiles = [("reference", ref_ldr)]
+                ref_ldr = MT.tonemap(ref_rad, k)            # the image metrics' reference (noisy: never denoised)
+                shown = denoised_radiance(img, gb)
+                show_ldr = ref_ldr if shown is None else MT.tonemap(shown, k)   # the pictures' reference
+                spp = ref.stats.get("preview_spp")
+                tiles = [("reference" if shown is None else "reference (denoised)", show_ldr)]
                 heat = [("error scale 0-%.2f" % HEATMAP_VMAX,
                          MT.heatmap(np.linspace(0, HEATMAP_VMAX, sel.shape[1])[None].repeat(sel.shape[0], 0),
                                     HEATMAP_VMAX))]
-                pictures.append(_picture(f"eval_{name}_reference", ref_ldr,
-                                         f"path-traced preview reference ({ref.stats.get('preview_spp')} spp), {name}",
-                                         {"camera": name, "exposure": k}))
+                pictures.append(_picture(
+                    f"eval_{name}_reference", show_ldr,
+                    f"path-traced preview reference ({spp} spp"
+                    + (")" if shown is None else ", indirect light denoised with Intel Open Image Denoise: a picture; "
+                       "the metrics use the reference's points") + f", {name}",
+                    {"camera": name, "exposure": k, "denoised": shown is not None}))
                 # repeats 0 (the default): no extra draw; the pass time is that of the second draw below (the first
                 # one of a mode may include its shader's JIT compilation on llvmpipe)
                 timings = shader.time_passes(modes, cam.position, repeats, warmup=ci == 0) if repeats > 0 else {}
-                cm = {"camera": name, "pixels": int(sel.sum()), "exposure": k, "modes": {}}
+                cm = {"camera": name, "pixels": int(sel.sum()), "exposure": k, "denoised": shown is not None,
+                      "modes": {}}
                 for m in modes:
                     rad = shader.render(m, 0, cam.position)
                     t0 = time.perf_counter()
@@ -185,7 +231,7 @@ def mode_previews(ref, rdoc: dict, modes: list[str], resources: dict, lights, su
                         dt = time.perf_counter() - t0
                         timings[m] = {"median_s": dt, "min_s": dt, "repeats": 1}
                     ldr = MT.tonemap(rad, k)
-                    err = MT.pixel_error(ldr, ref_ldr)                           # MD §4.2 E(x)
+                    err = MT.pixel_error(ldr, show_ldr)                          # MD §4.2 E(x): the heatmap
                     fl = MT.flip_mean(ldr, ref_ldr, sel) if flip and sel.any() else None
                     cm["modes"][m] = {"image_rmse": MT.rmse(ldr, ref_ldr, sel), "flip": fl,
                                       "image_leak": MT.leak_score(ind, ref_ind, sel)["leak"],
@@ -195,8 +241,10 @@ def mode_previews(ref, rdoc: dict, modes: list[str], resources: dict, lights, su
                     heat.append((f"{m} error", hm))
                     pictures.append(_picture(f"eval_{name}_{m}", ldr, f"{m} GI, {name}", {"camera": name, "mode": m}))
                     pictures.append(_picture(f"eval_{name}_{m}_error", hm,
-                                             f"{m} per-pixel error E(x) (MD §4.2) against the preview reference, "
-                                             f"0..{HEATMAP_VMAX}", {"camera": name, "mode": m, "vmax": HEATMAP_VMAX}))
+                                             f"{m} per-pixel error E(x) (MD §4.2) against the "
+                                             f"{'denoised ' if shown is not None else ''}preview reference, "
+                                             f"0..{HEATMAP_VMAX}", {"camera": name, "mode": m, "vmax": HEATMAP_VMAX,
+                                                                    "denoised": shown is not None}))
                 sheet_rows.append(tiles + heat)
                 per_camera.append(cm)
                 report((ci + 1) / len(names))
