@@ -69,3 +69,30 @@ def test_plan_keys_follow_inputs():
 def test_exported_schema_is_in_sync():
     assert SCHEMA_PATH.read_text() == schema_text(), "run: python -m proto.export_schema"
     assert json.loads(schema_text())["title"] == "BakeConfig"
+
+
+def test_the_readme_config_example_states_the_defaults():
+    """The README's bake config (TOML) is the reference a user reads: every value it sets uncommented is the default
+    (it said evaluate.spp = 128 after the default became 192), except the lights and sky it adds as an example."""
+    import re
+    import tomllib
+    from pathlib import Path
+
+    text = (Path(__file__).resolve().parents[2] / "README.md").read_text()
+    block = re.search(r"```toml\n(.*?)```", text, re.S)
+    assert block, "README.md has no ```toml bake config"
+    doc = tomllib.loads(block.group(1))
+    defaults = BakeConfig().model_dump()
+    examples = {("scene", "sky"), ("scene", "lights")}
+    checked = 0
+    for section, values in doc.items():
+        if not isinstance(values, dict):
+            assert defaults[section] == values, section
+            continue
+        for key, value in values.items():
+            if (section, key) in examples:
+                continue
+            default = defaults[section][key]
+            assert (list(default) if isinstance(default, tuple) else default) == value, f"{section}.{key}"
+            checked += 1
+    assert checked >= 20
