@@ -520,10 +520,11 @@ def test_ktx_cli_validate(tmp_path):
 
 
 _KTX_PARSE_CHECK = r"""
-import { read, write } from 'ktx-parse';
 import { readFileSync } from 'node:fs';
+import { pathToFileURL } from 'node:url';
+const { read, write } = await import(pathToFileURL(process.argv[2]).href);
 let bad = 0;
-for (const p of process.argv.slice(2)) {
+for (const p of process.argv.slice(3)) {
   const buf = new Uint8Array(readFileSync(p));
   const out = write(read(buf), { keepWriter: true });
   if (out.length !== buf.length || out.some((v, i) => v !== buf[i])) { bad++; console.log('MISMATCH ' + p); }
@@ -532,18 +533,23 @@ console.log(bad ? 'FAIL' : 'OK');
 """
 
 
-def test_ktx_parse_rewrites_identically(tmp_path):
-    """ktx-parse (three.js' KTX2 parser) reads our files and re-serializes them byte for byte.
+WEB = Path(__file__).resolve().parents[2] / "web"
+"""The web app: its dev dependencies (``npm ci`` in scripts/setup.sh) hold the independent KTX2 readers below."""
 
-    Runs when KILN_KTX_PARSE_DIR names a folder with node_modules/ktx-parse.
-    """
-    root = os.environ.get("KILN_KTX_PARSE_DIR")
-    if not root or not shutil.which("node") or not (Path(root) / "node_modules" / "ktx-parse").is_dir():
-        pytest.skip("set KILN_KTX_PARSE_DIR to a folder with node_modules/ktx-parse")
-    script = Path(root) / "kiln_ktx_parse_check.mjs"
+
+def test_ktx_parse_rewrites_identically(tmp_path):
+    """ktx-parse (glTF-Transform's and three.js' KTX2 parser; a dev dependency of web/) reads our files and
+    re-serializes them byte for byte. ``KILN_KTX_PARSE_DIR`` (a folder with ``node_modules/ktx-parse``) overrides."""
+    env = os.environ.get("KILN_KTX_PARSE_DIR")
+    mods = Path(env) / "node_modules" if env else WEB / "node_modules"
+    entry = mods / "ktx-parse" / "dist" / "index.mjs"
+    if not shutil.which("node") or not entry.is_file():
+        pytest.skip(f"no ktx-parse in {mods} (scripts/setup.sh installs web/'s dev dependencies)")
+    script = tmp_path / "check.mjs"
     script.write_text(_KTX_PARSE_CHECK)
     files = _sample_files(tmp_path)
-    r = subprocess.run(["node", str(script), *map(str, files)], capture_output=True, text=True, timeout=120)
+    r = subprocess.run(["node", str(script), str(entry), *map(str, files)], capture_output=True, text=True,
+                       timeout=120)
     assert r.returncode == 0 and r.stdout.strip().endswith("OK"), r.stdout + r.stderr
 
 
@@ -564,18 +570,22 @@ LIBKTX({ locateFile: (p) => dir + '/' + p }).then((ktx) => {
 
 
 def test_libktx_loads_files(tmp_path):
-    """libktx (the Emscripten build, e.g. from @khronosgroup/gltf-viewer's dist/libs) loads
-    every file, inflating Zstandard levels and checking their checksums.
-
-    Runs when KILN_LIBKTX_DIR names a folder holding libktx.js and libktx.wasm.
-    """
-    root = os.environ.get("KILN_LIBKTX_DIR")
-    if not root or not shutil.which("node") or not (Path(root) / "libktx.js").is_file():
-        pytest.skip("set KILN_LIBKTX_DIR to a folder with libktx.js + libktx.wasm")
+    """libktx, Khronos' KTX-Software library (its Emscripten build as @khronosgroup/gltf-viewer ships it in
+    dist/libs; a dev dependency of web/), loads every file, inflating Zstandard levels and checking their checksums.
+    ``KILN_LIBKTX_DIR`` (a folder holding libktx.js and libktx.wasm) overrides."""
+    root = os.environ.get("KILN_LIBKTX_DIR") or WEB / "node_modules" / "@khronosgroup" / "gltf-viewer" / "dist" / "libs"
+    if not shutil.which("node") or not (Path(root) / "libktx.js").is_file():
+        pytest.skip(f"no libktx.js in {root} (scripts/setup.sh installs web/'s dev dependencies)")
+    # a copy outside its package: gltf-viewer's package.json says "type": "module", and Node 20 then loads this
+    # CommonJS file as an ES module (LIBKTX is not exported)
+    lib = tmp_path / "libktx"
+    lib.mkdir()
+    for name in ("libktx.js", "libktx.wasm"):
+        shutil.copyfile(Path(root) / name, lib / name)
     script = tmp_path / "check.cjs"
     script.write_text(_LIBKTX_CHECK)
     files = _sample_files(tmp_path)
-    r = subprocess.run(["node", str(script), str(Path(root).resolve()), *map(str, files)],
+    r = subprocess.run(["node", str(script), str(lib), *map(str, files)],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0 and r.stdout.strip().endswith("OK"), r.stdout + r.stderr
 
