@@ -9,7 +9,9 @@ a uniform sky: E_indirect = π L). The stage itself must also run (no shaded pix
 """
 from __future__ import annotations
 
+import io
 import math
+import platform
 
 import numpy as np
 import pytest
@@ -81,7 +83,7 @@ def test_two_rooms_leaking_worst_mask_and_ddgi_far_better(tmp_path, scene_files)
     # the heatmaps compare with the denoised preview reference: against the 4-spp one every heatmap was speckle
     # (mean neighbour difference 0.32-0.62 per channel; denoised 0.02-0.08, the error's own edges)
     pics = {a.name: a for a in out.artifacts}
-    import platform                                       # pyoidn (the render extra) has x86-64 Linux wheels only
+    # pyoidn (the render extra) has x86-64 Linux wheels only
     assert pics["eval_roomb_reference"].meta["denoised"] or platform.machine() != "x86_64"
     if pics["eval_roomb_reference"].meta["denoised"]:
         for k in modes:
@@ -90,8 +92,6 @@ def test_two_rooms_leaking_worst_mask_and_ddgi_far_better(tmp_path, scene_files)
 
 def _speckle(art) -> float:
     """Mean absolute difference of neighbouring pixels of a picture (RGB in 0..1, both axes summed)."""
-    import io
-
     from PIL import Image
 
     img = np.asarray(Image.open(io.BytesIO(art.data)).convert("RGB"), np.float64) / 255 if art.format == "png" \
