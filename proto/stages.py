@@ -241,7 +241,7 @@ def build_manifest(records: StageRecords, scene_summary: dict, config: BakeConfi
         # internal artifacts (e.g. cached ray hits) feed later stages but are not part of the bundle
         artifacts += [ArtifactInfo(**a) for a in rec["artifacts"] if not a.get("meta", {}).get("internal")]
         if st.name == "place":
-            grid = {k: rec["stats"][k] for k in ("counts", "origin", "spacing")}
+            grid = {k: rec["stats"][k] for k in ("counts", "origin", "spacing", "layers") if k in rec["stats"]}
             if "frame" in rec["stats"]:
                 grid["frame"] = rec["stats"]["frame"]   # the bake frame: world -> grid axes (proto/bundle.md 5)
             if rec["stats"].get("auto") is not None:

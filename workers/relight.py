@@ -107,7 +107,7 @@ def bake_grid(bake: dict) -> dict:
         return bake["manifest"].get("grid", {})
     for s in bake["stages"]:
         if s["name"] == "place" and s.get("stats"):
-            return {k: s["stats"][k] for k in ("counts", "origin", "spacing", "frame") if k in s["stats"]}
+            return {k: s["stats"][k] for k in ("counts", "origin", "spacing", "layers", "frame") if k in s["stats"]}
     return {}
 
 

@@ -3,10 +3,10 @@
 // there the grid coordinate is 0 (probe volumes read their single texel, refined-grid fields the middle).
 #include "probe_grid.glsl"
 
-// Continuous probe index of bake-frame point p (gi_view.glsl uGiFrame): (p - origin) / spacing, 0 on one-probe axes.
+// Continuous probe index of bake-frame point p (gi_view.glsl uGiFrame): (p - origin) / spacing, or its layer
+// coordinate on a rectilinear grid (probe_grid.glsl giGridIndex); 0 on one-probe axes.
 vec3 giGridCoord(vec3 p) {
-  vec3 g = (p - uGridOrigin) / max(uGridSpacing, vec3(1e-30));
-  return mix(vec3(0.0), g, greaterThan(uGridCounts, vec3(1.5)));
+  return giGridIndex(p);
 }
 
 // Texel coordinate (texel centres at integer + 0.5) of p in a probe volume, clamped to the border texel

@@ -38,9 +38,10 @@ def bake_arrays(s: dict) -> dict:
 
 
 def bake_grid(s: dict) -> dict:
-    """The probe grid of the place stage: counts (nx, ny, nz), origin and spacing (metres, world space)."""
+    """The probe grid of the place stage: counts (nx, ny, nz), origin and spacing (metres, world space), and the
+    layers of a rectilinear grid."""
     p = s["place"].stats
-    return {k: p[k] for k in ("counts", "origin", "spacing")}
+    return {k: p[k] for k in ("counts", "origin", "spacing", "layers") if k in p}
 
 
 def mask_meta(s: dict) -> dict:

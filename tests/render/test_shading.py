@@ -102,12 +102,29 @@ def test_every_mode_compiles_forward_and_deferred(ctx):
             r.release()
 
 
-@pytest.mark.parametrize("mode,sh_order", [("leaking", None), ("leaking", 1), ("ddgi", None), ("mask", None),
-                                           ("mask", 1), ("mask_normalized", None), ("mask_normalized", 1)])
-def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
-    """sh_order None: the default, L2 (the bake is light.sh_order 2: sh_l2, cluster_sh_l2_{k}); 1: the L1 path."""
+def _rectilinear(grid: dict, seed: int = 5) -> dict:
+    """The grid with its layers moved by up to ±0.3 spacing each (the ends too): a rectilinear grid of the same
+    counts (the bake's arrays read through it: GLSL and Python must still agree)."""
+    rng = np.random.default_rng(seed)
+    layers = []
+    for a in range(3):
+        n, o, sp = int(grid["counts"][a]), float(grid["origin"][a]), float(grid["spacing"][a])
+        layers.append((o + sp * (np.arange(n) + rng.uniform(-0.3, 0.3, n))).tolist() if n > 1 else [o])
+    return {"counts": grid["counts"], "origin": [L[0] for L in layers],
+            "spacing": [(L[-1] - L[0]) / max(len(L) - 1, 1) for L in layers], "layers": layers}
+
+
+@pytest.mark.parametrize("mode,sh_order,rect", [
+    ("leaking", None, False), ("leaking", 1, False), ("ddgi", None, False), ("mask", None, False), ("mask", 1, False),
+    ("mask_normalized", None, False), ("mask_normalized", 1, False),
+    ("leaking", None, True), ("ddgi", None, True), ("mask_normalized", None, True), ("mask", 1, True)])
+def test_glsl_equals_python(ctx, two_rooms, mode, sh_order, rect):
+    """sh_order None: the default, L2 (the bake is light.sh_order 2: sh_l2, cluster_sh_l2_{k}); 1: the L1 path.
+    ``rect``: the same arrays read through a rectilinear grid (uGridLayers, probe_grid.glsl giGridIndex)."""
     scene, s = two_rooms
     arrays, grid = bake_arrays(s), bake_grid(s)
+    if rect:
+        grid = _rectilinear(grid)
     rng = np.random.default_rng(7)
     N = 64 * 48
     p, n = _points(N, rng, TWO_ROOMS_BOX)
@@ -124,16 +141,23 @@ def test_glsl_equals_python(ctx, two_rooms, mode, sh_order):
         dep = unpack_atlas(arrays["depth_moments"], counts, arrays["depth_moments"].shape[0] // counts[1])
         want = sample_irradiance(p, n, view, counts, grid["origin"], grid["spacing"],
                                  arrays["probe_positions_relocated"].reshape(-1, 3),
-                                 arrays["probe_states"].reshape(-1), irr, dep, 0.3).astype(np.float64)
+                                 arrays["probe_states"].reshape(-1), irr, dep, 0.3,
+                                 layers=grid.get("layers")).astype(np.float64)
     else:
         # the GLSL clamps SH ringing at 0; its mask lookup moves along n + v (v = giViewDir, set from uEye)
         want = np.maximum(SM.irradiance(mode, arrays, grid, p, n, views=view, sh_order=sh_order), 0)
     res = prepare_mode(mode, arrays, grid, mask_meta=mask_meta(s), sh_order=sh_order)
     if mode != "ddgi":
         assert res.info["sh_order"] == (sh_order or 2) and ("KILN_SH_L2" in res.defines) == (sh_order is None)
+    assert ("uGridLayers" in res.textures) == rect and res.uniforms["uGridRectilinear"] == rect
     got = _render_indirect(ctx, res, mode, p, n, eye)
     scale = np.abs(want).max()
     assert scale > 0
+    if rect:                                  # the layers matter: the uniform grid's reading is far from this one
+        uni = {k: grid[k] for k in ("counts", "origin", "spacing")}
+        off = _render_indirect(ctx, prepare_mode(mode, arrays, uni, mask_meta=mask_meta(s), sh_order=sh_order),
+                               mode, p, n, eye)
+        assert np.mean(np.abs(off - want).max(axis=1) / scale > 4 * F16) > 0.2
     err = np.abs(got - want)
     per_point = err.max(axis=1) / scale
     if mode == "leaking":

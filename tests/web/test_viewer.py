@@ -310,6 +310,21 @@ def test_glsl_matches_the_python_kernels_on_the_gpu(page, kiln_server):
     o = fx["octahedral"]
     np.testing.assert_allclose(np.asarray(got["octEncode"]), o["encoded"], atol=1e-5)
     np.testing.assert_allclose(np.asarray(got["octDecode"]), o["decoded"], atol=1e-5)
+    # a rectilinear grid (uGridLayers, probe_grid.glsl giGridIndex): GLSL = JavaScript = Python (grid_coord), at the
+    # probes, between layers and past the outer layers
+    from workers.kernels.grid import grid_coord
+
+    r = got["rectilinear"]
+    layers = [np.asarray(L, np.float64) for L in r["layers"]]
+    counts = [len(L) for L in layers]
+    py = grid_coord(np.asarray(r["points"]), counts, [L[0] for L in layers], [0.0] * 3, layers)
+    for key in ("gridIndex", "uvw", "texel"):
+        np.testing.assert_allclose(np.asarray(r[key]["glsl"]), np.asarray(r[key]["js"]), rtol=1e-5, atol=1e-5)
+    np.testing.assert_allclose(np.asarray(r["gridIndex"]["glsl"]), np.where(np.asarray(counts) > 1, py, 0.0),
+                               rtol=1e-5, atol=1e-5)
+    if r["shL2Trilinear"]["js"]:
+        np.testing.assert_allclose(np.asarray(r["shL2Trilinear"]["glsl"]), np.asarray(r["shL2Trilinear"]["js"]),
+                                   rtol=1e-2, atol=1e-2)
 
 
 def test_api_key_streams_progress_without_eventsource_and_cancels(page_keys, tmp_path, kiln_server_keys, shots):

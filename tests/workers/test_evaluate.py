@@ -183,3 +183,33 @@ def test_settings_of_records_the_evaluate_section():
     cam = settings_of(BakeConfig.model_validate({"evaluate": {"cameras": [{"position": [0, 1, 2],
                                                                           "target": [0, 1, 0]}]}}))["cameras"]
     assert cam == [{"position": (0.0, 1.0, 2.0), "target": (0.0, 1.0, 0.0)}]          # no fov_y, no name
+
+
+def test_a_budget_bound_rectilinear_grid_bakes_and_evaluates(tmp_path, scene_files):
+    """The automatic grid under a small budget (two-rooms at 400 probes: about 0.6 m where its rooms ask 0.19 m) is
+    rectilinear: a layer 0.2 x the fill spacing in front of both faces of the 5 cm shared wall (x 4.00 .. 4.05;
+    workers/kernels/autogrid.py step 4b). Every stage reads it through the layers (the probe positions are the
+    layers' crossings, the GLSL previews and the Python samplers agree on the check points), and the modes that know
+    visibility leak far less than leaking does."""
+    cfg = {"place": {"budget": 400}, "trace": {"rays_per_probe": 64}, "light": {"bounces": 2}, **MD_SMALL}
+    scene, s = bake_until(tmp_path, scene_files["two-rooms"], cfg, "compress")
+    st = s["place"].stats
+    auto = st["auto"]
+    assert auto["budget_bound"] and auto["rectilinear"] and "layers" in st and st["probes"] <= 400
+    xs, sf = np.asarray(st["layers"][0]), auto["spacing_fill"]
+    assert np.any(np.isclose(xs, 4.0 - 0.2 * sf, atol=1e-6)) and np.any(np.isclose(xs, 4.05 + 0.2 * sf, atol=1e-6))
+    from workers.kernels.grid import base_positions
+    pos = np.asarray(s["place"]["probe_positions"]).reshape(-1, 3)
+    assert np.allclose(pos, base_positions(st["counts"], st["origin"], st["spacing"], st["layers"]), atol=1e-5)
+    cam = {"position": [7.5, 1.5, 2.0], "target": [4.05, 1.2, 1.2], "name": "roomb"}
+    pts = [[4.10, 1.5, 2.0], [4.30, 1.5, 2.0], [6.0, 1.5, 2.0], [2.0, 1.5, 2.0]]     # dark 5 / 25 cm, dark, lit
+    out = _evaluate(scene, s, cfg, {**EVAL, "cameras": [cam], "points": {"points": pts}})
+    m = _stats(out)
+    leak = {k: m[f"{k}.leak"] for k in ("leaking", "ddgi", "mask", "mask_normalized")}
+    for k in ("ddgi", "mask", "mask_normalized"):
+        assert leak[k] <= 0.5 * leak["leaking"], leak
+    cp = next(a for a in out.artifacts if a.name == "check_points").data
+    ref = np.asarray(cp["reference_indirect"]).mean(axis=(1, 2))                    # (4,) over normals, RGB
+    for k in ("ddgi", "mask_normalized"):       # 2 bounces against the converged reference: the order, not the level
+        v = np.asarray(cp["modes"][k]).mean(axis=(1, 2))
+        assert np.all(np.isfinite(v)) and np.array_equal(np.argsort(v), np.argsort(ref)), (k, v, ref)

@@ -35,13 +35,27 @@ So the grid is planned from rays, before any probe exists (:func:`analyze_free_s
    the 0.98 m its rooms asked at room scale / 6 (0.74 m at / 8) — no uniform grid meets that within the budget. The record gives the spacing the free
    volume would allow (``spacing_free_volume``, 1.52 m on zdm2) and its probe count (51,168), both before the layer
    fit of step 4 (which stretches the spacing by up to 12% and drops layers over the budget: the bake above).
-   Adaptive density (finer near geometry, as Unity's Adaptive Probe Volumes) is not built: every consumer (the
-   bundle's uniform KTX2 volumes, the θ field and masks, the GLSL / JavaScript samplers, three.js's
-   LightProbeGrid) indexes a uniform grid.
+   Where the budget binds, step 4b makes the grid rectilinear rather than finer everywhere.
 4. **Layers between walls**: per axis, the grid's phase (and its spacing, within -12%..+12% of the chosen
    one; never finer while the budget binds) is chosen so that axis-aligned faces (walls, floors, ceilings,
    weighted by area) lie as far as possible from probe layers: a thin wall sits midway between two layers
    (:func:`fit_layers`), not inside one.
+4b. **Layers in front of thin walls** (a budget-bound enclosed scene): midway is right while layers are a fraction
+   of a room apart, but at a budget-bound spacing the first layer stands far from the wall, and near a thin wall
+   between a lit and a dark room the light changes faster than that (apartments, 45 rooms at 0.51 m: the dark room
+   5 / 10 cm from the shared wall read 1.22 / 1.20 of Cycles; a uniform grid shifted to put its first layer 5 cm from
+   the face read 1.05, but one phase per axis serves one facing of the walls). So the grid becomes **rectilinear**
+   (per-axis layer coordinates, ``grid.layers``; :mod:`workers.kernels.grid`; every sampler reads it through the
+   continuous layer index, ``probe_grid.glsl`` ``giGridIndex``): along each axis a layer :data:`WALL_DISTANCE` x the
+   fill spacing in front of both faces of every thin wall or slab (two large faces looking apart at most
+   :data:`THIN_WALL` x the spacing apart: :func:`thin_wall_layers`), the rest filled evenly at most the fill spacing
+   apart, a layer within a quarter spacing of a lone large face (a thick wall, the ground) moved a quarter spacing
+   from it (:func:`fill_layers`); the fill spacing grows until the budget holds. An axis without thin walls keeps
+   the uniform fit; so does a scene bound less than :data:`RECTILINEAR_FACTOR` x. apartments: 1.05 / 1.03 / 0.94 at
+   5 / 10 / 25 cm, middle 0.99, in 47 s as before
+   (``tests/bench/bench_fidelity.py``). Anchoring lone faces too was measured and dropped: the cell behind a face
+   then holds one strip of free space a sample wide, and the visibility field's S samples per cell miss it
+   (godot-living-room's walls read 0 in the mask modes).
 5. **Walls**: rays from enclosed points continue past their first hit; where a ray enters a solid through a
    front face and leaves through a back face, the distance is that wall's thickness. The 5th percentile ``w``
    sets the visibility field's samples per cell, ``S = ceil(2 s / w)`` within [4, 16], so that samples lie on
@@ -91,7 +105,7 @@ class FreeSpace:
     wall_thickness: np.ndarray  # (W,) float64 thicknesses found (m)
     step: np.ndarray            # (3,) lattice step (m)
     rays: int                   # rays cast
-    planes: tuple = ((), (), ())  # per axis: (positions (k,), areas (k,)) of the axis-aligned faces (walls, floors)
+    planes: tuple = ((), (), ())  # per axis: (positions (k,), areas (k,)[, signs (k,)]) of the axis-aligned faces
 
 
 def analyze_free_space(caster, bounds, double_sided=None, *, n_points: int = 4096, n_dirs: int = 48,
@@ -155,18 +169,19 @@ def analyze_free_space(caster, bounds, double_sided=None, *, n_points: int = 409
 
 
 def axis_planes(triangles) -> tuple:
-    """Per axis a: the a-coordinates and areas (m²) of the triangles facing ±a (|n_a| > 0.99): the walls,
-    floors and ceilings a probe layer should not sit on (architecture is mostly axis-aligned)."""
+    """Per axis a: the a-coordinates, areas (m²) and facings (+1: the face looks towards +a) of the triangles facing
+    ±a (|n_a| > 0.99): the walls, floors and ceilings a probe layer should not sit on (architecture is mostly
+    axis-aligned), and in front of which a budget-bound grid puts a layer (:func:`wall_layers`)."""
     t = np.asarray(triangles, np.float64)
     if t.shape[0] == 0:
-        return ((np.zeros(0), np.zeros(0)),) * 3
+        return ((np.zeros(0), np.zeros(0), np.zeros(0)),) * 3
     c = np.cross(t[:, 1] - t[:, 0], t[:, 2] - t[:, 0])
     area = 0.5 * np.linalg.norm(c, axis=1)
     n = np.divide(c, 2 * area[:, None], out=np.zeros_like(c), where=area[:, None] > 0)
     out = []
     for a in range(3):
         sel = np.abs(n[:, a]) > 0.99
-        out.append((t[sel, :, a].mean(axis=1), area[sel]))
+        out.append((t[sel, :, a].mean(axis=1), area[sel], np.sign(n[sel, a])))
     return tuple(out)
 
 
@@ -210,8 +225,92 @@ def fit_layers(pos: np.ndarray, w: np.ndarray, lo: float, hi: float, s0: float,
     return best
 
 
+WALL_DISTANCE = 0.2
+"""A budget-bound grid's layer in front of a thin wall stands this fraction of the fill spacing from its face (module
+doc, step 4b). apartments' dark room 5 / 10 / 25 cm from the shared wall, with its first layer at a given distance in
+front of the face (bench_fidelity): 5 cm 1.05 / 1.07 / 1.03, 10 cm 1.12 / 1.10 / 1.04, midway (18 cm at 0.51 m)
+1.22 / 1.20 / 1.06; with this rule at 0.12 (6.7 cm) 0.95 / 0.93 / 0.86, at 0.2 (10.8 cm) 1.05 / 1.03 / 0.94."""
+
+WALL_AREA = 0.05
+"""A face plane counts as a wall when its area is at least this fraction of the box's cross-section across the axis
+(a wall or a floor, not a shelf)."""
+
+RECTILINEAR_FACTOR = 2.0
+"""Step 4b applies where the budget holds an enclosed scene's spacing at this many times what its rooms ask or more
+(apartments 2.5x, zdm2 3.0x). Below it the uniform fit is kept: corridor-l (1.45x) read 0.97-1.07 of Cycles in every
+region with it and 0.91-1.07 rectilinear (leg1-far 0.979 -> 0.908); living-room (1.38x) and sun-window (1.79x)
+0.96-1.06 uniform (bench_fidelity, 2026-12-06)."""
+
+THIN_WALL = 0.5
+"""A wall is thin when its two faces are at most this fraction of the fill spacing apart: a layer on each side."""
+
+
+def thin_wall_layers(pos, area, sign, lo: float, hi: float, s: float, cross: float, *,
+                     distance: float = WALL_DISTANCE, min_area: float = WALL_AREA,
+                     thin: float = THIN_WALL) -> tuple[list[float], np.ndarray]:
+    """Along one axis: the layers ``distance·s`` in front of both faces of every thin wall, and the large faces'
+    coordinates (module doc, step 4b).
+
+    pos, area, sign : (k,) the axis-aligned faces (:func:`axis_planes`: coordinate, m², facing ±1); cross : the
+    box's cross-section across the axis (m²). A thin wall is a large face looking towards −a at ``w0`` and one
+    looking towards +a at ``w1``, ``0 < w1 − w0 ≤ thin·s`` (a wall, a slab between storeys): its layers are
+    ``w0 − distance·s`` and ``w1 + distance·s`` (those inside (lo, hi)). The cell between them holds the wall and
+    its two thin strips of free space, which the visibility field's S samples per cell then resolve; a lone face
+    (a thick wall, the ground) gets none: a layer right in front of it would leave the cell behind it one sample
+    of free space.
+    """
+    pos, area, sign = (np.asarray(x, np.float64) for x in (pos, area, sign))
+    if pos.size == 0 or hi - lo <= 0 or s <= 0:
+        return [], np.zeros(0)
+    res = s / 50
+    key = np.round(pos / res).astype(np.int64) * 2 + (sign > 0)
+    uniq, inv = np.unique(key, return_inverse=True)
+    farea = np.bincount(inv, weights=area)
+    fpos = np.bincount(inv, weights=pos * area) / np.maximum(farea, 1e-30)
+    up = uniq % 2 == 1
+    big = farea >= min_area * cross
+    lows, highs = np.sort(fpos[big & ~up]), np.sort(fpos[big & up])
+    out, paired = [], set()
+    for w0 in lows:
+        j = np.searchsorted(highs, w0, side="right")
+        if j < highs.size and highs[j] - w0 <= thin * s:
+            paired.update((float(w0), float(highs[j])))
+            for x in (w0 - distance * s, highs[j] + distance * s):
+                if lo < x < hi:
+                    out.append(float(x))
+    lone = np.array(sorted(float(f) for f in fpos[big] if float(f) not in paired))
+    return sorted(set(out)), lone
+
+
+def fill_layers(anchors: list[float], lone: np.ndarray, lo: float, hi: float, s: float) -> np.ndarray:
+    """Layers from ``lo`` to ``hi`` through the anchors, the gaps filled evenly at most ``s`` apart (an end within s/4
+    of an anchor is dropped: the anchor stands for it); then a layer nearer than s/4 to a lone face (a thick wall, the
+    ground: ``lone``) is moved to s/4 from it, away from it, within its neighbours — the cell behind a face needs
+    free space for its visibility samples."""
+    fixed = sorted(anchors)
+    knots = ([lo] if not fixed or fixed[0] - lo >= s / 4 else []) + fixed \
+        + ([hi] if not fixed or hi - fixed[-1] >= s / 4 else [])
+    out = [knots[0]]
+    for a, b in zip(knots[:-1], knots[1:]):
+        k = max(int(math.ceil((b - a) / s - 1e-9)), 1)
+        out.extend(a + (b - a) * (np.arange(1, k + 1) / k))
+    L = np.asarray(out, np.float64)
+    anchored = np.zeros(L.size, bool)
+    for x in fixed:
+        anchored |= np.isclose(L, x, rtol=0, atol=1e-9)
+    for f in lone:
+        for i in np.flatnonzero(~anchored & (np.abs(L - f) < s / 4)):
+            want = f + (s / 4 if L[i] >= f else -s / 4)
+            left = L[i - 1] if i > 0 else -np.inf
+            right = L[i + 1] if i + 1 < L.size else np.inf
+            if left < want < right:
+                L[i] = want
+    return L
+
+
 def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spacing: float = 0.0,
-                divisions: float = ROOM_DIVISIONS, field_budget: int = FIELD_BUDGET) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
+                divisions: float = ROOM_DIVISIONS, field_budget: int = FIELD_BUDGET,
+                rectilinear: bool = True) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """Counts (3,), origin (3,), spacing (3,) of the default grid and the record of why (``grid.auto``).
 
     See the module doc, steps 2-4. The record: ``box`` (min, max), ``kind`` ("enclosed" or "open"),
@@ -219,7 +318,9 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     ``budget_bound`` (bool), ``wall_thickness_p5`` (m or None), ``samples_per_cell``, ``free_fraction`` (of the
     planning points in the box, outside solids), ``budget_volume`` ("box": the volume the budget is spread over,
     solid included), ``spacing_free_volume`` (m) and ``probes_free_volume`` (what spreading it over the free volume
-    alone would give, before the layer fit; the spacing when the budget does not bind) and ``reason``.
+    alone would give, before the layer fit; the spacing when the budget does not bind), ``rectilinear`` (bool, step
+    4b) and then ``wall_layers`` (anchored layers per axis), ``spacing_fill`` (m) and ``layers`` (per axis the layer
+    coordinates; the place stage moves them to its stats' ``layers``), and ``reason``.
 
     ``min_spacing`` (m): a floor on the wanted spacing; 0 (the default) sets none. Any length fixed in metres is
     wrong for some scene: the floor of 0.05 m that stood here gave a 4 x 3 x 4 cm model of two-rooms (a tabletop or
@@ -280,7 +381,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     phases = [None, None, None]
     scores = [None, None, None]
     for a in range(3):                              # layers midway between walls (see fit_layers)
-        pos_a, w_a = fs.planes[a] if len(fs.planes) == 3 else ((), ())
+        pos_a, w_a = fs.planes[a][:2] if len(fs.planes) == 3 else ((), ())
         pos_a, w_a = np.asarray(pos_a, np.float64), np.asarray(w_a, np.float64)
         keep = (pos_a >= blo[a] - s) & (pos_a <= bhi[a] + s)
         if counts[a] < 2 or not keep.any():
@@ -295,9 +396,50 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     while int(np.prod(counts)) > budget:            # the stretch may add a layer: drop the axis' last
         a = int(np.argmax(counts))
         counts[a] -= 1
+    layers, wall_counts, s_fill = None, None, None
+    if rectilinear and kind == "enclosed" and s >= RECTILINEAR_FACTOR * wanted \
+            and all(len(fs.planes[a]) == 3 for a in range(3)):
+        # module doc, step 4b: the uniform fit (walls midway), plus a layer in front of both faces of every thin
+        # wall; the fill spacing grows until the budget holds them
+        cross = np.array([ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]])
+
+        def build(sf):
+            out = []
+            for ax in range(3):
+                if ext[ax] <= 1e-9:
+                    out.append((np.array([(blo[ax] + bhi[ax]) / 2]), 0))
+                    continue
+                pos_a, w_a, sg_a = (np.asarray(x, np.float64) for x in fs.planes[ax])
+                keep = (pos_a >= blo[ax] - sf) & (pos_a <= bhi[ax] + sf)
+                anchors, lone = thin_wall_layers(pos_a[keep], w_a[keep], sg_a[keep], blo[ax], bhi[ax], sf,
+                                                 max(cross[ax], 1e-30))
+                if anchors:
+                    out.append((fill_layers(anchors, lone, blo[ax], bhi[ax], sf), len(anchors)))
+                    continue
+                first, sp = blo[ax], sf                     # no thin wall across this axis: the uniform fit
+                if keep.any():
+                    pa, wa = _binned_planes(pos_a[keep], w_a[keep], sf / 200)
+                    sp, first, _ = fit_layers(pa, wa, blo[ax], bhi[ax], sf, stretch=(1.0, 1.12))
+                out.append((first + sp * np.arange(int(math.ceil((bhi[ax] - first) / sp - 1e-9)) + 1), 0))
+            return out
+
+        sf = s
+        built = build(sf)
+        while int(np.prod([len(L) for L, _ in built])) > budget:
+            sf *= 1.03
+            built = build(sf)
+        if sum(n for _, n in built):
+            layers = [L for L, _ in built]
+            wall_counts = [int(n) for _, n in built]
+            s_fill = float(sf)
+            counts = np.array([len(L) for L in layers], np.int64)
+            origin = np.array([L[0] for L in layers], np.float64)
+            spacing = np.array([(L[-1] - L[0]) / (len(L) - 1) if len(L) > 1 else 0.0 for L in layers], np.float64)
     thick = fs.wall_thickness
     w5 = float(np.percentile(thick, 5)) if thick.size >= 20 else None
     s = float(spacing[counts > 1].max()) if (counts > 1).any() else s       # the coarsest axis, after fitting
+    if s_fill is not None:
+        s = s_fill                                   # a rectilinear grid: its fill spacing (the largest gaps)
     S = 8 if w5 is None else int(min(16, max(4, math.ceil(2.0 * s / max(w5, 1e-6)))))
     n_probes = int(np.prod(counts))
     s_budget = max(4, int((field_budget / max(n_probes, 1)) ** (1.0 / 3.0)))    # θ costs 8 rays a sample
@@ -307,7 +449,9 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     reason = (f"{kind} scene: room scale {scale:.3g} m (median free distance of the planning rays) / "
               f"{divisions:g} = {wanted:.3g} m")
     if bound:
-        reason += f"; the budget of {budget} probes sets {s:.3g} m (a uniform grid: coarser than the rooms ask"
+        reason += (f"; the budget of {budget} probes sets {s:.3g} m (coarser than the rooms ask"
+                   + (f"; rectilinear: {sum(wall_counts)} more layers {WALL_DISTANCE * s:.3g} m in front of the faces "
+                      "of thin walls and slabs" if layers is not None else "; a uniform grid"))
         if free_fraction < 0.95:
             reason += (f"; the budget counts the whole box, {1 - free_fraction:.0%} of it solid: spread over the free "
                        f"volume alone it would give {s_free:.3g} m and {count(s_free)} probes")
@@ -324,5 +468,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
             "budget_bound": bool(bound), "wall_thickness_p5": w5, "free_fraction": free_fraction,
             "budget_volume": "box", "spacing_free_volume": float(s_free), "probes_free_volume": count(s_free),
             "layer_phase": phases, "layer_score": scores, "spacing_per_axis": [float(x) for x in spacing], "samples_per_cell": S, "reason": reason,
-            "planning_rays": int(fs.rays)}
+            "planning_rays": int(fs.rays), "rectilinear": layers is not None}
+    if layers is not None:
+        auto.update(wall_layers=wall_counts, spacing_fill=s_fill, layers=[[float(x) for x in L] for L in layers])
     return counts, origin, spacing, auto

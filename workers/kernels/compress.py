@@ -112,6 +112,7 @@ import numba
 import numpy as np
 
 from proto.gi_modes import MASK_BLEND, MASK_SEEN_THRESHOLD
+from workers.kernels.grid import grid_coord
 
 __all__ = ["CompressedMasks", "atlas_layout", "compress_masks", "decompress", "cells_of",
            "sample_dense", "sample_compressed", "texture_linear", "sample_error", "mask_lookup_texel", "mask_lookups", "lookup_blend", "MASK_OVERLAP", "MASK_PRESENT", "LAYOUTS",
@@ -404,8 +405,9 @@ def texture_linear(tex: np.ndarray, uvw: np.ndarray) -> np.ndarray:
     return out / 255.0
 
 
-def _grid_g(points, counts, origin, spacing, dtype):
-    """``(g, cells, live)``: (N, 3) grid coordinates in cell units, ``(p − origin)·invSpacing + half``; the (3,)
+def _grid_g(points, counts, origin, spacing, dtype, layers=None):
+    """``(g, cells, live)``: (N, 3) grid coordinates in cell units, ``(p − origin)·invSpacing + half`` (a rectilinear
+    grid, ``layers``: :func:`workers.kernels.grid.grid_coord` + half, computed in float64); the (3,)
     cells per axis; (3,) 1 on axes with more than one probe and a positive spacing, else 0. invSpacing = 1/spacing and
     half = 0 on axes with more than one probe, invSpacing = 0 and half = 0.5 on one-probe axes (the
     middle of the zero-extent cell, as :func:`workers.kernels.samplers.field_uvw` takes uvw = 0.5)."""
@@ -414,13 +416,16 @@ def _grid_g(points, counts, origin, spacing, dtype):
     live = (counts > 1) & (sp > 0)
     inv = np.where(live, 1.0 / np.where(live, sp, 1.0), 0.0).astype(dtype)
     half = np.where(live, 0.0, 0.5).astype(dtype)
+    if layers is not None:
+        g = np.where(live, grid_coord(points, counts, origin, sp, layers), 0.0).astype(dtype) + half
+        return g, cells_of(counts).astype(dtype), live.astype(dtype)
     p = np.asarray(points, np.float64).reshape(-1, 3).astype(dtype)
     return (p - np.asarray(origin, np.float64).astype(dtype)) * inv + half, cells_of(counts).astype(dtype), \
         live.astype(dtype)
 
 
 def mask_lookup_texel(points, counts, origin, spacing, S: int, dirs=None, samples: float = 0.0,
-                      dtype=np.float32) -> tuple[np.ndarray, np.ndarray]:
+                      dtype=np.float32, layers=None) -> tuple[np.ndarray, np.ndarray]:
     """Where the runtime reads a refined-grid mask volume for surface points: ``(t, cell)``, both (N, 3)
     in ``dtype`` — the dense texel coordinate (sample x at t = x) and the point's own cell (module doc,
     "Sampling").
@@ -433,7 +438,7 @@ def mask_lookup_texel(points, counts, origin, spacing, S: int, dirs=None, sample
     samples, so a channel that is free in a cell (canonical 0: the cluster has no probe there) never
     bleeds into a neighbour where it is not.
     """
-    g, cells, live = _grid_g(points, counts, origin, spacing, dtype)
+    g, cells, live = _grid_g(points, counts, origin, spacing, dtype, layers)
     cell = np.clip(np.floor(g), dtype(0), cells - dtype(1))
     if samples and dirs is not None:
         d = np.asarray(dirs, np.float64).reshape(-1, 3).astype(dtype)
@@ -453,16 +458,16 @@ least ``MASK_OVERLAP[1]`` of its clusters, the read at the point where at most `
 
 
 def mask_lookups(points, counts, origin, spacing, S: int, dirs=None, samples: float = 0.0,
-                 dtype=np.float32) -> tuple[list[np.ndarray], np.ndarray]:
+                 dtype=np.float32, layers=None) -> tuple[list[np.ndarray], np.ndarray]:
     """The texel coordinates one runtime mask lookup reads, and the point's own cell: ``([t], cell)`` at the point
     when there is no offset, else ``([t', t], cell)`` — ``t'`` moved ``samples`` refined samples along ``dirs``
     (:func:`mask_lookup_texel`) and ``t`` at the point, combined by :func:`lookup_blend` (module doc, "Both
     sides").
     """
-    t, cell = mask_lookup_texel(points, counts, origin, spacing, S, None, 0.0, dtype)
+    t, cell = mask_lookup_texel(points, counts, origin, spacing, S, None, 0.0, dtype, layers)
     if not samples or dirs is None:
         return [t], cell
-    t_off, _ = mask_lookup_texel(points, counts, origin, spacing, S, dirs, samples, dtype)
+    t_off, _ = mask_lookup_texel(points, counts, origin, spacing, S, dirs, samples, dtype, layers)
     return [t_off, t], cell
 
 
@@ -494,7 +499,7 @@ def lookup_blend(reads: list[np.ndarray]) -> np.ndarray:
 
 
 def sample_dense(volume: np.ndarray, points, counts, origin, spacing, dtype=np.float32, *, dirs=None,
-                 samples: float = 0.0) -> np.ndarray:
+                 samples: float = 0.0, layers=None) -> np.ndarray:
     """Trilinear sample of a dense refined-grid mask volume at world points by the lookup rule of
     :func:`mask_lookups` (the point's own cell's samples; with ``samples`` refined samples along ``dirs``, that
     read and the read at the point blended by :func:`lookup_blend` over this volume's channels: the GLSL blends
@@ -504,13 +509,14 @@ def sample_dense(volume: np.ndarray, points, counts, origin, spacing, dtype=np.f
     """
     counts = np.asarray(counts, np.int64)
     S = volume.shape[2] // int(cells_of(counts)[0])
-    ts, _ = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype)
+    ts, _ = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype, layers)
     dims = np.array(volume.shape[2::-1], np.float64).astype(dtype)
     return lookup_blend([texture_linear(volume, (t + dtype(0.5)) / dims) for t in ts])
 
 
 def sample_compressed(atlas: np.ndarray, indirection: np.ndarray, meta: dict, points, counts, origin,
-                      spacing, S: int, dtype=np.float32, *, dirs=None, samples: float = 0.0) -> np.ndarray:
+                      spacing, S: int, dtype=np.float32, *, dirs=None, samples: float = 0.0,
+                      layers=None) -> np.ndarray:
     """Sample a compressed mask atlas at world points exactly as the GLSL of the module doc does
     (the lookup rule of :func:`mask_lookups`: one indirection fetch, one or two atlas reads, :func:`lookup_blend`
     over this atlas's channels, as the GLSL for K <= 4).
@@ -524,7 +530,7 @@ def sample_compressed(atlas: np.ndarray, indirection: np.ndarray, meta: dict, po
     if T != S + lo + hi:
         raise ValueError(f"block size {T} does not match S = {S}, border_lo = {lo} and border_hi = {hi}")
     one, f_s = dtype(1), dtype(S)
-    ts, cell = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype)
+    ts, cell = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype, layers)
     ci = cell.astype(np.int64)
     # floor(texelFetch·255 + 0.5): MD §3.4.2's "one additional sampling call" at run time
     blk = indirection[ci[:, 2], ci[:, 1], ci[:, 0], :3].astype(dtype)
@@ -537,7 +543,7 @@ def sample_compressed(atlas: np.ndarray, indirection: np.ndarray, meta: dict, po
 
 
 def sample_error(volumes, compressed: CompressedMasks, counts, origin, spacing, S: int, n: int = 10000,
-                 seed: int = 0, dtype=np.float32) -> float:
+                 seed: int = 0, dtype=np.float32, layers=None) -> float:
     """Max |compressed − dense| over ``n`` seeded uniform points in the grid box, all volumes and channels."""
     if isinstance(volumes, np.ndarray):
         volumes = [volumes]
@@ -547,8 +553,8 @@ def sample_error(volumes, compressed: CompressedMasks, counts, origin, spacing, 
     pts = np.asarray(origin, np.float64) + rng.random((int(n), 3)) * ext
     err = 0.0
     for vol, atlas in zip(volumes, compressed.atlases):
-        d = sample_dense(vol, pts, counts, origin, spacing, dtype)
+        d = sample_dense(vol, pts, counts, origin, spacing, dtype, layers=layers)
         c = sample_compressed(atlas, compressed.indirection, compressed.meta, pts, counts, origin, spacing, S,
-                              dtype)
+                              dtype, layers=layers)
         err = max(err, float(np.abs(d - c).max()))
     return err

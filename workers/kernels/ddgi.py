@@ -56,7 +56,7 @@ import numpy as np
 from numba import njit
 
 from proto.gi_modes import BIAS_SPACING_FRACTION, SELF_SHADOW_BIAS
-from workers.kernels.grid import OFF
+from workers.kernels.grid import OFF, check_layers, layers_table
 
 __all__ = ["sample_irradiance", "cage_probes", "octahedral_bilinear", "bias_scale", "NORMAL_BIAS", "VIEW_BIAS"]
 
@@ -159,7 +159,27 @@ def bias_scale(spacing, self_shadow_bias: float = SELF_SHADOW_BIAS) -> float:
 
 
 @njit(cache=True, nogil=True)
-def point_weights(i, points, normals, views, counts, origin, spacing, bias, probe_pos, states, depth, visible,
+def grid_index(x, a, counts, origin, spacing, layers):
+    """Continuous probe index of coordinate x along axis a (:func:`workers.kernels.grid.grid_coord`): uniform when
+    ``layers`` (3, W) is empty (W = 0), else the rectilinear layer coordinate (binary search of row a)."""
+    n = counts[a]
+    if layers.shape[1] == 0:
+        return (x - origin[a]) / spacing[a] if spacing[a] > 0.0 else 0.0
+    if n < 2:
+        return 0.0
+    lo = 0
+    hi = n - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if layers[a, mid] <= x:
+            lo = mid
+        else:
+            hi = mid
+    return lo + (x - layers[a, lo]) / (layers[a, lo + 1] - layers[a, lo])
+
+
+@njit(cache=True, nogil=True)
+def point_weights(i, points, normals, views, counts, origin, spacing, layers, bias, probe_pos, states, depth, visible,
                    n_irr, w8):
     """The DDGI weights of point i's 8 cage corners (module doc steps 1-3), unnormalized, into ``w8`` (8,) float64:
     0 for a skipped corner (OFF, or not ``visible``), > 0 otherwise. Returns ``(ok, q0, ir0, ic0, ifr, ifc)``:
@@ -189,7 +209,7 @@ def point_weights(i, points, normals, views, counts, origin, spacing, bias, prob
     al0 = al1 = al2 = 0.0
     for a in range(3):
         bpa = bp0 if a == 0 else (bp1 if a == 1 else bp2)
-        g = (bpa - origin[a]) / spacing[a] if spacing[a] > 0.0 else 0.0
+        g = grid_index(bpa, a, counts, origin, spacing, layers)
         hi = max(counts[a] - 2, 0)
         b = min(max(math.floor(g), 0.0), float(hi))
         al = min(max(g - b, 0.0), 1.0)
@@ -258,15 +278,15 @@ def point_weights(i, points, normals, views, counts, origin, spacing, bias, prob
 
 
 @njit(cache=True, nogil=True)
-def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, irr, depth,
-                              visible, out):
+def _sample_irradiance_kernel(points, normals, views, counts, origin, spacing, layers, bias, probe_pos, states, irr,
+                              depth, visible, out):
     n_irr = irr.shape[1] - 2
     nx = counts[0]
     ny = counts[1]
     w8 = np.empty(8, np.float64)
     acc = np.empty(3, np.float64)
     for i in range(points.shape[0]):
-        ok, q0, ir0, ic0, ifr, ifc = point_weights(i, points, normals, views, counts, origin, spacing, bias,
+        ok, q0, ir0, ic0, ifr, ifc = point_weights(i, points, normals, views, counts, origin, spacing, layers, bias,
                                                      probe_pos, states, depth, visible, n_irr, w8)
         acc[0] = 0.0
         acc[1] = 0.0
@@ -305,7 +325,7 @@ def _float_rows(a, name: str, n: int | None = None) -> np.ndarray:
 
 
 def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe_positions, states, irradiance,
-                      depth, self_shadow_bias: float = SELF_SHADOW_BIAS, visible=None) -> np.ndarray:
+                      depth, self_shadow_bias: float = SELF_SHADOW_BIAS, visible=None, layers=None) -> np.ndarray:
     """DDGI probe irradiance at surface points (DDGI-P §2.2 probe query, eq 2 bias; see module doc).
 
     Parameters
@@ -336,6 +356,8 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
         corners' probes): a corner with 0 is skipped like an OFF probe. The offline light stage uses
         it on top of the Chebyshev test, which alone lets light leak through thin walls when the
         visible side's probes have small trilinear weights (normalization amplifies the 5% floor).
+    layers : None, or per axis the layer coordinates of a rectilinear grid (:mod:`workers.kernels.grid`): the
+        cage and trilinear weights come from the layer coordinate of the biased point.
 
     Returns
     -------
@@ -349,8 +371,9 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     float64 arithmetic. Specialized for float32 or float64 inputs (points/normals/views share one
     dtype, the two map arrays another); the compiled code is cached on disk.
     """
-    pts, nrm, view, cnt, org, spc, bias, pos, st, dep, vis = sampler_inputs(
-        points, normals, view_dirs, counts, origin, spacing, probe_positions, states, depth, self_shadow_bias, visible)
+    pts, nrm, view, cnt, org, spc, lay, bias, pos, st, dep, vis = sampler_inputs(
+        points, normals, view_dirs, counts, origin, spacing, probe_positions, states, depth, self_shadow_bias, visible,
+        layers)
     P, n = pos.shape[0], pts.shape[0]
     irr = np.asarray(irradiance)
     if irr.ndim != 4 or irr.shape[0] != P or irr.shape[1] != irr.shape[2] or irr.shape[1] < 3 or irr.shape[3] != 3:
@@ -360,14 +383,16 @@ def sample_irradiance(points, normals, view_dirs, counts, origin, spacing, probe
     dep = np.ascontiguousarray(dep, dtype=mdt)
     out = np.empty((n, 3), np.float32)
     if n:
-        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, bias, pos, st, irr, dep, vis, out)
+        _sample_irradiance_kernel(pts, nrm, view, cnt, org, spc, lay, bias, pos, st, irr, dep, vis, out)
     return out
 
 
 def sampler_inputs(points, normals, view_dirs, counts, origin, spacing, probe_positions, states, depth,
-                   self_shadow_bias, visible):
+                   self_shadow_bias, visible, layers=None):
     """:func:`sample_irradiance`'s inputs checked and laid out for its kernels (also
-    :func:`workers.kernels.gather.sampler_weights`'): ``(points, normals, views, counts, origin, spacing, bias
+    :func:`workers.kernels.gather.sampler_weights`'): ``(points, normals, views, counts, origin, spacing, layers
+    ((3, max(counts)) float64 table of a rectilinear grid, :func:`workers.kernels.grid.layers_table`; (3, 0) for a
+    uniform one), bias
     (0.75·D·B, DDGI-P eq 2), positions (P, 3) float64, states (P,) uint8, depth (checked, not cast), visible
     ((N, 8) uint8, or (0, 8) for None))``. Raises ValueError naming the bad argument."""
     pts = _float_rows(points, "points")
@@ -400,7 +425,8 @@ def sampler_inputs(points, normals, view_dirs, counts, origin, spacing, probe_po
         vis = np.ascontiguousarray(visible, np.uint8)
         if vis.shape != (n, 8):
             raise ValueError(f"sample_irradiance: visible must be ({n}, 8), got {vis.shape}")
-    return pts, nrm, view, cnt, org, spc, bias_scale(spc, self_shadow_bias), pos, st, dep, vis
+    lay = np.zeros((3, 0), np.float64) if layers is None else layers_table(cnt, org, spc, check_layers(layers, cnt))
+    return pts, nrm, view, cnt, org, spc, lay, bias_scale(spc, self_shadow_bias), pos, st, dep, vis
 
 
 def cage_rays(biased: np.ndarray, cage: np.ndarray, probe_positions: np.ndarray, states: np.ndarray):
@@ -470,7 +496,7 @@ def _cage_rays_kernel(cage, pos, b, live, o, d, tfar, slot):
 
 
 @njit(cache=True, nogil=True)
-def _cage_kernel(points, normals, views, counts, origin, spacing, bias, biased, cage):
+def _cage_kernel(points, normals, views, counts, origin, spacing, layers, bias, biased, cage):
     nx = counts[0]
     ny = counts[1]
     for i in range(points.shape[0]):
@@ -479,7 +505,7 @@ def _cage_kernel(points, normals, views, counts, origin, spacing, bias, biased, 
             biased[i, a] = bp
         base0 = base1 = base2 = 0
         for a in range(3):
-            g = (biased[i, a] - origin[a]) / spacing[a] if spacing[a] > 0.0 else 0.0
+            g = grid_index(biased[i, a], a, counts, origin, spacing, layers)
             hi = max(counts[a] - 2, 0)
             b = int(min(max(math.floor(g), 0.0), float(hi))) if math.isfinite(g) else 0
             if a == 0:
@@ -495,7 +521,8 @@ def _cage_kernel(points, normals, views, counts, origin, spacing, bias, biased, 
             cage[i, c] = gi + nx * (gj + ny * gk)
 
 
-def cage_probes(points, normals, view_dirs, counts, origin, spacing, self_shadow_bias: float = SELF_SHADOW_BIAS):
+def cage_probes(points, normals, view_dirs, counts, origin, spacing, self_shadow_bias: float = SELF_SHADOW_BIAS,
+                layers=None):
     """The biased points and their 8 cage probes exactly as :func:`sample_irradiance` picks them.
 
     Returns ``biased (N, 3) float64`` (x + eq-2 bias) and ``cage (N, 8) int64`` flattened probe indices
@@ -510,6 +537,8 @@ def cage_probes(points, normals, view_dirs, counts, origin, spacing, self_shadow
     biased = np.empty((n, 3), np.float64)
     cage = np.empty((n, 8), np.int64)
     if n:
-        _cage_kernel(pts, nrm, view, cnt, np.asarray(origin, np.float64).ravel(), spc,
+        lay = np.zeros((3, 0), np.float64) if layers is None else layers_table(cnt, origin, spc,
+                                                                               check_layers(layers, cnt))
+        _cage_kernel(pts, nrm, view, cnt, np.asarray(origin, np.float64).ravel(), spc, lay,
                      bias_scale(spc, self_shadow_bias), biased, cage)
     return biased, cage

@@ -62,28 +62,33 @@ def depth_moments(t: np.ndarray, back: np.ndarray, dirs: np.ndarray, n: int, sha
     return add_border(maps).astype(np.float32)
 
 
-def reach(positions, counts, origin, spacing, bias: float, bounds) -> np.ndarray:
+def reach(positions, counts, origin, spacing, bias: float, bounds, layers=None) -> np.ndarray:
     """(P,) float64 metres: per probe the largest distance from it to any biased shading point whose cage holds it
     (module doc "Far clamp").
 
     positions : (P, 3) relocated probe positions (flattened grid order, :mod:`workers.kernels.grid`); counts,
     origin, spacing : the grid; bias : the runtime's self-shadow bias, metres (``ddgi.bias_scale``), the most a
     shading point moves; bounds : (2, 3) scene bounds, metres (points outside the grid box clamp to its border
-    cells: the region of a border probe reaches the bounds).
+    cells: the region of a border probe reaches the bounds); layers : a rectilinear grid's (:mod:`workers.kernels.grid`).
 
     Probe index i on an axis is a corner of the cells with base i − 1 and i within [0, n − 2]; the cell with base 0
     also takes every point below the grid, the one with base n − 2 every point above it.
     """
-    from workers.kernels.grid import probe_grid_indices
+    from workers.kernels.grid import layers_of, probe_grid_indices
 
     counts = np.asarray(counts, np.int64)
     origin = np.asarray(origin, np.float64)
     spacing = np.asarray(spacing, np.float64)
     bounds = np.asarray(bounds, np.float64)
     ijk = probe_grid_indices(counts)
-    top = origin + spacing * (counts - 1)
-    lo = np.where(ijk <= 1, np.minimum(origin, bounds[0]), origin + spacing * (ijk - 1)) - bias
-    hi = np.where(ijk >= counts - 2, np.maximum(top, bounds[1]), origin + spacing * (ijk + 1)) + bias
+    ls = layers_of(counts, origin, spacing, layers)
+
+    def at(idx):                                     # (P, 3) layer coordinates at clipped indices
+        return np.stack([ls[a][np.clip(idx[:, a], 0, counts[a] - 1)] for a in range(3)], axis=1)
+
+    first, top = at(np.zeros_like(ijk)), at(np.broadcast_to(counts - 1, ijk.shape))
+    lo = np.where(ijk <= 1, np.minimum(first, bounds[0]), at(ijk - 1)) - bias
+    hi = np.where(ijk >= counts - 2, np.maximum(top, bounds[1]), at(ijk + 1)) + bias
     p = np.asarray(positions, np.float64).reshape(-1, 3)
     far = np.maximum(np.abs(p - lo), np.abs(p - hi))
     return np.sqrt((far * far).sum(axis=1))

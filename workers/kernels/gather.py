@@ -56,11 +56,11 @@ class SamplerWeights(NamedTuple):
 
 
 @njit(cache=True, nogil=True)
-def _weights_kernel(points, normals, views, counts, origin, spacing, bias, probe_pos, states, depth, visible, t,
-                    base, weight, texel, frac):
+def _weights_kernel(points, normals, views, counts, origin, spacing, layers, bias, probe_pos, states, depth, visible,
+                    t, base, weight, texel, frac):
     w8 = np.empty(8, np.float64)
     for i in range(points.shape[0]):
-        ok, q0, ir0, ic0, ifr, ifc = point_weights(i, points, normals, views, counts, origin, spacing, bias,
+        ok, q0, ir0, ic0, ifr, ifc = point_weights(i, points, normals, views, counts, origin, spacing, layers, bias,
                                                      probe_pos, states, depth, visible, t - 2, w8)
         wsum = 0.0
         for c in range(8):
@@ -164,9 +164,9 @@ def sampler_weights(points, normals, views, grid: dict, positions, states, depth
     (N, 8) ray-traced cage visibility or None. The same arithmetic as the sampler (the shared
     :func:`workers.kernels.ddgi.point_weights`), the normalized weights rounded to float32.
     """
-    pts, nrm, view, cnt, org, spc, b, pos, st, dep, vis = sampler_inputs(
+    pts, nrm, view, cnt, org, spc, lay, b, pos, st, dep, vis = sampler_inputs(
         points, normals, views, grid["counts"], grid["origin"], grid["spacing"], positions, states, depth, bias,
-        visible)
+        visible, grid.get("layers"))
     dep = np.ascontiguousarray(dep, np.float32 if dep.dtype == np.float32 else np.float64)
     N = pts.shape[0]
     if cnt.prod() >= 2 ** 31:
@@ -176,7 +176,7 @@ def sampler_weights(points, normals, views, grid: dict, positions, states, depth
                          np.array([1 if cnt[0] > 1 else 0, cnt[0] if cnt[1] > 1 else 0,
                                    cnt[0] * cnt[1] if cnt[2] > 1 else 0], np.int64))
 
-    _on_threads(N, lambda a, e: _weights_kernel(pts[a:e], nrm[a:e], view[a:e], cnt, org, spc, b, pos, st, dep,
+    _on_threads(N, lambda a, e: _weights_kernel(pts[a:e], nrm[a:e], view[a:e], cnt, org, spc, lay, b, pos, st, dep,
                                                 vis[a:e] if vis.shape[0] else vis, n + 2, out.base[a:e],
                                                 out.weight[a:e], out.texel[a:e], out.frac[a:e]))
     return out
@@ -308,7 +308,7 @@ def ddgi_weights(points, normals, views, grid: dict, positions, states, depth, n
 
     def sample(maps):
         return sample_irradiance(pts, nrm, view, counts, origin, spacing, positions, states, maps, depth, bias,
-                                 visible=visible)
+                                 visible=visible, layers=grid.get("layers"))
 
     w8 = np.zeros((N, 8), np.float64)
     maps = np.zeros((P, t, t, 3), np.float32)
@@ -331,7 +331,8 @@ def ddgi_weights(points, normals, views, grid: dict, positions, states, depth, n
     c0 = np.clip(np.floor(foot[:, 1]), 0, n).astype(np.int64)
     fr = np.clip(foot[:, 0] - r0, 0.0, 1.0)
     fc = np.clip(foot[:, 1] - c0, 0.0, 1.0)
-    _, cage = cage_probes(pts, nrm, view, counts, origin, spacing, bias)    # (N, 8) as the sampler picks them
+    _, cage = cage_probes(pts, nrm, view, counts, origin, spacing, bias,   # (N, 8) as the sampler picks them
+                          layers=grid.get("layers"))
     # 32 taps per row (8 corners x 4 bilinear texels), built straight into CSR: row i owns entries 32i..32i+31
     cols = np.zeros((N, 8, 4), np.int64 if P * t * t >= 2 ** 31 else np.int32)
     vals = np.zeros((N, 8, 4), np.float32)

@@ -1,7 +1,12 @@
 """The probe grid's conventions, shared by every stage and sampler (numpy only).
 
 Grid: ``counts = (nx, ny, nz)`` probes, probe (i, j, k) at ``origin + spacing * (i, j, k)`` before
-relocation (world space, metres). Arrays of probes are flattened in C order from (nz, ny, nx), so
+relocation (world space, metres) — or, on a **rectilinear** grid, at ``(layers[0][i], layers[1][j], layers[2][k])``:
+``layers`` (None for a uniform grid) holds per axis the strictly increasing layer coordinates (``counts[a]`` of them,
+``layers[a][0] = origin[a]``, ``spacing[a]`` their mean gap). The continuous grid index of a point
+(:func:`grid_coord`) is then piecewise linear between layers, and trilinear interpolation at that index is the
+rectilinear grid's trilinear interpolation: every sampler reads a rectilinear grid through the index alone
+(``proto/glsl/probe_grid.glsl`` ``giGridIndex``). Arrays of probes are flattened in C order from (nz, ny, nx), so
 probe (i, j, k) has index ``p = i + nx * (j + ny * k)`` and ``volume.reshape(-1, ...)[p]`` is it.
 
 Probe states (DDGI-P §6, offline subset): ``OFF`` (still inside geometry after relocation: never
@@ -33,23 +38,109 @@ def probe_grid_indices(counts) -> np.ndarray:
     return np.stack([i.ravel(), j.ravel(), k.ravel()], axis=1)
 
 
-def base_positions(counts, origin, spacing) -> np.ndarray:
-    """(P, 3) float64 un-relocated probe positions, world space."""
-    return np.asarray(origin, np.float64) + probe_grid_indices(counts) * np.asarray(spacing, np.float64)
+def check_layers(layers, counts, origin=None):
+    """``layers`` as a list of 3 float64 arrays (None stays None), checked: ``counts[a]`` strictly increasing values
+    per axis (and the first equal to ``origin[a]`` within 1e-9 relative, when given)."""
+    if layers is None:
+        return None
+    if len(layers) != 3:
+        raise ValueError(f"layers must hold 3 axes, got {len(layers)}")
+    out = []
+    for a in range(3):
+        la = np.asarray(layers[a], np.float64).reshape(-1)
+        if la.size != int(counts[a]):
+            raise ValueError(f"layers along {'xyz'[a]}: {la.size} values for {int(counts[a])} probes")
+        if la.size > 1 and not (np.diff(la) > 0).all():
+            raise ValueError(f"layers along {'xyz'[a]} must be strictly increasing")
+        if origin is not None and la.size and abs(la[0] - float(origin[a])) > 1e-9 * max(1.0, abs(la[0])):
+            raise ValueError(f"layers along {'xyz'[a]} must start at the origin ({la[0]} != {float(origin[a])})")
+        out.append(la)
+    return out
 
 
-def cell_coords(points, counts, origin, spacing) -> tuple[np.ndarray, np.ndarray]:
+def layers_of(counts, origin, spacing, layers=None) -> list[np.ndarray]:
+    """Per axis the (counts[a],) float64 layer coordinates: ``layers`` when given, else ``origin + spacing·i``."""
+    if layers is not None:
+        return [np.asarray(layers[a], np.float64).reshape(-1) for a in range(3)]
+    return [float(origin[a]) + float(spacing[a]) * np.arange(int(counts[a]), dtype=np.float64) for a in range(3)]
+
+
+def layers_table(counts, origin, spacing, layers=None) -> np.ndarray:
+    """(3, max(counts)) float64 layer coordinates, each row padded with its last value (the numba kernels' and the
+    ``uGridLayers`` texture's layout: texel (i, a) = layer i of axis a)."""
+    ls = layers_of(counts, origin, spacing, layers)
+    w = max(1, max(int(c) for c in counts))
+    out = np.zeros((3, w), np.float64)
+    for a in range(3):
+        out[a, :ls[a].size] = ls[a]
+        out[a, ls[a].size:] = ls[a][-1] if ls[a].size else 0.0
+    return out
+
+
+def axis_coord(x, layer) -> np.ndarray:
+    """Continuous layer index of coordinates ``x`` (any shape) along one axis with layers ``layer`` (n,) increasing:
+    ``i + (x − L_i)/(L_{i+1} − L_i)`` for the i ∈ [0, n − 2] with L_i ≤ x < L_{i+1} (the end cells extrapolate
+    linearly, unclamped); 0 when n < 2. ``probe_grid.glsl`` ``giLayerCoord``."""
+    x = np.asarray(x, np.float64)
+    L = np.asarray(layer, np.float64)
+    if L.size < 2:
+        return np.zeros_like(x)
+    i = np.clip(np.searchsorted(L, x, side="right") - 1, 0, L.size - 2)
+    return i + (x - L[i]) / (L[i + 1] - L[i])
+
+
+def axis_position(g, layer) -> np.ndarray:
+    """Inverse of :func:`axis_coord`: the coordinate at continuous layer index ``g`` (piecewise linear, the end
+    cells extrapolated)."""
+    g = np.asarray(g, np.float64)
+    L = np.asarray(layer, np.float64)
+    if L.size < 2:
+        return np.full_like(g, L[0] if L.size else 0.0)
+    i = np.clip(np.floor(g).astype(np.int64), 0, L.size - 2)
+    return L[i] + (g - i) * (L[i + 1] - L[i])
+
+
+def grid_coord(points, counts, origin, spacing, layers=None) -> np.ndarray:
+    """(N, 3) float64 continuous probe index of world points, unclamped: ``(p − origin)/spacing`` (uniform) or the
+    layer coordinate per axis (rectilinear; :func:`axis_coord`); 0 on an axis with spacing 0 (uniform) or one
+    probe (rectilinear)."""
+    p = np.asarray(points, np.float64).reshape(-1, 3)
+    counts = np.asarray(counts, np.int64)
+    spacing = np.asarray(spacing, np.float64)
+    if layers is None:
+        safe = np.where(spacing > 0, spacing, 1.0)
+        g = (p - np.asarray(origin, np.float64)) / safe
+        return np.where(spacing > 0, g, 0.0)
+    return np.stack([axis_coord(p[:, a], layers[a]) if counts[a] > 1 else np.zeros(p.shape[0]) for a in range(3)],
+                    axis=1)
+
+
+def grid_point(g, counts, origin, spacing, layers=None) -> np.ndarray:
+    """(N, 3) world points at continuous probe indices ``g`` (N, 3): the inverse of :func:`grid_coord`."""
+    g = np.asarray(g, np.float64).reshape(-1, 3)
+    if layers is None:
+        return np.asarray(origin, np.float64) + g * np.asarray(spacing, np.float64)
+    return np.stack([axis_position(g[:, a], layers[a]) for a in range(3)], axis=1)
+
+
+def base_positions(counts, origin, spacing, layers=None) -> np.ndarray:
+    """(P, 3) float64 un-relocated probe positions, world space (``layers``: a rectilinear grid, module doc)."""
+    ijk = probe_grid_indices(counts)
+    if layers is None:
+        return np.asarray(origin, np.float64) + ijk * np.asarray(spacing, np.float64)
+    ls = layers_of(counts, origin, spacing, layers)
+    return np.stack([ls[a][ijk[:, a]] for a in range(3)], axis=1)
+
+
+def cell_coords(points, counts, origin, spacing, layers=None) -> tuple[np.ndarray, np.ndarray]:
     """Base cell (the cage's min corner) and trilinear fractions of world points.
 
     points : (N, 3) world space. Returns ``base (N, 3) int64`` clamped to [0, n - 2] (0 on an axis
     with one probe) and ``alpha (N, 3) float64`` in [0, 1] (0 on a one-probe axis). Points outside the
-    grid clamp to its border cells (as a clamped texture would).
+    grid clamp to its border cells (as a clamped texture would). ``layers``: a rectilinear grid (module doc).
     """
     counts = np.asarray(counts, np.int64)
-    spacing = np.asarray(spacing, np.float64)
-    safe = np.where(spacing > 0, spacing, 1.0)
-    g = (np.asarray(points, np.float64) - np.asarray(origin, np.float64)) / safe
-    g = np.where(spacing > 0, g, 0.0)
+    g = grid_coord(points, counts, origin, spacing, layers)
     hi = np.maximum(counts - 2, 0)
     base = np.clip(np.floor(g), 0, hi).astype(np.int64)
     alpha = np.clip(g - base, 0.0, 1.0)
@@ -112,10 +203,10 @@ def grid_layout(bounds, section) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return counts, origin, spacing
 
 
-def grid_positions(counts, origin, spacing) -> np.ndarray:
+def grid_positions(counts, origin, spacing, layers=None) -> np.ndarray:
     """(nz, ny, nx, 3) float32 world positions of the grid, metres: :func:`base_positions` as a volume (x fastest)."""
     nx, ny, nz = (int(c) for c in counts)
-    return base_positions(counts, origin, spacing).reshape(nz, ny, nx, 3).astype(np.float32)
+    return base_positions(counts, origin, spacing, layers).reshape(nz, ny, nx, 3).astype(np.float32)
 
 
 def dilate_off(values: np.ndarray, off: np.ndarray) -> tuple[np.ndarray, int]:

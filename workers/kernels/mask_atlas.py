@@ -292,13 +292,13 @@ def decompress_channels(atlas: np.ndarray, indirection: np.ndarray, meta: dict) 
 
 
 def sample_channel_atlas(atlas: np.ndarray, indirection: np.ndarray, meta: dict, points, counts, origin, spacing,
-                         dtype=np.float32, *, dirs=None, samples: float = 0.0, blend: bool = True):
+                         dtype=np.float32, *, dirs=None, samples: float = 0.0, blend: bool = True, layers=None):
     """(N, K) masks at world points read as the GLSL reads the channel atlas (module doc, "Sampling"): per read and
     channel the constant of codes 0 / 1 or one LINEAR atlas fetch, the reads blended by ``lookup_blend`` over the K
     channels (``blend=False``: the list of reads, offset read first). Coordinate math in ``dtype`` (float32 = GLSL
     highp). Values in [0, 1], float64."""
     S, K = int(meta["samples_per_cell"]), int(meta["clusters"])
-    ts, cell = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype)
+    ts, cell = mask_lookups(points, counts, origin, spacing, S, dirs, samples, dtype, layers)
     ci = cell.astype(np.int64)
     codes = codes_of(indirection, K)[ci[:, 2], ci[:, 1], ci[:, 0]]               # (N, K): 2·G texelFetch
     tex = np.asarray(atlas).reshape(np.shape(atlas)[:3] + (1,))

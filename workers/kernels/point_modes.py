@@ -103,7 +103,7 @@ def mode_irradiance(mode: str, arrays, grid, points, normals, views, *, self_sha
         pos = np.asarray(arrays["probe_positions_relocated"], np.float64).reshape(-1, 3)
         states = np.asarray(arrays["probe_states"]).reshape(-1)
         out = sample_irradiance(pts, nrm, vws, counts, grid["origin"], grid["spacing"], pos, states, irr, dep,
-                                float(self_shadow_bias))
+                                float(self_shadow_bias), layers=grid.get("layers"))
     elif mode == "prt":
         from workers.prt_relight import PrtModel, relight
 
@@ -146,7 +146,8 @@ def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarr
     if mode == "leaking":
         return np.full(N, 7.0 if res.info.get("sh_order") == 2 else 3.0)     # sh_l2 sub-volumes, or sh_l1_{r,g,b}
     if mode == "ddgi":
-        _, cage = cage_probes(points, normals, views, grid["counts"], grid["origin"], grid["spacing"], 0.3)
+        _, cage = cage_probes(points, normals, views, grid["counts"], grid["origin"], grid["spacing"], 0.3,
+                              layers=grid.get("layers"))
         live = (np.asarray(arrays["probe_states"]).reshape(-1)[cage] != OFF).sum(axis=1)
         return 8.0 + 2.0 * live                                              # 8 state/position + 2 per live corner
     if mode in ("mask", "mask_normalized"):
@@ -159,7 +160,7 @@ def gi_fetches(mode: str, res, arrays, grid, points, normals, views) -> np.ndarr
         m = SM.mask_values(vols, points, normals, grid, float(res.uniforms.get("uMaskOffset", 0.0)), views)[:, :K]
         z = (m > 0).sum(axis=1)                                              # MD §1: clusters with m_k > 0
         S = int(res.uniforms["uMaskS"])
-        _, cell = mask_lookups(points, grid["counts"], grid["origin"], grid["spacing"], S)
+        _, cell = mask_lookups(points, grid["counts"], grid["origin"], grid["spacing"], S, layers=grid.get("layers"))
         ci = cell.astype(np.int64)
         codes = codes_of(arrays["mask_indirection"], K)[ci[:, 2], ci[:, 1], ci[:, 0]]
         y = (codes >= FIRST_SLOT).sum(axis=1)                                # channels stored in the atlas

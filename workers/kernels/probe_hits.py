@@ -208,7 +208,8 @@ def probe_visibility(surf, grid: dict, positions: np.ndarray, states: np.ndarray
 
     def chunk(a: int, b: int) -> int:       # two chunks at a time (workers.kernels.chunks): rays made while cast
         biased, cage = cage_probes(surf.position[a:b], surf.normal[a:b], surf.view[a:b], grid["counts"],
-                                   grid["origin"], grid["spacing"], bias)        # x_b of DDGI-P eq 2
+                                   grid["origin"], grid["spacing"], bias,        # x_b of DDGI-P eq 2
+                                   layers=grid.get("layers"))
         live, o, dirs, tfar, slot = cage_rays(biased, cage, positions, states)   # biased point -> live probe
         occluded = caster.occluded(o, dirs, tfar=tfar)
         live.reshape(-1)[slot[occluded]] = 0

@@ -91,7 +91,7 @@ import numpy as np
 from proto import gi_modes
 from proto.gi_modes import MASK_OFFSET_SAMPLES
 from workers.kernels.compress import lookup_blend, mask_lookups
-from workers.kernels.grid import cage_indices, cell_coords
+from workers.kernels.grid import cage_indices, cell_coords, check_layers, grid_coord
 from workers.kernels.sh import SH_L2_TEXELS, sh_irradiance, sh_irradiance_l1_nonlinear, sh_irradiance_l2
 
 __all__ = ["MODES", "Grid", "trilinear", "texel_fetch", "probe_uvw", "field_uvw", "field_samples_per_cell",
@@ -105,22 +105,30 @@ MODES = ("leaking", "visibility_weighted", "mask", "mask_normalized")
 
 class Grid:
     """The probe grid: ``counts (3,) int (nx, ny, nz)``, ``origin (3,)``, ``spacing (3,)`` metres (0 on a
-    one-probe axis). Build from the place stage's stats with ``Grid(**{k: stats[k] for k in ...})`` or
+    one-probe axis), ``layers`` (None, or per axis the layer coordinates of a rectilinear grid:
+    :mod:`workers.kernels.grid`). Build from the place stage's stats with ``Grid(**{k: stats[k] for k in ...})`` or
     :meth:`of`."""
 
-    def __init__(self, counts, origin, spacing):
+    def __init__(self, counts, origin, spacing, layers=None):
         self.counts = np.asarray(counts, np.int64).reshape(3)
         self.origin = np.asarray(origin, np.float64).reshape(3)
         self.spacing = np.asarray(spacing, np.float64).reshape(3)
         if (self.counts < 1).any():
             raise ValueError(f"counts must be >= 1, got {self.counts.tolist()}")
+        self.layers = check_layers(layers, self.counts)
 
     @classmethod
     def of(cls, grid) -> "Grid":
-        """A Grid from a Grid or a mapping with counts, origin, spacing (place stats, manifest grid)."""
+        """A Grid from a Grid or a mapping with counts, origin, spacing and optional layers (place stats, manifest
+        grid)."""
         if isinstance(grid, Grid):
             return grid
-        return cls(grid["counts"], grid["origin"], grid["spacing"])
+        return cls(grid["counts"], grid["origin"], grid["spacing"], grid.get("layers"))
+
+    def coord(self, points) -> np.ndarray:
+        """(N, 3) continuous probe index of world points (:func:`workers.kernels.grid.grid_coord`; 0 on dead
+        axes)."""
+        return np.where(self.live, grid_coord(points, self.counts, self.origin, self.spacing, self.layers), 0.0)
 
     @property
     def live(self) -> np.ndarray:
@@ -200,8 +208,7 @@ def probe_uvw(points, grid) -> np.ndarray:
     """uvw of world points in a probe volume: ``((p − origin)/spacing + 0.5)/counts`` (0.5 on one-probe axes)."""
     g = Grid.of(grid)
     p = _points(points)
-    safe = np.where(g.live, g.spacing, 1.0)
-    uvw = ((p - g.origin) / safe + 0.5) / g.counts
+    uvw = (g.coord(p) + 0.5) / g.counts
     return np.where(g.live, uvw, 0.5)
 
 
@@ -211,8 +218,7 @@ def probe_texel(points, grid) -> np.ndarray:
     axes. With LINEAR filtering this reads like CLAMP_TO_EDGE and never leaves the volume (stacked volumes)."""
     g = Grid.of(grid)
     p = _points(points)
-    safe = np.where(g.live, g.spacing, 1.0)
-    t = np.where(g.live, (p - g.origin) / safe, 0.0) + 0.5
+    t = g.coord(p) + 0.5
     return np.clip(t, 0.5, g.counts - 0.5)
 
 
@@ -241,8 +247,8 @@ def field_uvw(points, grid) -> np.ndarray:
     one-probe axes)."""
     g = Grid.of(grid)
     p = _points(points)
-    ext = np.where(g.live, g.spacing * (g.counts - 1), 1.0)
-    return np.where(g.live, (p - g.origin) / ext, 0.5)
+    cells = np.maximum(g.counts - 1, 1)
+    return np.where(g.live, g.coord(p) / cells, 0.5)
 
 
 def field_samples_per_cell(field_volume, grid) -> int:
@@ -295,8 +301,7 @@ def _theta_in_cell(theta_0123, theta_4567, points, g: Grid, base) -> np.ndarray:
     """(N, 8) θ_c(x) read trilinearly with the texel coordinate clamped to x's cell block (module doc)."""
     S = field_samples_per_cell(theta_0123, g)
     dims = np.array([theta_0123.shape[2], theta_0123.shape[1], theta_0123.shape[0]], np.float64)
-    safe = np.where(g.live, g.spacing, 1.0)
-    t = np.where(g.live, (points - g.origin) / safe * S - 0.5, 0.0)
+    t = np.where(g.live, g.coord(points) * S - 0.5, 0.0)
     lo = base * S
     tc = np.clip(t, lo, lo + S - 1)
     uvw = (tc + 0.5) / dims
@@ -316,7 +321,7 @@ def visibility_weighted(points, normals, sh_r, sh_g, sh_b, theta_0123, theta_456
     if sh_l2 is None:
         for v, n in ((sh_r, "sh_r"), (sh_g, "sh_g"), (sh_b, "sh_b")):
             _probe_check(v, g, n)
-    base, alpha = cell_coords(p, g.counts, g.origin, g.spacing)
+    base, alpha = cell_coords(p, g.counts, g.origin, g.spacing, g.layers)
     theta = _theta_in_cell(np.asarray(theta_0123), np.asarray(theta_4567), p, g, base)  # (N, 8)
     cage = cage_indices(base, g.counts)                                                 # (N, 8) flat
     if sh_l2 is not None:
@@ -357,7 +362,7 @@ def mask_values(masks, points, normals, grid, samples: float = 0.0, views=None) 
     if views is not None:
         d = d + _points(views, "views")
     S = field_samples_per_cell(masks[0], g)
-    ts, _ = mask_lookups(p, g.counts, g.origin, g.spacing, S, d, samples, np.float64)
+    ts, _ = mask_lookups(p, g.counts, g.origin, g.spacing, S, d, samples, np.float64, layers=g.layers)
     reads = []
     for t in ts:
         reads.append(np.concatenate([trilinear(v, (t + 0.5) / np.array([v.shape[2], v.shape[1], v.shape[0]],

@@ -80,7 +80,7 @@ from contextlib import nullcontext
 import numba
 import numpy as np
 
-from workers.kernels.grid import OFF
+from workers.kernels.grid import OFF, axis_position
 
 __all__ = ["field_shape", "sample_positions", "theta_slab", "slab_ranges", "join_slabs", "TFAR_EPS"]
 
@@ -124,7 +124,7 @@ def field_shape(counts, S) -> tuple[int, int, int]:
     return cz * S, cy * S, cx * S
 
 
-def sample_positions(counts, origin, spacing, S, z_range) -> np.ndarray:
+def sample_positions(counts, origin, spacing, S, z_range, layers=None) -> np.ndarray:
     """World positions of the field samples in rows ``z ∈ [z0, z1)``.
 
     Parameters
@@ -138,14 +138,16 @@ def sample_positions(counts, origin, spacing, S, z_range) -> np.ndarray:
     -------
     (n, 3) float64, n = (z1 − z0)·Y·X, in C order of (z, y, x) (x fastest): sample (x, y, z) at
     ``origin + spacing·((x, y, z) // S + ((x, y, z) % S + 0.5) / S)``; on a one-probe axis the
-    coordinate is ``origin`` (the probe plane).
+    coordinate is ``origin`` (the probe plane). ``layers``: a rectilinear grid (:mod:`workers.kernels.grid`): the
+    same refined index, at the world position :func:`workers.kernels.grid.axis_position` gives it (S samples per
+    cell whatever the cell's size).
     """
     S = _check_s(S)
     Z, Y, X = field_shape(counts, S)
     z0, z1 = _check_range(z_range, Z)
     g0, n = z0 * Y * X, (z1 - z0) * Y * X
     out = np.empty((n, 3), np.float64)
-    _positions_kernel(g0, n, *_Grid(counts, origin, spacing, S).args, out)
+    _positions_kernel(g0, n, *_Grid(counts, origin, spacing, S, layers).args, out)
     return out
 
 
@@ -216,7 +218,7 @@ class _Grid:
     ``(cx[x], cy[y], cz[z])``.
     """
 
-    def __init__(self, counts, origin, spacing, S):
+    def __init__(self, counts, origin, spacing, S, layers=None):
         S = _check_s(S)
         self.shape = Z, Y, X = field_shape(counts, S)
         counts = np.asarray(counts, np.int64).reshape(3).copy()
@@ -230,7 +232,8 @@ class _Grid:
                 pos.append(np.full(n, origin[axis]))
                 cell.append(np.zeros(n, np.int64))
             else:
-                pos.append(origin[axis] + spacing[axis] * (c + (f - c * S + 0.5) / S))
+                g = c + (f - c * S + 0.5) / S
+                pos.append(origin[axis] + spacing[axis] * g if layers is None else axis_position(g, layers[axis]))
                 cell.append(c)
         self.args = (X, Y, counts, *pos, *cell)
 
@@ -499,7 +502,7 @@ def _chunk_rays(buf, g0, n, grid, probes, off, rays, ball, key, eps, pool=None) 
 
 
 def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, rays=1, jitter=0.05, seed=0,
-               double_sided_tris=None):
+               double_sided_tris=None, layers=None):
     """θ and the don't-care mask of the field rows ``z ∈ [z0, z1)`` (MD §3.4 step 1).
 
     Parameters
@@ -527,6 +530,7 @@ def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, r
         Seed of the jitter hash (the bake's seed).
     double_sided_tris : (T,) bool mask or int indices of triangles, optional
         Triangles of double-sided materials: their back faces do not vote "inside".
+    layers : None, or per axis the layer coordinates of a rectilinear grid (:mod:`workers.kernels.grid`).
 
     Returns
     -------
@@ -551,7 +555,7 @@ def theta_slab(caster, counts, origin, spacing, positions, states, S, z_range, r
                  build_s=0.0, trace_s=0.0, reduce_s=0.0)
     step = max(1, CHUNK_RAYS // (8 * rays))
     g0 = z0 * Y * X
-    grid = _Grid(counts, origin, spacing, S).args
+    grid = _Grid(counts, origin, spacing, S, layers).args
     buf = _Buffers(min(step, n_all), rays)
     threads = max(1, int(getattr(caster, "threads", 1)))
     with ThreadPoolExecutor(max_workers=threads) if threads > 1 else nullcontext() as executor:

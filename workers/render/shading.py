@@ -66,7 +66,7 @@ from proto.gi_modes import (KINDS, MASK_BLEND, MASK_OFFSET_SAMPLES, MASK_SEEN_TH
                             PRT_MAX_GROUPS, SELF_SHADOW_BIAS)
 from proto.glsl_preprocess import ShaderSourceError, format_compile_errors, load_sources, preprocess
 from workers.kernels.ddgi import bias_scale
-from workers.kernels.grid import OFF
+from workers.kernels.grid import OFF, layers_table
 from workers.kernels.sh import sh_l2_atlas_depth
 from workers.kernels.shading import direct_irradiance
 
@@ -195,7 +195,18 @@ def wrap_atlas(atlas, counts, max_width: int = MAX_TEXTURE_SIZE) -> tuple[np.nda
 def _grid_uniforms(grid) -> dict:
     return {"uGridOrigin": tuple(float(x) for x in grid["origin"]),
             "uGridSpacing": tuple(float(x) for x in grid["spacing"]),
-            "uGridCounts": tuple(float(x) for x in grid["counts"])}
+            "uGridCounts": tuple(float(x) for x in grid["counts"]),
+            "uGridRectilinear": grid.get("layers") is not None}
+
+
+def _grid_textures(grid) -> dict:
+    """``uGridLayers`` of a rectilinear grid (``probe_grid.glsl``): R32F (3, max(counts)), texel (i, a) = layer i of
+    axis a (:func:`workers.kernels.grid.layers_table`), NEAREST; none for a uniform grid (the shader does not read
+    it; the draw binds a dummy)."""
+    if grid.get("layers") is None:
+        return {}
+    table = layers_table(grid["counts"], grid["origin"], grid["spacing"], grid["layers"])
+    return {"uGridLayers": (table.astype(np.float32), False)}
 
 
 def _want_l2(sh_order, available: bool, mode: str) -> bool:
@@ -249,7 +260,7 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = SELF_SHAD
     """
     if mode not in gi_modes.MODES:
         raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
-    r = ModeResources(mode, uniforms=_grid_uniforms(grid))
+    r = ModeResources(mode, uniforms=_grid_uniforms(grid), textures=_grid_textures(grid))
     nx, ny, nz = (int(c) for c in grid["counts"])
     if mode == "direct":
         return r

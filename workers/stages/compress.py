@@ -43,15 +43,16 @@ def lookup_error(vols, ca, grid, seed) -> tuple[float, float]:
     ``max_block_error``; the blend (compress.lookup_blend) can amplify it where the offset read is nearly empty."""
     rng = np.random.default_rng(seed)
     counts, origin, spacing = (np.asarray(grid[k], np.float64) for k in ("counts", "origin", "spacing"))
+    layers = grid.get("layers")
     pts = origin + rng.random((ERROR_POINTS, 3)) * spacing * np.maximum(counts - 1, 0)
     d = rng.normal(size=(ERROR_POINTS, 3))
     d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
     K, S = ca.meta["clusters"], ca.meta["samples_per_cell"]
     dense = np.concatenate(vols, axis=3)
-    ts, _ = mask_lookups(pts, counts, origin, spacing, S, d, 1.0, np.float64)
+    ts, _ = mask_lookups(pts, counts, origin, spacing, S, d, 1.0, np.float64, layers)
     want = [texture_linear(dense, (t + 0.5) / np.array(dense.shape[2::-1], np.float64))[:, :K] for t in ts]
     got = sample_channel_atlas(ca.atlas, ca.indirection, ca.meta, pts, grid["counts"], origin, spacing,
-                               np.float64, dirs=d, samples=1.0, blend=False)
+                               np.float64, dirs=d, samples=1.0, blend=False, layers=layers)
     reads = max(float(np.abs(w - g).max()) for w, g in zip(want, got))
     return reads, float(np.abs(lookup_blend(want) - lookup_blend(got)).max())
 

@@ -77,7 +77,7 @@ def run_evaluate(ctx: StageContext) -> StageOutput:
         return StageOutput(artifacts=[], stats={"enabled": False})
     settings, seed, B = settings_of(ctx.config), int(ctx.config.seed), float(ctx.config.light.self_shadow_bias)
     ref, place, lights = ctx.inputs["reference"], ctx.inputs["place"].stats, ctx.inputs["ingest"]["lights"]["lights"]
-    rstats, grid, lights = ref.stats, {k: place[k] for k in ("counts", "origin", "spacing")}, list(lights)
+    rstats, grid, lights = ref.stats, {k: place[k] for k in ("counts", "origin", "spacing", "layers") if k in place}, list(lights)
     # the reference's points, cameras and the lights are in the world; the bake's GI in its frame (grid.frame): every
     # GI lookup maps its world points, normals and views with M (workers/kernels/frame.py), the PRT mode's lights too
     M = frame_of(place)

@@ -127,7 +127,7 @@ def run_light(ctx: StageContext) -> StageOutput:
     sec = ctx.config.light
     scene = ctx.scene
     place = ctx.inputs["place"].stats
-    grid = {k: place[k] for k in ("counts", "origin", "spacing")}
+    grid = {k: place[k] for k in ("counts", "origin", "spacing", "layers") if k in place}
     counts = grid["counts"]
     nx, ny, nz = counts
     tr = ctx.inputs["trace"]

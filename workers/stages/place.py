@@ -48,9 +48,9 @@ and the masks keep thin walls tight at any spacing; what a far coarser grid lose
 ENCLOSED_COARSE_FACTOR = 2.0
 """The same for an enclosed scene (rooms): near their walls the light changes faster than a budget-bound grid
 resolves. bench_fidelity's enclosed scenes where the budget binds: corridor-l 1.45x, living-room 1.38x, sun-window
-1.79x read 0.96-1.06 of Cycles in every region; apartments (2.49x) reads 1.22 / 1.20 in the dark room 5 / 10 cm from
-the shared wall and zdm2 (2.97x) 1.12 at its shaded walls (2026-12-06). Between 1.8 and 2.5 the threshold is not
-measured more finely."""
+1.79x read 0.96-1.06 of Cycles in every region; apartments (2.49x) read 1.22 / 1.20 in the dark room 5 / 10 cm from
+the shared wall on a uniform grid (1.05 / 1.03 rectilinear: autogrid step 4b, from the same factor) and zdm2 (2.97x)
+1.12 at its shaded walls (2026-12-06). Between 1.8 and 2.5 the threshold is not measured more finely."""
 
 
 def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
@@ -72,6 +72,10 @@ def coarse_grid_warning(auto: dict, budget: int) -> dict | None:
     near = (" Within about a spacing of a wall the light reads high where it changes faster than the grid resolves "
             "(measured 1.1-1.2x Cycles 5-10 cm from walls in interiors at 2.5-3x the rooms' spacing)."
             if enclosed else "")
+    if enclosed and auto.get("rectilinear"):
+        near = (" Layers stand in front of both faces of the thin walls and slabs (a rectilinear grid: within 5% of "
+                "Cycles 5-10 cm from them, measured); near thick walls and other surfaces the light can read high "
+                "where it changes faster than the grid resolves (1.1x Cycles measured).")
     return {"code": "grid_coarse", "message": (
         f"the automatic probe grid is {spacing:.3g} m apart where this scene's rooms ask for {wanted:.3g} m: the "
         f"default budget of {budget} probes binds (that spacing needs about {need} probes). The light loses its detail "
@@ -90,9 +94,12 @@ def run_place(ctx: StageContext) -> StageOutput:
     n = int(np.prod(counts))
     if n > MAX_PROBES:
         raise StageError("too_many_probes", f"spacing {section.spacing} gives {n} probes; the limit is {MAX_PROBES}")
-    positions = grid_positions(counts, origin, spacing)
+    layers = auto.pop("layers", None) if auto is not None else None
+    positions = grid_positions(counts, origin, spacing, layers)
     ctx.report(1.0)
     stats = {"counts": counts.tolist(), "origin": origin.tolist(), "spacing": spacing.tolist(), "probes": n}
+    if layers is not None:                             # a rectilinear grid (workers.kernels.grid; proto/bundle.md 5)
+        stats["layers"] = layers
     if ctx.frame is not None:                          # the bake frame (workers.pipeline.framed_scene); grid.frame
         stats["frame"] = ctx.frame
     if auto is not None:

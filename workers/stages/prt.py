@@ -58,7 +58,7 @@ def _basis(name: str, vol, k: int, g: int, channels: str) -> Artifact:
 def prt_dataset(ctx: StageContext) -> PrtDataset:
     """Steps 1-3 (:func:`workers.kernels.prt_dataset.build_dataset`) on the bake's inputs."""
     sec, scene, tr = ctx.config.prt, ctx.scene, ctx.inputs["trace"]
-    grid = {k: ctx.inputs["place"].stats[k] for k in ("counts", "origin", "spacing")}
+    grid = {k: v for k, v in ctx.inputs["place"].stats.items() if k in ("counts", "origin", "spacing", "layers")}
     bounds = np.asarray(ctx.inputs["ingest"].stats["bounds"], np.float64)
     if triangle_areas(scene.triangles).sum() <= 0:
         raise StageError("no_surface", "the scene's triangles have no area to place measurement points on")

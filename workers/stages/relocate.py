@@ -34,7 +34,7 @@ def run_relocate(ctx: StageContext) -> StageOutput:
     place = ctx.inputs["place"].stats
     counts, origin, spacing = place["counts"], np.asarray(place["origin"]), np.asarray(place["spacing"])
     scene = ctx.scene
-    base = base_positions(counts, origin, spacing)
+    base = base_positions(counts, origin, spacing, place.get("layers"))
     P = base.shape[0]
     positive = spacing[spacing > 0]
     min_spacing = float(positive.min()) if positive.size else 1.0

@@ -88,7 +88,7 @@ def run_trace(ctx: StageContext) -> StageOutput:
     # "Far clamp"), so the far texels are constant and Zstandard stores them almost for free; the bias is the
     # runtime's (DDGI-P eq 2, light.self_shadow_bias)
     bias = bias_scale(spacing, ctx.config.light.self_shadow_bias)
-    limit = reach(positions, counts, origin, spacing, bias, ctx.inputs["ingest"].stats["bounds"])
+    limit = reach(positions, counts, origin, spacing, bias, ctx.inputs["ingest"].stats["bounds"], place.get("layers"))
     clamped, share = clamp_far(depth, limit)
     clamped[states == OFF] = 0.0            # never read: every reader skips OFF probes before their moments
     stats["depth_clamped_share"] = share

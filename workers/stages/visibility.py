@@ -44,7 +44,8 @@ def run_visibility_slab(ctx: StageContext) -> StageOutput:
         caster = caster_for_scene(scene)
         theta, dont_care, stats = theta_slab(caster, counts, origin, spacing, positions, states, S, (z0, z1),
                                              rays=sec.rays, jitter=sec.jitter, seed=ctx.config.seed,
-                                             double_sided_tris=double_sided_triangles(scene))
+                                             double_sided_tris=double_sided_triangles(scene),
+                                             layers=place.get("layers"))
     else:
         theta, dont_care, stats = np.zeros((0, Y, X, 8), np.uint8), np.zeros((0, Y, X), bool), {"rays": 0}
     ctx.report(1.0)

@@ -79,8 +79,9 @@ export class KilnBundle {
     return new KilnBundle(base, manifest, options);
   }
 
-  /** The probe grid: {origin, spacing, counts} (metres, bake frame; proto/bundle.md 5), and `frame` ({yaw_deg, matrix,
-   * source, reason}; grid.js frameMatrix) where the bake frame is the world turned about +Y. */
+  /** The probe grid: {origin, spacing, counts} (metres, bake frame; proto/bundle.md 5), `layers` ([xs, ys, zs], metres)
+   * where the grid is rectilinear (probe (i, j, k) at (xs[i], ys[j], zs[k]); spacing then the mean gap), and `frame`
+   * ({yaw_deg, matrix, source, reason}; grid.js frameMatrix) where the bake frame is the world turned about +Y. */
   get grid() { return this.manifest.grid; }
 
   /** Artifact names in the manifest. */
@@ -98,9 +99,10 @@ export class KilnBundle {
   }
 
   /**
-   * A bake on a Kiln server instead of a bundle folder: `GET {server}/v1/bakes/{id}` (the artifact list; the grid, and
-   * its bake frame `frame` where there is one, from the place stage's stats, the bounds from the ingest stage's, as the manifest has them) and each artifact from
-   * `/v1/bakes/{id}/artifacts/{name}`. headers: e.g. {Authorization: 'Bearer KEY'}.
+   * A bake on a Kiln server instead of a bundle folder: `GET {server}/v1/bakes/{id}` (the artifact list; the grid, its
+   * bake frame `frame` and a rectilinear grid's `layers` where there are, from the place stage's stats, the bounds
+   * from the ingest stage's, as the manifest has them) and each artifact from `/v1/bakes/{id}/artifacts/{name}`.
+   * headers: e.g. {Authorization: 'Bearer KEY'}.
    */
   static async fromServer(server, bakeId, { headers = {}, ...options } = {}) {
     const f = options.fetch || globalThis.fetch.bind(globalThis);
@@ -111,8 +113,9 @@ export class KilnBundle {
     const bake = await r.json();
     if (bake.status !== 'succeeded') throw new BundleError(`bake ${bakeId} is ${bake.status}, not succeeded`);
     const stats = (name) => (bake.stages || []).find((st) => st.name === name)?.stats || {};
-    const { counts, origin, spacing, frame } = stats('place');
-    const grid = { counts, origin, spacing, ...(frame ? { frame } : {}) };   // frame: the bake frame, as grid.frame
+    const { counts, origin, spacing, frame, layers } = stats('place');
+    // frame: the bake frame, as grid.frame; layers: a rectilinear grid's, as grid.layers (both absent when not there)
+    const grid = { counts, origin, spacing, ...(layers ? { layers } : {}), ...(frame ? { frame } : {}) };
     const manifest = { format_version: FORMAT_VERSION, bake_id: bake.id, config: bake.config, grid,
       scene: { bounds: stats('ingest').bounds }, stages: bake.stages, artifacts: bake.artifacts };
     if (!counts) throw new BundleError(`bake ${bakeId} has no probe grid (no place stage stats)`);

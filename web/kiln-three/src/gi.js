@@ -17,15 +17,19 @@
  *   axis-aligned world box that ignores any rotation (its shader compares the world position with a world box and
  *   evaluates the SH at the world normal; the box follows `position` only): for a turned bake createProbeGrid
  *   resamples the SH onto a world-aligned grid (grid.js resampleShL2: Kiln's lookup at M·p, the SH turned to the world).
+ * - A rectilinear grid (manifest `grid.layers` = [xs, ys, zs]: probe (i, j, k) at (xs[i], ys[j], zs[k])): the modes
+ *   read the layers from `uniform sampler2D uGridLayers` (R32F, max(counts) x 3; probe_grid.glsl giGridIndex, on where
+ *   `uGridRectilinear`); three's LightProbeGrid, whose cells are all alike, gets the SH resampled as for a turned bake.
  */
 import { Matrix3 } from 'three';
 import { LightProbeGridWebGL } from 'three/addons/lighting/LightProbeGridWebGL.js';
 import { GI_MODES, MODE_SAMPLERS, modeAvailability, modeById, modeDefines, modeTextures, MAX_3D_TEXTURE_DEPTH } from '../../src/state/modes.js';
 import { GLSL_SOURCES, hasShader } from '../../src/renderer/shaders.js';
 import { preprocess } from '../../src/renderer/preprocess.js';
-import { probeDataTexture, textureFromKTX2, wrapAtlas } from '../../src/renderer/textures.js';
+import { gridLayersTexture, probeDataTexture, textureFromKTX2, wrapAtlas } from '../../src/renderer/textures.js';
 import { atlasColumns } from '../../src/math/atlas.js';
-import { frameMatrix, isIdentityFrame, padShL2, probeGridBox, resampleShL2 } from './grid.js';
+import { gridLayers } from '../../src/math/sh.js';
+import { fitsProbeGrid, frameMatrix, padShL2, probeGridBox, resampleShL2 } from './grid.js';
 
 /** Modes `setMode` takes: 'off', 'grid' (leaking through three's LightProbeGrid) and Kiln's GLSL modes. */
 export const EXTENSION_MODES = ['leaking', 'ddgi', 'mask', 'mask_normalized'];
@@ -101,11 +105,15 @@ export class KilnGI {
     const g = bundle.grid;
     /** World -> bake frame, row-major rows (manifest grid.frame.matrix; the identity without a frame). */
     this.frame = frameMatrix(g);
+    /** A rectilinear grid's layers ([xs, ys, zs], metres, bake frame; checked), null for a uniform grid. */
+    this.layers = gridLayers(g);
     this.uniforms = {
       uKilnIndirectScale: { value: 1 },
       // Matrix3.set takes rows and stores GLSL's column-major elements: uGiFrame * p_world = M · p_world = p_bake
       uGiFrame: { value: new Matrix3().set(...this.frame[0], ...this.frame[1], ...this.frame[2]) },
       uGridOrigin: { value: g.origin.slice() }, uGridSpacing: { value: g.spacing.slice() }, uGridCounts: { value: g.counts.slice() },
+      // a rectilinear grid's layers (probe_grid.glsl giGridIndex); a 1 x 3 dummy texture for a uniform grid
+      uGridRectilinear: { value: !!this.layers }, uGridLayers: { value: gridLayersTexture(this.layers) },
     };
     // a slot for every sampler any mode declares: one a program declares but no binding fills (the weights in plain
     // mask GI) then gets three's empty texture of its type instead of unit 0, where a
@@ -114,10 +122,12 @@ export class KilnGI {
   }
 
   /** Whether three's LightProbeGrid holds this bake's probes as they are: its bake frame is the world (no grid.frame,
-   * or yaw 0). A turned bake's grid is resampled onto a world grid instead (probeGridResampled). */
-  get probeGridFits() { return isIdentityFrame(this.frame); }
+   * or yaw 0) and its grid is uniform (no grid.layers; grid.js fitsProbeGrid). A turned or rectilinear bake's grid is
+   * resampled onto a world grid instead (probeGridResampled). */
+  get probeGridFits() { return fitsProbeGrid(this.bundle.grid); }
 
-  /** Whether createProbeGrid resamples the SH onto an axis-aligned world grid (a turned bake frame: grid.js resampleShL2). */
+  /** Whether createProbeGrid resamples the SH onto an axis-aligned world grid (a turned bake frame or a rectilinear
+   * grid: grid.js resampleShL2). */
   get probeGridResampled() { return !this.probeGridFits; }
 
   /** Kiln modes this bundle can shade: [{id, label, available, reason}] (web/src/state/modes.js availability). */
@@ -129,14 +139,16 @@ export class KilnGI {
   /**
    * The bundle's leaking GI as a three.js LightProbeGrid (add it to the scene; it lights every lit material).
    * Needs the `sh_l2` artifact (light.sh_order 2, the default). Float32 atlases are sampled LINEAR where the device
-   * has OES_texture_float_linear, else converted to half floats (textures.js). A turned bake (grid.frame, yaw ≠ 0) gets
-   * its SH resampled onto an axis-aligned world grid about the bake's spacing (grid.js resampleShL2; userData.kilnResampled).
+   * has OES_texture_float_linear, else converted to half floats (textures.js). A turned bake (grid.frame, yaw ≠ 0) or a
+   * rectilinear one (grid.layers) gets its SH resampled onto an axis-aligned world grid about the bake's spacing
+   * (grid.js resampleShL2; userData.kilnResampled).
    */
   async createProbeGrid() {
     if (!this.bundle.has('sh_l2')) throw new Error('the bundle has no sh_l2 (an L1 bake, light.sh_order = 1): no LightProbeGrid');
     const rec = await this.bundle.artifact('sh_l2');
     const grid = this.bundle.grid;
-    // three's box is axis-aligned in the world: a turned bake's SH resampled onto a world grid (grid.js resampleShL2)
+    // three's box is axis-aligned in the world and its cells uniform: a turned or rectilinear bake's SH resampled onto
+    // a world grid (grid.js resampleShL2)
     const { box, data, depth } = this.probeGridFits
       ? { box: probeGridBox(grid, this.pad), ...(this.pad ? padShL2(rec.data, grid.counts, this.pad) : { data: rec.data, depth: rec.depth }) }
       : resampleShL2(rec.data, grid, this.frame, this.pad);

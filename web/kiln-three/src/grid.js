@@ -13,9 +13,15 @@
  * grid light at all, where Kiln clamps to the border probes. `padShL2` answers (2): one more layer of probes on every
  * side, copies of the border layer, so three's box grows by a cell per side and, inside the old box plus one cell,
  * three reads exactly what Kiln's clamped lookup reads.
+ *
+ * Two kinds of bake three's grid cannot hold as they are, both resampled onto an axis-aligned world grid about the
+ * bake's spacing (resampleShL2; fitsProbeGrid decides): a turned bake (`grid.frame`, yaw ≠ 0: three's box is
+ * world-aligned) and a rectilinear one (`grid.layers` = [xs, ys, zs]: probe (i, j, k) at (xs[i], ys[j], zs[k]), gaps
+ * that differ from layer to layer, where three's cells are all alike).
  */
 import { DataUtils } from 'three';
-import { sampleShL2, shBasisL2 } from '../../src/math/sh.js';
+import { gridLayers, sampleShL2, shBasisL2 } from '../../src/math/sh.js';
+import { frameMatrix, isIdentity } from '../../src/math/frame.js';
 
 /** Sub-volumes of the L2 layout (9 coefficients × rgb + one 0 = 28 numbers = 7 RGBA texels per probe). */
 export const SH_L2_TEXELS = 7;
@@ -39,7 +45,20 @@ export function cellSize(grid) {
 }
 
 /**
- * three.js LightProbeGrid box of a Kiln grid.
+ * Whether three's LightProbeGrid holds a Kiln grid's probes as they are (probeGridBox, padShL2): its bake frame is the
+ * world (no grid.frame, or yaw 0) and the grid is uniform (no grid.layers). Otherwise createProbeGrid resamples the
+ * SH onto an axis-aligned world grid (resampleShL2). Throws a RangeError for a malformed frame or layers.
+ * @param {{origin: number[], spacing: number[], counts: number[], layers?: number[][]|null, frame?: object}} grid
+ *   manifest.grid
+ * @returns {boolean}
+ */
+export function fitsProbeGrid(grid) {
+  return isIdentity(frameMatrix(grid)) && gridLayers(grid) === null;
+}
+
+/**
+ * three.js LightProbeGrid box of a Kiln grid (a uniform one: a rectilinear grid's probes do not sit at three's cell
+ * centres, the box of this one spans its outer layers ± half the mean spacing; fitsProbeGrid, resampleShL2).
  * @param {{origin: number[], spacing: number[], counts: number[]}} grid  manifest.grid
  * @param {number} [pad=0]  extra probe layers per side (padShL2 with the same pad)
  * @returns {{min: number[], max: number[], center: number[], size: number[], resolution: number[]}}  metres; the
@@ -149,17 +168,20 @@ export function shRotationL2(M) {
 }
 
 /**
- * A turned bake's `sh_l2` resampled onto an axis-aligned world grid, for three's LightProbeGrid (which cannot turn:
- * README "The bake frame"). The world box is the axis-aligned box around the turned probes' box (each side `pad`
- * cells past the outer probes, as probeGridBox), cut into cells about the bake's spacing (x and z: the smaller of its
- * x and z spacing). At each world cell centre p the value is Kiln's leaking lookup of the bake at M·p (trilinear over
- * the 8 probes around it, clamped to the outer probes, proto/bundle.md 5.1), its SH turned into the world frame
- * (shRotationL2). So three's lookup of the result is Kiln's leaking lookup filtered once more by a trilinear
- * interpolation over the world cells: exact for light that varies linearly in space, a little softer elsewhere.
+ * A turned or rectilinear bake's `sh_l2` resampled onto an axis-aligned world grid, for three's LightProbeGrid (which
+ * cannot turn, README "The bake frame", and has uniform cells; fitsProbeGrid). The world box is the axis-aligned box
+ * around the turned probes' box (each side `pad` cells past the outer probes or outer layers, as probeGridBox), cut
+ * into cells about the bake's spacing (a rectilinear grid's: the mean gap; x and z of a turned bake: the smaller of
+ * its x and z spacing). At each world cell centre p the value is Kiln's leaking lookup of the bake at M·p (trilinear
+ * over the 8 probes around it — between the layers of a rectilinear grid, math/sh.js gridIndex — clamped to the outer
+ * probes, proto/bundle.md 5.1), its SH turned into the world frame (shRotationL2). So three's lookup of the result is
+ * Kiln's leaking lookup filtered once more by a trilinear interpolation over the world cells: exact for light that
+ * varies linearly in space, a little softer elsewhere (on a rectilinear grid: where its layers are closer than a cell).
  * @param {ArrayLike<number>} data  the `sh_l2` atlas as stored ((7·(nz + 2), ny, nx, 4): Float32Array, or
  *   Uint16Array of half-float bits, read and written as half floats)
- * @param {{origin: number[], spacing: number[], counts: number[]}} grid  manifest.grid (bake frame)
- * @param {number[][]} M  world -> bake (frameMatrix(grid))
+ * @param {{origin: number[], spacing: number[], counts: number[], layers?: number[][]|null}} grid  manifest.grid
+ *   (bake frame; `layers`: a rectilinear grid's [xs, ys, zs], metres)
+ * @param {number[][]} M  world -> bake (frameMatrix(grid); the identity for an unturned rectilinear bake)
  * @param {number} [pad=1]
  * @returns {{data: ArrayLike<number>, box: ReturnType<typeof probeGridBox>, depth: number}}  the world grid's atlas in
  *   the same layout and typed-array type, and its box (the arguments of LightProbeGridWebGL)
@@ -168,28 +190,34 @@ export function resampleShL2(data, grid, M, pad = 1) {
   const [nx, ny, nz] = vec(grid.counts);
   const o = vec(grid.origin);
   const s = cellSize(grid);
+  const layers = gridLayers(grid);
   const expected = SH_L2_TEXELS * (nz + 2) * ny * nx * 4;
   if (data.length !== expected) throw new RangeError(`sh_l2 of ${data.length} values, expected 7·(nz+2)·ny·nx·4 = ${expected}`);
   const half = data instanceof Uint16Array;
   // Kiln's leaking lookup (math/sh.js sampleShL2: trilinear, clamped to the outer probes) over a float copy
   const volume = { width: nx, height: ny, depth: SH_L2_TEXELS * (nz + 2), components: 4,
     data: half ? Float32Array.from(data, (x) => DataUtils.fromHalfFloat(x)) : data };
-  // the turned box (bake frame, pad cells past the outer probes) and the world box around it
-  const bmin = o.map((x, a) => x - s[a] * (0.5 + pad));
-  const bmax = o.map((x, a) => x + s[a] * ([nx, ny, nz][a] - 0.5 + pad));
+  // the turned box (bake frame, pad cells past the outer probes: the first and last layers of a rectilinear grid) and
+  // the world box around it
+  const bmin = layers ? layers.map((L, a) => L[0] - s[a] * (0.5 + pad)) : o.map((x, a) => x - s[a] * (0.5 + pad));
+  const bmax = layers ? layers.map((L, a) => L[L.length - 1] + s[a] * (0.5 + pad))
+    : o.map((x, a) => x + s[a] * ([nx, ny, nz][a] - 0.5 + pad));
   const min = [Infinity, Infinity, Infinity], max = [-Infinity, -Infinity, -Infinity];
   for (let c = 0; c < 8; c++) {
     const q = [c & 1 ? bmax[0] : bmin[0], c & 2 ? bmax[1] : bmin[1], c & 4 ? bmax[2] : bmin[2]];
     const w = [0, 1, 2].map((i) => M[0][i] * q[0] + M[1][i] * q[1] + M[2][i] * q[2]);   // Mᵀ·q: bake -> world
     for (let a = 0; a < 3; a++) { min[a] = Math.min(min[a], w[a]); max[a] = Math.max(max[a], w[a]); }
   }
-  const h = [Math.min(s[0], s[2]), s[1], Math.min(s[0], s[2])];
+  // world cells: the bake's spacing per axis where the bake frame is the world (an unturned rectilinear bake: the cells
+  // then sit at the mean-spacing layers, a uniform grid's probes exactly), x and z the smaller of the two where x and
+  // z mix (a turned bake)
+  const h = isIdentity(M) ? s.slice() : [Math.min(s[0], s[2]), s[1], Math.min(s[0], s[2])];
   const size = max.map((x, a) => x - min[a]);
   const res = size.map((x, a) => Math.max(1, Math.round(x / h[a])));
   const [mx, my, mz] = res;
   const R = shRotationL2(M);
   const out = new (half ? Uint16Array : Float32Array)(SH_L2_TEXELS * (mz + 2) * my * mx * 4);
-  const lookup = { origin: o, spacing: s, counts: [nx, ny, nz] };
+  const lookup = { origin: o, spacing: s, counts: [nx, ny, nz], layers };
   for (let z = 0; z < mz; z++) {
     for (let y = 0; y < my; y++) {
       for (let x = 0; x < mx; x++) {

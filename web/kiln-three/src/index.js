@@ -3,7 +3,7 @@
  */
 export { KilnBundle, BundleError, KTX2LOADER_FORMATS, FORMAT_VERSION, ktx2VkFormat, recordFromTexture } from './bundle.js';
 export { KilnGI, EXTENSION_MODES, IRRADIANCE_HOOK, modeGLSL, stackRecords } from './gi.js';
-export { probeGridBox, padShL2, resampleShL2, shRotationL2, cellSize, threeTexelCoord, SH_L2_TEXELS, frameMatrix, isIdentityFrame } from './grid.js';
+export { probeGridBox, padShL2, resampleShL2, shRotationL2, cellSize, threeTexelCoord, SH_L2_TEXELS, frameMatrix, isIdentityFrame, fitsProbeGrid } from './grid.js';
 
 import { KilnBundle } from './bundle.js';
 import { KilnGI } from './gi.js';

@@ -1,8 +1,9 @@
 /**
  * CPU mirror of proto/glsl/sh.glsl (L1 and L2 radiance SH -> irradiance, Ramamoorthi & Hanrahan 2001 eq 7-8) and
- * of the probe-grid mapping of proto/glsl/probe_grid.glsl and gi_grid.glsl (the sh_l2 layout). Points and normals are in
- * the bake frame (math/frame.js), as the shaders' giIndirectIrradiance takes them. Used by the viewer's CPU-side views and by the
- * parity tests against proto/fixtures (written by Python with workers/kernels/sh.py).
+ * of the probe-grid mapping of proto/glsl/probe_grid.glsl and gi_grid.glsl (the sh_l2 layout; uniform and rectilinear
+ * grids: gridIndex). Points and normals are in the bake frame (math/frame.js), as the shaders' giIndirectIrradiance
+ * takes them. Used by the viewer's CPU-side views and by the parity tests against proto/fixtures (written by Python
+ * with workers/kernels/sh.py).
  */
 
 export const SH_C0 = 0.282095;     // 1/(2√π), Y00
@@ -56,11 +57,105 @@ export function shIrradianceL1Nonlinear(r, g, b, n) {
 }
 
 /**
- * uvw of point p in a probe volume: ((p - origin)/spacing + 0.5)/counts (bundle.md section 5). p is in the bake frame
- * (the grid's; a world point of a bake with grid.frame goes through math/frame.js toBake first).
+ * The layers of a rectilinear grid (`grid.layers`: [xs, ys, zs], bake-frame metres, proto/bundle.md section 5), checked:
+ * three arrays of numbers, axis a with grid.counts[a] finite, strictly increasing values (probe (i, j, k) un-relocated
+ * at (xs[i], ys[j], zs[k]); xs[0] is grid.origin[0], grid.spacing the mean gap). null for a uniform grid (no `layers`,
+ * or null). Throws a RangeError for malformed layers. gridIndex and gridPoint read `grid.layers` unchecked: check a
+ * grid from a manifest or an API response here once.
+ * @param {{counts: number[], layers?: ArrayLike<number>[]|null}} grid
+ * @returns {number[][]|null}
+ */
+export function gridLayers(grid) {
+  const L = grid?.layers;
+  if (L == null) return null;
+  if (!Array.isArray(L) || L.length !== 3) throw new RangeError(`grid layers: want [xs, ys, zs], got ${JSON.stringify(L)}`);
+  return L.map((axis, a) => {
+    const v = Array.from(axis ?? [], Number);
+    const n = Number(grid.counts[a]);
+    if (v.length !== n) throw new RangeError(`grid layers: axis ${a} has ${v.length} layers, counts[${a}] is ${n}`);
+    v.forEach((x, i) => {
+      if (!Number.isFinite(x)) throw new RangeError(`grid layers: axis ${a} layer ${i} is ${axis[i]}, not a finite number`);
+      if (i > 0 && !(x > v[i - 1])) throw new RangeError(`grid layers: axis ${a} is not strictly increasing at layer ${i} (${v[i - 1]}, ${x})`);
+    });
+    return v;
+  });
+}
+
+/**
+ * Continuous layer index of coordinate x (metres) among the strictly increasing layers L (length n > 1):
+ * i + (x − L[i]) / (L[i+1] − L[i]) for the i in [0, n − 2] with L[i] <= x < L[i+1] (i = 0 below L[1], n − 2 at or past
+ * L[n − 2]: linear extrapolation beyond the ends, unclamped). probe_grid.glsl giLayerCoord (the same binary search);
+ * Python: workers/kernels/grid.py grid_coord.
+ */
+export function layerCoord(x, L) {
+  let lo = 0;
+  let hi = L.length - 1;
+  while (hi - lo > 1) {
+    const mid = (lo + hi) >> 1;
+    if (L[mid] <= x) lo = mid; else hi = mid;
+  }
+  return lo + (x - L[lo]) / (L[lo + 1] - L[lo]);
+}
+
+/**
+ * Continuous probe index [gi, gj, gk] of bake-frame point p (metres), unclamped (probe_grid.glsl giGridIndex): on a
+ * uniform grid (p − origin)/spacing, on a rectilinear one (`grid.layers`) the layer coordinate of each axis (layerCoord);
+ * 0 on a one-probe axis (counts 1) and on an axis of a uniform grid with spacing <= 0. Probe (i, j, k) has index
+ * (i, j, k) exactly; texel coordinate g + 0.5 with trilinear filtering is the grid's trilinear interpolation.
+ * @param {number[]} p  bake frame (a world point of a bake with grid.frame goes through math/frame.js toBake first)
+ * @param {{origin: number[], spacing: number[], counts: number[], layers?: number[][]|null}} grid
+ * @returns {number[]}
+ */
+export function gridIndex(p, grid) {
+  const L = grid.layers;
+  return [0, 1, 2].map((a) => {
+    if (!(grid.counts[a] > 1)) return 0;
+    if (L) return layerCoord(p[a], L[a]);
+    return grid.spacing[a] > 0 ? (p[a] - grid.origin[a]) / grid.spacing[a] : 0;
+  });
+}
+
+/**
+ * Bake-frame position (metres) of continuous grid index g = [gi, gj, gk], the inverse of gridIndex: origin + spacing · g
+ * on a uniform grid, on a rectilinear one per axis the layers interpolated linearly (layers[a][i] at an integer i,
+ * linear extrapolation past the ends; layers[a][0] on a one-probe axis). Probe (i, j, k)'s un-relocated position.
+ * @param {{origin: number[], spacing: number[], counts: number[], layers?: number[][]|null}} grid
+ * @param {number[]} g
+ * @returns {number[]}
+ */
+export function gridPoint(grid, g) {
+  const L = grid.layers;
+  return [0, 1, 2].map((a) => {
+    if (!L) return grid.origin[a] + grid.spacing[a] * g[a];
+    const La = L[a];
+    const n = La.length;
+    if (n < 2) return La[0];
+    if (Number.isInteger(g[a]) && g[a] >= 0 && g[a] < n) return La[g[a]];
+    const i = Math.min(n - 2, Math.max(0, Math.floor(g[a])));
+    return La[i] + (g[a] - i) * (La[i + 1] - La[i]);
+  });
+}
+
+/**
+ * Per axis, the smallest gap between neighbouring probe layers (metres): the spacing of a uniform grid (0 on a
+ * one-probe axis), the smallest layer gap of a rectilinear one (0 on a one-probe axis). For sizes of markers that must
+ * not overlap.
+ * @returns {number[]}
+ */
+export function gridMinGaps(grid) {
+  const L = grid.layers;
+  if (!L) return grid.spacing.slice();
+  return L.map((La) => (La.length < 2 ? 0 : Math.min(...La.slice(1).map((x, i) => x - La[i]))));
+}
+
+/**
+ * uvw of point p in a probe volume: (gridIndex(p) + 0.5)/counts (bundle.md section 5; probe_grid.glsl probeGridUVW):
+ * ((p - origin)/spacing + 0.5)/counts on a uniform grid. p is in the bake frame (the grid's; a world point of a bake
+ * with grid.frame goes through math/frame.js toBake first). One-probe axes: 0.5.
  */
 export function probeGridUVW(p, grid) {
-  return [0, 1, 2].map((a) => ((p[a] - grid.origin[a]) / grid.spacing[a] + 0.5) / grid.counts[a]);
+  const g = gridIndex(p, grid);
+  return [0, 1, 2].map((a) => (g[a] + 0.5) / grid.counts[a]);
 }
 
 /**
@@ -121,14 +216,12 @@ export function shL2Unpack(texels) {
 
 /**
  * Texel coordinate of bake-frame point p (as probeGridUVW) in a probe volume, clamped to the border texel centres (gi_grid.glsl
- * giProbeTexel): clamp((p - origin)/spacing + 0.5, 0.5, counts - 0.5), 0.5 on one-probe axes.
+ * giProbeTexel): clamp(gridIndex(p) + 0.5, 0.5, counts - 0.5) — clamp((p - origin)/spacing + 0.5, ...) on a uniform grid,
+ * the layer coordinate on a rectilinear one — 0.5 on one-probe axes.
  */
 export function probeTexel(p, grid) {
-  return [0, 1, 2].map((a) => {
-    const live = grid.counts[a] > 1 && grid.spacing[a] > 0;
-    const t = (live ? (p[a] - grid.origin[a]) / grid.spacing[a] : 0) + 0.5;
-    return Math.min(grid.counts[a] - 0.5, Math.max(0.5, t));
-  });
+  const g = gridIndex(p, grid);
+  return [0, 1, 2].map((a) => Math.min(grid.counts[a] - 0.5, Math.max(0.5, g[a] + 0.5)));
 }
 
 /**

@@ -14,6 +14,8 @@ import { preprocess } from './preprocess.js';
 import probeClusterFrag from './glsl/probe_cluster.frag.glsl?raw';
 import { MASK_BLEND, MASK_SEEN_THRESHOLD, MAX_LIGHTS, MODE_SAMPLERS, PRT_MAX_GROUPS } from '../state/modes.js';
 import { FrameTimer } from './timer.js';
+import { gridLayersTexture } from './textures.js';
+import { gridLayers } from '../math/sh.js';
 import { ShadowMaps } from './shadows.js';
 
 const LIGHT_TYPES = { point: 0, spot: 1, directional: 2 };
@@ -56,6 +58,11 @@ export class GIRenderer {
       uGridOrigin: { value: new Vector3() },
       uGridSpacing: { value: new Vector3(1, 1, 1) },
       uGridCounts: { value: new Vector3(1, 1, 1) },
+      // a rectilinear grid's layers (probe_grid.glsl giGridIndex; setGrid): off, and a 1 x 3 dummy so the sampler
+      // always has an R32F texture (the scene programs' samplers: 2 material maps + 6 shadow maps + at most 4 of a
+      // mode (mask) + this one = 13 of WebGL2's minimum 16 MAX_TEXTURE_IMAGE_UNITS)
+      uGridRectilinear: { value: false },
+      uGridLayers: { value: gridLayersTexture(null) },
       // world -> bake frame (proto/glsl/gi_view.glsl; math/frame.js): GLSL ES has no uniform initializers, so the
       // identity is set here (an unset mat3 is 0); setFrame replaces it
       uGiFrame: { value: new Matrix3() },
@@ -197,11 +204,22 @@ export class GIRenderer {
     for (const m of this.materials.values()) { m.fragmentShader = frag; m.needsUpdate = true; }
   }
 
-  /** @param {{origin: number[], spacing: number[], counts: number[]}} grid */
+  /**
+   * The probe grid of the GI lookups (probe_grid.glsl): origin, spacing (metres, bake frame), counts, and a
+   * rectilinear grid's `layers` ([xs, ys, zs], metres; math/sh.js gridLayers checks them) as uGridRectilinear and the
+   * uGridLayers texture (textures.js gridLayersTexture; a 1 x 3 dummy for a uniform grid). The old layers texture is
+   * disposed.
+   * @param {{origin: number[], spacing: number[], counts: number[], layers?: number[][]|null}} grid
+   */
   setGrid(grid) {
+    const layers = gridLayers(grid);
     this.shared.uGridOrigin.value.fromArray(grid.origin);
     this.shared.uGridSpacing.value.fromArray(grid.spacing);
     this.shared.uGridCounts.value.fromArray(grid.counts);
+    const old = this.shared.uGridLayers.value;
+    this.shared.uGridLayers.value = gridLayersTexture(layers);
+    this.shared.uGridRectilinear.value = !!layers;
+    if (old) old.dispose();
     this.grid = grid;
   }
 

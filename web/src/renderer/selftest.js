@@ -5,9 +5,23 @@
  * Needs EXT_color_buffer_float (to read float results back).
  * The fixture's points and normals are grid coordinates (the bake frame): no uGiFrame is involved here; the frame's
  * mapping is covered by web/tests/frame.test.js and tests/render/test_shading.py.
+ * The fixture's grid is uniform (uGridRectilinear false, a 1 x 3 uGridLayers as the renderer binds it). A rectilinear
+ * grid (probe_grid.glsl giGridIndex reading uGridLayers) is checked against the JS mirror (math/sh.js gridIndex,
+ * probeTexel, sampleShL2) on layers made here over the fixture's counts: `rectilinear` in the result.
  */
 import { preprocess } from './preprocess.js';
 import { GLSL_SOURCES } from './shaders.js';
+import { gridIndex, probeGridUVW, probeTexel, sampleShL2, shIrradianceL2 } from '../math/sh.js';
+
+/**
+ * Rectilinear layers over a grid's counts (bake frame, metres): layer i of axis a at origin + spacing · (i + 0.35 sin 2.1i),
+ * gaps from 0.3 to 1.7 spacings, the first at the origin.
+ * @param {{origin: number[], spacing: number[], counts: number[]}} grid
+ * @returns {number[][]}
+ */
+export function parityLayers(grid) {
+  return [0, 1, 2].map((a) => Array.from({ length: grid.counts[a] }, (_, i) => grid.origin[a] + grid.spacing[a] * (i + 0.35 * Math.sin(2.1 * i))));
+}
 
 const VERT = `#version 300 es
 void main() { vec2 p = vec2((gl_VertexID << 1) & 2, gl_VertexID & 2); gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0); }`;
@@ -36,6 +50,9 @@ void main() {
     fragColor = vec4(shIrradianceL1(texture(uShR, uvw), texture(uShG, uvw), texture(uShB, uvw), b.xyz), 1.0);
   } else if (uTest == 2) fragColor = vec4(octEncode(a.xyz), 0.0, 1.0);
   else if (uTest == 3) fragColor = vec4(octDecode(a.xy), 1.0);
+  else if (uTest == 7) fragColor = vec4(giGridIndex(a.xyz), 1.0);   // the continuous probe index, unclamped
+  else if (uTest == 8) fragColor = vec4(probeGridUVW(a.xyz), 1.0);
+  else if (uTest == 9) fragColor = vec4(giProbeTexel(a.xyz), 1.0);
   else if (uTest == 5) {  // L2 of one probe: its 7 texels (rows 0-6 via texelFetch of uShL2), normal in row 0
     ivec3 pr = ivec3(a.xyz);
     int slices = int(uGridCounts.z) + 2;
@@ -62,7 +79,9 @@ function compile(gl, type, src) {
 
 /**
  * @param {object} fx  proto/fixtures/expected.json
- * @returns {{sh: number[][], shLinear: number[][], trilinear: number[][], shL2: number[][], shL2Trilinear: number[][], octEncode: number[][], octDecode: number[][], renderer: string}}
+ * @returns {{sh: number[][], shLinear: number[][], trilinear: number[][], shL2: number[][], shL2Trilinear: number[][], octEncode: number[][], octDecode: number[][], rectilinear: object, renderer: string}}
+ *   rectilinear: {layers, points (bake frame, metres), gridIndex, uvw, texel, shL2Trilinear (per point, then normal)},
+ *   each {glsl, js}: the GPU's numbers and math/sh.js's for the same rectilinear grid (parityLayers)
  */
 export function glslParity(fx) {
   const canvas = document.createElement('canvas');
@@ -95,9 +114,10 @@ export function glslParity(fx) {
   });
   // the L2 fixture volume: 7·(D + 2) slices of RGBA32F (fx.sh_l2.coeffs packed as workers/kernels/sh.py sh_l2_atlas)
   const l2 = fx.sh_l2;
+  let l2Data = null;
   if (l2) {
     const slices = D + 2;
-    const data = new Float32Array(W * H * 7 * slices * 4);
+    const data = l2Data = new Float32Array(W * H * 7 * slices * 4);
     for (let k = 0; k < D; k++) for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) {
       const p = (k * H + j) * W + i;
       for (let q = 0; q < 27; q++) {
@@ -119,6 +139,21 @@ export function glslParity(fx) {
   gl.uniform3fv(gl.getUniformLocation(prog, 'uGridSpacing'), s.grid.spacing);
   gl.uniform3fv(gl.getUniformLocation(prog, 'uGridCounts'), s.grid.counts);
   gl.uniform1i(gl.getUniformLocation(prog, 'uIn'), 0);
+  // probe_grid.glsl's layers (R32F NEAREST, max(counts) x 3, texelFetch): a uniform grid's 1 x 3 dummy, as the renderer
+  const setLayers = (layers) => {
+    const width = layers ? Math.max(1, ...layers.map((L) => L.length)) : 1;
+    const data = new Float32Array(width * 3);
+    if (layers) layers.forEach((L, a) => data.set(L, a * width));
+    const t = gl.createTexture();
+    gl.activeTexture(gl.TEXTURE5);
+    gl.bindTexture(gl.TEXTURE_2D, t);
+    gl.texImage2D(gl.TEXTURE_2D, 0, gl.R32F, width, 3, 0, gl.RED, gl.FLOAT, data);
+    for (const [k, v] of [[gl.TEXTURE_MIN_FILTER, gl.NEAREST], [gl.TEXTURE_MAG_FILTER, gl.NEAREST], [gl.TEXTURE_WRAP_S, gl.CLAMP_TO_EDGE],
+      [gl.TEXTURE_WRAP_T, gl.CLAMP_TO_EDGE]]) gl.texParameteri(gl.TEXTURE_2D, k, v);
+    gl.uniform1i(gl.getUniformLocation(prog, 'uGridLayers'), 5);
+    gl.uniform1i(gl.getUniformLocation(prog, 'uGridRectilinear'), layers ? 1 : 0);
+  };
+  setLayers(null);
 
   const run = (test, rows) => {  // rows: array of 4 arrays of N vec4s
     const n = rows[0].length;
@@ -173,8 +208,37 @@ export function glslParity(fx) {
   const o = fx.octahedral;
   const enc = run(2, [o.dirs, o.dirs.map(() => []), o.dirs.map(() => []), o.dirs.map(() => [])]).map((v) => v.slice(0, 2));
   const dec = run(3, [o.uv, o.uv.map(() => []), o.uv.map(() => []), o.uv.map(() => [])]).map((v) => v.slice(0, 3));
+  // a rectilinear grid over the fixture's counts: GLSL giGridIndex, probeGridUVW, giProbeTexel and the L2 lookup (7
+  // trilinear fetches at the layer coordinate) against the JS mirror (math/sh.js), at the probes (index exactly
+  // integer), at points between layers and past the outer layers (the index extrapolates linearly, the texel clamps)
+  const layers = parityLayers(s.grid);
+  const rgrid = { ...s.grid, layers, spacing: layers.map((L, a) => (L.length > 1 ? (L[L.length - 1] - L[0]) / (L.length - 1) : s.grid.spacing[a])) };
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridSpacing'), rgrid.spacing);
+  setLayers(layers);
+  const points = [];
+  for (let k = 0; k < D; k++) for (let j = 0; j < H; j++) for (let i = 0; i < W; i++) points.push([layers[0][i], layers[1][j], layers[2][k]]);
+  for (let m = 0; m < 24; m++) {
+    points.push(layers.map((L, a) => L[0] + (-0.35 + 1.7 * ((m * 0.6180339887 + 0.37 * a + 0.05) % 1)) * (L[L.length - 1] - L[0])));
+  }
+  const rows = (pts) => [pts, pts.map(() => []), pts.map(() => []), pts.map(() => [])];
+  const rectilinear = {
+    layers, points,
+    gridIndex: { glsl: run(7, rows(points)).map((v) => v.slice(0, 3)), js: points.map((p) => gridIndex(p, rgrid)) },
+    uvw: { glsl: run(8, rows(points)).map((v) => v.slice(0, 3)), js: points.map((p) => probeGridUVW(p, rgrid)) },
+    texel: { glsl: run(9, rows(points)).map((v) => v.slice(0, 3)), js: points.map((p) => probeTexel(p, rgrid)) },
+    shL2Trilinear: { glsl: [], js: [] },
+  };
+  if (l2) {
+    const volume = { width: W, height: H, depth: 7 * (D + 2), components: 4, data: l2Data };
+    const c7 = [[], [], [], []];
+    for (const p of points) for (const n of l2.normals) { c7[0].push(p); c7[1].push(n); c7[2].push([]); c7[3].push([]); }
+    rectilinear.shL2Trilinear.glsl = run(6, c7).map((v) => v.slice(0, 3));
+    rectilinear.shL2Trilinear.js = points.flatMap((p) => { const c = sampleShL2(volume, p, rgrid); return l2.normals.map((n) => shIrradianceL2(c, n)); });
+  }
+  setLayers(null);
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridSpacing'), s.grid.spacing);
   const dbg = gl.getExtension('WEBGL_debug_renderer_info');
   const renderer = dbg ? gl.getParameter(dbg.UNMASKED_RENDERER_WEBGL) : gl.getParameter(gl.RENDERER);
   gl.getExtension('WEBGL_lose_context')?.loseContext();
-  return { sh, shLinear, trilinear, shL2, shL2Trilinear, octEncode: enc, octDecode: dec, renderer };
+  return { sh, shLinear, trilinear, shL2, shL2Trilinear, octEncode: enc, octDecode: dec, rectilinear, renderer };
 }

@@ -131,3 +131,26 @@ export function probeDataTexture(positions, states) {
   }
   return textureFromKTX2({ ...p, kind: 'float', data, components: 4 }, { filter: 'nearest' });
 }
+
+/**
+ * probe_grid.glsl's uGridLayers: R32F, NEAREST, no mipmaps, width max(counts) (at least 1), height 3; texel (i, a) =
+ * layer i of axis a (bake-frame metres), read with texelFetch where uGridRectilinear is true. From the layers of a
+ * rectilinear grid (math/sh.js gridLayers: [xs, ys, zs], checked), the rest of each row 0; a 1 x 3 texture of zeros
+ * for a uniform grid (null), so the sampler always has a texture of its type.
+ * @param {ArrayLike<number>[]|null} layers  axis a holds counts[a] layers
+ * @returns {import('three').DataTexture}
+ */
+export function gridLayersTexture(layers) {
+  const width = Math.max(1, ...(layers ? layers.map((L) => L.length) : []));
+  const data = new Float32Array(width * 3);
+  if (layers) layers.forEach((L, a) => data.set(L, a * width));
+  const tex = new DataTexture(data, width, 3, RedFormat, FloatType);
+  tex.minFilter = tex.magFilter = NearestFilter;
+  tex.wrapS = tex.wrapT = ClampToEdgeWrapping;
+  tex.generateMipmaps = false;
+  tex.flipY = false;
+  tex.unpackAlignment = 1;
+  tex.name = layers ? 'kiln:grid-layers' : 'kiln:grid-layers (uniform grid)';
+  tex.needsUpdate = true;
+  return tex;
+}

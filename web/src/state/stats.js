@@ -253,7 +253,8 @@ export function bakeWarnings(bake) {
 }
 
 /**
- * One line about a bake's probe grid (its place stage's stats): probe count, spacing, and the turn of the bake frame
+ * One line about a bake's probe grid (its place stage's stats): probe count, spacing (the largest of the axes'; of a
+ * rectilinear grid, `layers`, the range of its gaps between neighbouring layers), and the turn of the bake frame
  * (`frame.yaw_deg`, proto/bundle.md 5) when the grid follows walls at an angle to the file's axes. '' before place.
  */
 export function gridSummary(bake) {
@@ -262,7 +263,11 @@ export function gridSummary(bake) {
   const n = st.counts.reduce((a, b) => a * b, 1);
   const sp = Math.max(...(st.spacing || [0]));
   const yaw = Number(st.frame?.yaw_deg) || 0;
-  let out = `${n.toLocaleString('en-US')} probes, ${sp.toFixed(2)} m apart`;
+  const gaps = Array.isArray(st.layers)
+    ? st.layers.flatMap((L) => Array.from(L || [], Number).slice(1).map((x, i) => x - Number(L[i]))).filter((g) => g > 0) : [];
+  let out = gaps.length
+    ? `${n.toLocaleString('en-US')} probes, ${Math.min(...gaps).toFixed(2)}–${Math.max(...gaps).toFixed(2)} m apart (rectilinear layers)`
+    : `${n.toLocaleString('en-US')} probes, ${sp.toFixed(2)} m apart`;
   if (yaw) out += `; grid turned ${yaw.toFixed(1)}° about the vertical to follow the walls`;
   return out;
 }

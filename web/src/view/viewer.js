@@ -15,6 +15,7 @@ import { parseNpy } from '../loader/npy.js';
 import { tableFromKTX2 } from '../loader/ktx2.js';
 import { directVector, packPrtCoefficients, relightCoefficients } from '../math/prt.js';
 import { frameMatrix, mapLight, pointsToWorld, toBake, toWorld } from '../math/frame.js';
+import { gridLayers, gridMinGaps, gridPoint } from '../math/sh.js';
 import { GI_MODES, MAX_LIGHTS, PRT_MAX_GROUPS, PROBE_SH_TEXTURES, modeArtifacts, modeAvailability, modeDefines, modeTextures } from '../state/modes.js';
 import { lightCoverage } from '../state/lighting.js';
 import { SHADOW_CUBES, SHADOW_DIRS } from '../renderer/shadows.js';
@@ -27,19 +28,23 @@ const LIGHT_LIMITS = { maxLights: MAX_LIGHTS, cubes: SHADOW_CUBES, dirs: SHADOW_
 
 /**
  * The grid of a bake, from its place stage's stats (the manifest's `grid`): counts, origin and spacing in the bake
- * frame, and `frame` (`{yaw_deg, matrix, ...}`, world -> bake; null for a bake without one: the identity;
- * math/frame.js frameMatrix).
+ * frame, `layers` ([xs, ys, zs], bake-frame metres, of a rectilinear grid, checked by math/sh.js gridLayers; null for
+ * a uniform grid: probe (i, j, k) at origin + spacing · (i, j, k)) and `frame` (`{yaw_deg, matrix, ...}`, world ->
+ * bake; null for a bake without one: the identity; math/frame.js frameMatrix).
  */
 export function bakeGrid(bake) {
   const place = (bake?.stages || []).find((s) => s.name === 'place');
   const st = place && place.stats;
   if (!st || !st.counts) return null;
-  return { counts: st.counts, origin: st.origin, spacing: st.spacing, frame: st.frame || null };
+  return { counts: st.counts, origin: st.origin, spacing: st.spacing, layers: gridLayers(st), frame: st.frame || null };
 }
 
-/** The world position of grid point (i, j, k) (origin + spacing · ijk is in the bake frame). */
+/**
+ * The world position of grid point (i, j, k) (fractional indices allowed): math/sh.js gridPoint (origin + spacing · ijk,
+ * or the layers of a rectilinear grid) is in the bake frame, turned into the world by Mᵀ.
+ */
 export function gridPointWorld(grid, ijk) {
-  return toWorld(frameMatrix(grid), ijk.map((x, a) => grid.origin[a] + grid.spacing[a] * x));
+  return toWorld(frameMatrix(grid), gridPoint(grid, ijk));
 }
 
 /**
@@ -323,7 +328,7 @@ export class Viewer {
     const pos = this.artifacts.probe_positions_relocated;
     if (!grid || !pos) return;
     const states = this.artifacts.probe_states ? this.artifacts.probe_states.data : null;
-    const radius = 0.12 * Math.min(...grid.spacing);
+    const radius = 0.12 * Math.min(...gridMinGaps(grid));   // the spacing; a rectilinear grid's smallest layer gap
     const clusters = this.artifacts.clusters ? this.artifacts.clusters.data : null;
     const positions = probeWorldPositions(grid, pos.data, pos.components);  // bake frame -> world
     this.renderer.setProbes({ positions, stride: 3, states, clusters, counts: grid.counts, radius });
@@ -473,7 +478,7 @@ export class Viewer {
     if (visible) {
       this.gizmoTarget.position.fromArray(this.prt.light.position);
       const grid = bakeGrid(this.bake);
-      const r = grid ? 0.08 * Math.min(...grid.spacing.filter((x) => x > 0)) : 0.05;
+      const r = grid ? 0.08 * Math.min(...gridMinGaps(grid).filter((x) => x > 0)) : 0.05;
       this.gizmoMarker.scale.setScalar(r || 0.05);
     }
     this.gizmoTarget.visible = visible;
