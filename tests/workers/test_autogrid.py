@@ -217,3 +217,20 @@ def test_layer_phase_takes_the_first_phase_of_a_plateau_on_every_float_rounding(
     for _ in range(20):
         jitter = pos * (1 + rng.uniform(-4e-16, 4e-16, pos.size))
         assert layer_phase(jitter, w, s)[0] == phi
+
+
+def test_too_many_thin_walls_for_the_budget_keep_the_uniform_grid(scene_files):
+    """Step 4b (a layer in front of both faces of every thin wall) gives up where the walls' layers alone would take
+    the budget (here 80 thin walls across two-rooms' x at 400 probes): the uniform fit stays, within the budget —
+    and at 400 probes with the real two-rooms, one thin wall, the grid turns rectilinear."""
+    import dataclasses
+
+    s = ingest_file(scene_files["two-rooms"])
+    fs = analyze_free_space(caster_for_scene(s), s.bounds, double_sided_triangles(s))
+    c0, _, _, a0 = choose_grid(s.bounds, fs, budget=400)
+    assert a0["rectilinear"] and np.prod(c0) <= 400
+    w = np.arange(80) * 0.1 + 0.02                                   # 80 walls 2 cm thick, 10 cm apart
+    many = (np.concatenate([w, w + 0.02]), np.full(160, 12.0), np.concatenate([-np.ones(80), np.ones(80)]))
+    fs2 = dataclasses.replace(fs, planes=(many, fs.planes[1], fs.planes[2]))
+    counts, _, _, auto = choose_grid(s.bounds, fs2, budget=400)
+    assert not auto["rectilinear"] and "layers" not in auto and np.prod(counts) <= 400

@@ -241,6 +241,11 @@ RECTILINEAR_FACTOR = 2.0
 region with it and 0.91-1.07 rectilinear (leg1-far 0.979 -> 0.908); living-room (1.38x) and sun-window (1.79x)
 0.96-1.06 uniform (bench_fidelity, 2026-12-06)."""
 
+MAX_FILL = 1.5
+"""Step 4b gives up (the uniform fit stays) when its fill spacing would have to exceed this many times the uniform
+grid's to hold the thin walls' layers within the budget: a scene of many thin walls (offices, cubicles) would trade
+the rooms' resolution for the walls'."""
+
 THIN_WALL = 0.5
 """A wall is thin when its two faces are at most this fraction of the fill spacing apart: a layer on each side."""
 
@@ -287,7 +292,12 @@ def fill_layers(anchors: list[float], lone: np.ndarray, lo: float, hi: float, s:
     of an anchor is dropped: the anchor stands for it); then a layer nearer than s/4 to a lone face (a thick wall, the
     ground: ``lone``) is moved to s/4 from it, away from it, within its neighbours — the cell behind a face needs
     free space for its visibility samples."""
-    fixed = sorted(anchors)
+    fixed = []
+    for x in sorted(anchors):                   # anchors of neighbouring walls within s/20: one layer between them
+        if fixed and x - fixed[-1] < s / 20:
+            fixed[-1] = (fixed[-1] + x) / 2
+        else:
+            fixed.append(x)
     knots = ([lo] if not fixed or fixed[0] - lo >= s / 4 else []) + fixed \
         + ([hi] if not fixed or hi - fixed[-1] >= s / 4 else [])
     out = [knots[0]]
@@ -425,10 +435,11 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
 
         sf = s
         built = build(sf)
-        while int(np.prod([len(L) for L, _ in built])) > budget:
+        while int(np.prod([len(L) for L, _ in built])) > budget and sf < MAX_FILL * s:
             sf *= 1.03
             built = build(sf)
-        if sum(n for _, n in built):
+        fits = int(np.prod([len(L) for L, _ in built])) <= budget
+        if fits and sum(n for _, n in built):           # else the uniform fit stays (too many walls for the budget)
             layers = [L for L, _ in built]
             wall_counts = [int(n) for _, n in built]
             s_fill = float(sf)
