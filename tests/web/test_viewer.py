@@ -660,3 +660,61 @@ def test_viewer_turns_the_gi_lookup_by_the_bake_frame(page, tmp_path, kiln_serve
     assert same < 1.5 and np.quantile(np.abs(b - a).max(axis=2), 0.98) <= 24, same
     assert other > 4 * same and other > 3, (same, other)
     assert not page.kiln_errors, page.kiln_errors
+
+
+_REOPEN_LAYERS = """async ([keep, cam]) => {
+  const v = window.kiln.viewer;
+  const bake = structuredClone(v.bake);
+  const place = bake.stages.find((s) => s.name === 'place');
+  if (!keep) delete place.stats.layers;
+  await v.open({ bake, sceneFile: null, camera: cam, mode: 'leaking' });
+  v.showLightMarkers(false);
+  v.set({ output: 'indirect', exposure: 0.7, probes: false });
+  v.invalidate();
+  const tex = v.renderer.shared.uGridLayers.value.image;
+  return { rectilinear: v.renderer.shared.uGridRectilinear.value, width: tex.width, height: tex.height,
+           texels: Array.from(tex.data) };
+}"""
+
+
+def test_viewer_reads_a_rectilinear_bake_through_its_layers(page, tmp_path, kiln_server, shots):
+    """A real budget-bound bake (two-rooms at place.budget 400: the automatic grid turns rectilinear, autogrid step
+    4b) opened in the viewer: its layers reach the shaders (uGridRectilinear, the uGridLayers texture holds the
+    place stage's layers), the leaking volume lights the rooms, and the same bake read as a uniform grid (layers
+    dropped: origin and mean spacing only) is another picture."""
+    glb = _scene(tmp_path)
+    with open(glb, "rb") as f:
+        scene = kiln_server.api("/v1/scenes", "POST", files={"file": (glb.name, f, "model/gltf-binary")})
+    cfg = {"place": {"budget": 400}, "trace": {"rays_per_probe": 32}, "light": {"bounces": 2},
+           "visibility": {"samples_per_cell": 4, "slabs": 1}, "masks": {"sweeps": 10}, "evaluate": {"enabled": False}}
+    bake_id = kiln_server.api("/v1/bakes", "POST", json={"scene_id": scene["id"], "config": cfg})["id"]
+    assert kiln_server.wait_bake(bake_id, timeout=150)["status"] == "succeeded"
+    bake = kiln_server.api(f"/v1/bakes/{bake_id}")
+    layers = next(s for s in bake["stages"] if s["name"] == "place")["stats"]["layers"]
+    page.goto(f"/#/viewer/{bake_id}?mode=leaking")
+    page.wait_for_selector("#viewer-canvas[data-ready-mode=leaking]", timeout=60000)
+    canvas = page.locator("#viewer-canvas")
+    cam = {"position": [7.4, 1.6, 2.0], "target": [2.0, 1.2, 2.0], "fov_y": 70}
+
+    def shot(name, keep):
+        drawn = "k => Number(document.getElementById('viewer-canvas').dataset.frames) > k"
+        n = _frames(page)
+        out = page.evaluate(_REOPEN_LAYERS, [keep, cam])
+        page.wait_for_function(drawn, arg=n, timeout=30000)
+        page.evaluate("window.kiln.viewer.invalidate()")
+        page.wait_for_function(drawn, arg=n + 1, timeout=30000)
+        return out, _shot(canvas, shots / f"rectilinear-{name}.png")
+
+    rect, a = shot("layers", True)
+    uni, b = shot("uniform", False)
+    assert rect["rectilinear"] is True and uni["rectilinear"] is False
+    w = rect["width"]
+    assert rect["height"] == 3 and w == max(len(L) for L in layers)
+    tex = np.asarray(rect["texels"], np.float64).reshape(3, w)
+    for ax in range(3):
+        np.testing.assert_allclose(tex[ax, :len(layers[ax])], layers[ax], rtol=1e-6, atol=1e-6)
+    _assert_not_blank(a, "leaking indirect light on a rectilinear grid")
+    diff = np.abs(a - b).mean()
+    print(f"mean abs difference, layers vs the same bake read as uniform: {diff:.2f}")
+    assert diff > 2, diff
+    assert not page.kiln_errors, page.kiln_errors
