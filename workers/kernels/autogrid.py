@@ -171,7 +171,7 @@ def analyze_free_space(caster, bounds, double_sided=None, *, n_points: int = 409
 def axis_planes(triangles) -> tuple:
     """Per axis a: the a-coordinates, areas (m²) and facings (+1: the face looks towards +a) of the triangles facing
     ±a (|n_a| > 0.99): the walls, floors and ceilings a probe layer should not sit on (architecture is mostly
-    axis-aligned), and in front of which a budget-bound grid puts a layer (:func:`wall_layers`)."""
+    axis-aligned), and in front of which a budget-bound grid puts a layer (:func:`thin_wall_layers`)."""
     t = np.asarray(triangles, np.float64)
     if t.shape[0] == 0:
         return ((np.zeros(0), np.zeros(0), np.zeros(0)),) * 3
@@ -237,9 +237,9 @@ WALL_AREA = 0.05
 
 RECTILINEAR_FACTOR = 2.0
 """Step 4b applies where the budget holds an enclosed scene's spacing at this many times what its rooms ask or more
-(apartments 2.5x, zdm2 3.0x). Below it the uniform fit is kept: corridor-l (1.45x) read 0.97-1.07 of Cycles in every
+(apartments 2.5x, zdm2 3.0x). Below it the uniform fit is kept: corridor-l (1.45x) read 0.96-1.04 of Cycles in every
 region with it and 0.91-1.07 rectilinear (leg1-far 0.979 -> 0.908); living-room (1.38x) and sun-window (1.79x)
-0.96-1.06 uniform (bench_fidelity, 2026-12-06)."""
+0.95-1.05 uniform (bench_fidelity, 2026-12-06)."""
 
 MAX_FILL = 1.5
 """Step 4b gives up (the uniform fit stays) when its fill spacing would have to exceed this many times the uniform
@@ -409,8 +409,8 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
     layers, wall_counts, s_fill = None, None, None
     if rectilinear and kind == "enclosed" and s >= RECTILINEAR_FACTOR * wanted \
             and all(len(fs.planes[a]) == 3 for a in range(3)):
-        # module doc, step 4b: the uniform fit (walls midway), plus a layer in front of both faces of every thin
-        # wall; the fill spacing grows until the budget holds them
+        # module doc, step 4b: a layer in front of both faces of every thin wall, the rest filled (an axis without
+        # thin walls: the uniform fit); the fill spacing grows until the budget holds them
         cross = np.array([ext[1] * ext[2], ext[0] * ext[2], ext[0] * ext[1]])
 
         def build(sf):
@@ -461,7 +461,7 @@ def choose_grid(bounds, fs: FreeSpace, *, budget: int = DEFAULT_BUDGET, min_spac
               f"{divisions:g} = {wanted:.3g} m")
     if bound:
         reason += (f"; the budget of {budget} probes sets {s:.3g} m (coarser than the rooms ask"
-                   + (f"; rectilinear: {sum(wall_counts)} more layers {WALL_DISTANCE * s:.3g} m in front of the faces "
+                   + (f"; rectilinear: {sum(wall_counts)} layers {WALL_DISTANCE * s:.3g} m in front of the faces "
                       "of thin walls and slabs" if layers is not None else "; a uniform grid"))
         if free_fraction < 0.95:
             reason += (f"; the budget counts the whole box, {1 - free_fraction:.0%} of it solid: spread over the free "
