@@ -261,6 +261,8 @@ def prepare_mode(mode: str, arrays, grid, *, self_shadow_bias: float = SELF_SHAD
     if mode not in gi_modes.MODES:
         raise ValueError(f"unknown mode {mode!r}; valid: {', '.join(MODES)}")
     r = ModeResources(mode, uniforms=_grid_uniforms(grid), textures=_grid_textures(grid))
+    if grid.get("layers") is not None and mode != "direct":
+        r.defines["KILN_GRID_RECTILINEAR"] = True     # probe_grid.glsl: the layer lookup, compiled only then
     nx, ny, nz = (int(c) for c in grid["counts"])
     if mode == "direct":
         return r

@@ -217,6 +217,7 @@ export class KilnGI {
       if (!av.available) throw new Error(`mode ${id}: ${av.reason} ${av.missing.join(', ')}`);
       await this._bind(mode);
       const defines = modeDefines(mode, this.bundle.names, {}, this.caps);
+      if (this.layers) defines.KILN_GRID_RECTILINEAR = true;   // probe_grid.glsl: the layer lookup only then
       this._setCode(`${id}:${JSON.stringify(defines)}`, modeGLSL(mode.shader, defines));
     }
     this.mode = id;

@@ -89,12 +89,17 @@ export function glslParity(fx) {
   if (!gl) throw new Error('no WebGL2');
   if (!gl.getExtension('EXT_color_buffer_float')) throw new Error('EXT_color_buffer_float is missing: cannot read float results');
   gl.getExtension('OES_texture_float_linear');
-  const { code } = preprocess('parity.frag.glsl', { ...GLSL_SOURCES, 'parity.frag.glsl': FRAG }, { defines: { MAX_LIGHTS: 8 } });
-  const prog = gl.createProgram();
-  gl.attachShader(prog, compile(gl, gl.VERTEX_SHADER, VERT));
-  gl.attachShader(prog, compile(gl, gl.FRAGMENT_SHADER, code));
-  gl.linkProgram(prog);
-  if (!gl.getProgramParameter(prog, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(prog));
+  // the parity program; a rectilinear grid's code is compiled only with KILN_GRID_RECTILINEAR (probe_grid.glsl)
+  const build = (defines) => {
+    const { code } = preprocess('parity.frag.glsl', { ...GLSL_SOURCES, 'parity.frag.glsl': FRAG }, { defines });
+    const pr = gl.createProgram();
+    gl.attachShader(pr, compile(gl, gl.VERTEX_SHADER, VERT));
+    gl.attachShader(pr, compile(gl, gl.FRAGMENT_SHADER, code));
+    gl.linkProgram(pr);
+    if (!gl.getProgramParameter(pr, gl.LINK_STATUS)) throw new Error(gl.getProgramInfoLog(pr));
+    return pr;
+  };
+  let prog = build({ MAX_LIGHTS: 8 });
   gl.useProgram(prog);
   gl.pixelStorei(gl.UNPACK_ALIGNMENT, 1);
 
@@ -211,6 +216,13 @@ export function glslParity(fx) {
   // a rectilinear grid over the fixture's counts: GLSL giGridIndex, probeGridUVW, giProbeTexel and the L2 lookup (7
   // trilinear fetches at the layer coordinate) against the JS mirror (math/sh.js), at the probes (index exactly
   // integer), at points between layers and past the outer layers (the index extrapolates linearly, the texel clamps)
+  prog = build({ MAX_LIGHTS: 8, KILN_GRID_RECTILINEAR: true });   // the same textures on the same units
+  gl.useProgram(prog);
+  ['uShR', 'uShG', 'uShB'].forEach((name, ch) => gl.uniform1i(gl.getUniformLocation(prog, name), 1 + ch));
+  if (l2) gl.uniform1i(gl.getUniformLocation(prog, 'uShL2'), 4);
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridOrigin'), s.grid.origin);
+  gl.uniform3fv(gl.getUniformLocation(prog, 'uGridCounts'), s.grid.counts);
+  gl.uniform1i(gl.getUniformLocation(prog, 'uIn'), 0);
   const layers = parityLayers(s.grid);
   const rgrid = { ...s.grid, layers, spacing: layers.map((L, a) => (L.length > 1 ? (L[L.length - 1] - L[0]) / (L.length - 1) : s.grid.spacing[a])) };
   gl.uniform3fv(gl.getUniformLocation(prog, 'uGridSpacing'), rgrid.spacing);

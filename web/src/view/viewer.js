@@ -513,8 +513,11 @@ export class Viewer {
     else if (this.prtLightsOn) this.renderer.setLights(this.bakeLights || []);
     this.prtLightsOn = id === 'prt';
     this.showGizmo(id === 'prt');
-    // KILN_SH_L2 where the bake has the L2 volumes (the default evaluation, docs/architecture.md)
-    this.renderer.setModeShader(mode.shader, modeDefines(mode, this.artifactNames(), this.artifacts, this.shCaps()));
+    // KILN_SH_L2 where the bake has the L2 volumes (the default evaluation, docs/architecture.md); the layer lookup
+    // of a rectilinear grid is compiled only for such a bake (probe_grid.glsl KILN_GRID_RECTILINEAR)
+    const defines = modeDefines(mode, this.artifactNames(), this.artifacts, this.shCaps());
+    if (bakeGrid(this.bake)?.layers) defines.KILN_GRID_RECTILINEAR = true;
+    this.renderer.setModeShader(mode.shader, defines);
     this.shownMode = id;
     this.renderer.compile(this.camera);
     this.invalidate();
