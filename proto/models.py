@@ -263,7 +263,9 @@ class LightSection(_Strict):
                                           "see a small bright thing (a lit room through a door), in proportion to "
                                           "the noise of their first-bounce light (workers/kernels/adaptive_rays.py; "
                                           "0 = off)")
-    extra_sets: Int = Field(3, ge=0, le=15, description="the most extra ray sets one probe gets")
+    extra_sets: Int = Field(7, ge=0, le=15, description=(
+        "the most extra ray sets one probe gets (7: with 3 every probe that saw a bright thing got 3, the allocation "
+        "capped flat instead of following the noise; docs/architecture.md, adaptive rays)"))
 
     @field_validator("sh_order", mode="before")
     @classmethod

@@ -7,7 +7,8 @@ import math
 import numpy as np
 import pytest
 
-from workers.kernels.adaptive_rays import allocate_sets, extra_rows, first_bounce_noise, merge_rows, pooled
+from workers.kernels.adaptive_rays import (allocate_sets, extra_patterns, extra_rows, first_bounce_noise, merge_rows,
+                                           pooled)
 from workers.kernels.bounce import integrate_one, irradiance_maps
 from workers.kernels.grid import ACTIVE, OFF
 from workers.kernels.sampling import ProbeRays, pattern_of_grid, probe_rays, rotated_patterns
@@ -83,6 +84,30 @@ def test_allocate_sets_follows_the_noise_within_the_budget():
     assert np.array_equal(big, [0, 3, 3, 3, 3, 0])      # the cap, once the budget allows everything
     assert allocate_sets(q, states, budget=0.0, max_sets=3).sum() == 0
     assert np.array_equal(extra_rows(np.array([0, 2, 0, 1])), [1, 1, 3])
+
+
+def test_extra_patterns_depend_on_the_probe_and_its_set_alone():
+    """A probe's extra sets take different patterns, neighbouring probes others, and one probe allotted a set more
+    or less changes no other probe's rays (numbered down the rows, it shifted every probe after it)."""
+    k = 64
+    sets = np.array([0, 3, 1, 0, 7, 2] + [1] * 200)
+    parents = extra_rows(sets)
+    pat = extra_patterns(parents, k)
+    assert pat.shape == parents.shape and pat.min() >= 0 and pat.max() < k
+    for p in np.flatnonzero(sets):
+        mine = pat[parents == p]
+        assert np.unique(mine).size == mine.size                  # a probe's sets differ
+    firsts = pat[np.r_[0, np.flatnonzero(np.diff(parents)) + 1]]
+    assert np.unique(firsts).size > 40                             # the probes spread over the patterns
+    more = sets.copy()
+    more[2] += 1                                                   # one probe a set more
+    parents2 = extra_rows(more)
+    pat2 = extra_patterns(parents2, k)
+    for p in np.flatnonzero(sets):
+        if p != 2:
+            assert np.array_equal(pat2[parents2 == p], pat[parents == p])
+    assert np.array_equal(pat2[parents2 == 2][:1], pat[parents == 2])
+    assert extra_patterns(np.zeros(0, np.int64), k).size == 0
 
 
 def test_merge_rows_is_each_probes_mean_over_its_rows():

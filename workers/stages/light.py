@@ -67,7 +67,7 @@ import time
 import numpy as np
 
 from workers.kernels import precision
-from workers.kernels.adaptive_rays import allocate_sets, extra_rows, first_bounce_noise, merge_rows, pooled
+from workers.kernels.adaptive_rays import allocate_sets, extra_patterns, extra_rows, first_bounce_noise, merge_rows, pooled
 from workers.kernels.bounce import integrate_one
 from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
@@ -88,7 +88,8 @@ ZSTD_LEVEL = 9
 about 8% smaller than the default 3 for about 0.05 s per MB of raw texels (zdm2 at 32x16x32)."""
 EXTRA_SEED_TAG = 0xE7A5
 EXTRA_PATTERNS = 64
-"""Fresh rotations of the ray pattern for the extra rows, cycled over them (consecutive rows of a probe differ)."""
+"""Fresh rotations of the ray pattern for the extra rows; a probe's sets take consecutive ones from a hash of the probe
+(:func:`workers.kernels.adaptive_rays.extra_patterns`)."""
 
 
 def _extra_rays(ctx, scene, caster, eps, surf, per_light, c_spot, dirs, states, positions, counts):
@@ -109,7 +110,7 @@ def _extra_rays(ctx, scene, caster, eps, surf, per_light, c_spot, dirs, states, 
     rng = np.random.default_rng([ctx.config.seed, EXTRA_SEED_TAG])
     K = dirs.patterns.shape[0]
     extra = rotated_patterns(dirs.rays, EXTRA_PATTERNS, rng)
-    rows = ProbeRays(extra, np.arange(parents.size, dtype=np.int64) % EXTRA_PATTERNS)
+    rows = ProbeRays(extra, extra_patterns(parents, EXTRA_PATTERNS))
     t, tri, u, v, back, _ = trace_probes(caster, positions[parents], rows, double_sided_triangles(scene))
     hx = np.stack([t, u, v, back.astype(np.float32)], axis=-1)
     sx = hit_surfaces(scene, rows, hx, tri)
