@@ -65,6 +65,9 @@ STAGES: tuple[StageDef, ...] = (
     # (workers/kernels/adaptive_rays.py: extra rays traced here, their rotations seeded, so the key holds the seed);
     # 10: L2 SH windowed where it rings below 0 between the texel directions (workers/kernels/sh.py sh_l2_nonnegative);
     # 11: the bounces' gather reads each probe's L2 SH, not its 8-texel map (light.gather, workers/kernels/gather.py)
+    # 12: the series' geometric tail added at the stop (workers/kernels/convergence.py);
+    # 13: a probe's extra ray sets take rotations from a hash of the probe, not the row's number, and light.extra_sets
+    # defaults to 7 (workers/kernels/adaptive_rays.py extra_patterns)
     StageDef("light", 13, ("light", "seed"), ("ingest", "place", "relocate", "trace"), timeout=3600),
     # visibility 2: rays stop max(1e-4 x the scene's diagonal, 16 float32 spacings) before their target, not 1e-4 x
     # max(diagonal, largest coordinate) (workers/kernels/visibility.py TFAR_EPS: scenes away from the origin)

@@ -101,8 +101,8 @@ def extra_patterns(parents, k: int) -> np.ndarray:
     """(E,) int64 the rotated pattern (of ``k``) of each extra row of :func:`extra_rows` ``parents`` (E,): set j of
     probe p casts pattern ``(hash(p) + j) mod k``, so a probe's sets differ from each other and from its neighbours',
     and depend on the probe and the set alone. Numbered down the rows instead (row i: ``i mod k``), one probe more or
-    less anywhere before it shifted the rays of every probe after it: apartments turned 30° in its file (the
-    same grid to 1e-6 in the bake frame, 3,160 probes given extra sets instead of 3,174, through float rounding) baked as another
+    less anywhere before it shifted the rays of every probe after it: apartments turned 30° in its file (the same grid
+    to 1e-6 in the bake frame; 3,160 probes given extra sets instead of 3,174, through float rounding) baked as another
     seed would, its dark room 4-5% lower (bench_fidelity, 2026-12-06)."""
     parents = np.asarray(parents, np.int64)
     if parents.size == 0:

@@ -67,7 +67,8 @@ import time
 import numpy as np
 
 from workers.kernels import precision
-from workers.kernels.adaptive_rays import allocate_sets, extra_patterns, extra_rows, first_bounce_noise, merge_rows, pooled
+from workers.kernels.adaptive_rays import (allocate_sets, extra_patterns, extra_rows, first_bounce_noise, merge_rows,
+                                           pooled)
 from workers.kernels.bounce import integrate_one
 from workers.kernels.gather import SamplerGather
 from workers.kernels.grid import OFF, dilate_off, pack_atlas, unpack_atlas
