@@ -452,12 +452,13 @@ def estimate(summary: dict, config: BakeConfig) -> Estimate:
         px = pv * ev.width * ev.height
         cpn = len(ev.points.points) * (1 if ev.points.normals else 6) if ev.points else 0   # check-point normals
         pts = ev.surface_points + cpn
-        # refined surface points (reference.refine_points): dark ones get dark_spp paths, 5% of the points at most
-        # in the scenes measured (two-rooms 2.6%); the others at most the first pass again (REFINE_BUDGET = 1x)
-        # (+ the pilot that chooses them and is the roulette's control variate, a quarter of spp, always run:
-        # kernels/reference.pilot_spp)
+        # refined surface points (reference.refine_points): dark ones share the first pass's paths again
+        # (DARK_BUDGET = 1x), at least dark_spp each (5% of the points at most dark in the scenes measured); the
+        # others at most the first pass again (REFINE_BUDGET = 1x) (+ the pilot that chooses them and is the
+        # roulette's control variate, a quarter of spp, always run: kernels/reference.pilot_spp)
+        dark = max(1.0 * ev.surface_points * ev.spp, 0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp))
         paths = ev.surface_points * ev.spp * (2.25 if ev.dark_spp > ev.spp else 1.25) + \
-            cpn * ev.effective_check_spp() + 0.05 * ev.surface_points * max(0, ev.dark_spp - ev.spp)
+            cpn * ev.effective_check_spp() + (dark if ev.dark_spp > ev.spp else 0.0)
         vertices = min(float(ev.bounces or 64), EVAL_PATH_VERTICES)
         modes = len(ev.modes) if ev.modes else 6
         add("reference", (EVAL_FIXED_SECONDS if px else 0.0) + (paths + px * ev.preview_spp) * vertices

@@ -419,7 +419,7 @@ class EvaluateSection(_Strict):
 
     enabled: Bool = Field(True, description="metrics at surface points and previews against a path-traced "
                                            "reference (the reference is cached per scene and lighting: measured "
-                                           "9-13% of a first default bake, under 4% of a re-bake)")
+                                           "12-19% of a first default bake, under 4% of a re-bake)")
     cameras: Int | list[CameraSpec] = Field(3, description="reference: review cameras: an auto-placed count "
                                                            "(0..16; the glTF's own cameras when it has any, or the "
                                                            "scene's stored review cameras), or a list of cameras")
@@ -433,9 +433,11 @@ class EvaluateSection(_Strict):
         "designer reads each one, so each gets a low-noise value (measured on two rooms: a region of a room lit "
         "only through a doorway scatters ±2% between seeds at 8192-16384 paths, up to 11% at 2048)"))
     dark_spp: Int = Field(1024, ge=0, le=262144, description=(
-        "reference: the most paths per surface point. Points whose reference is dark after the first spp paths "
-        "(luminance at most twice the leak metric's threshold, 10% of the mean: the leak metrics are computed "
-        "there) get this many; the others spp·2^k up to it, more where their noise in the rmse metrics' units "
+        "reference: the most paths per surface point that is not dark, the fewest per dark one. Dark points "
+        "(luminance at most twice the leak metric's threshold, 10% of the mean, or within two standard errors of "
+        "it: the leak metrics are computed there) share as many paths as the first pass had (N x spp), each at "
+        "least this many and at most 131072 (zdm2: 4 dark points of 2048, about 98k paths each); the others spp·2^k "
+        "up to it, more where their noise in the rmse metrics' units "
         "(pooled over 16 neighbouring points) is larger, at most as many extra paths as the first pass; both judged on an independent "
         "pilot pass of spp/4 paths, so the choice does not bias the values; 0 or <= spp: none (and no pilot)"))
     preview_spp: Int = Field(4, ge=1, le=4096, description="reference: paths per preview pixel (pictures only, "

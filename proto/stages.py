@@ -98,7 +98,9 @@ STAGES: tuple[StageDef, ...] = (
     # (workers/kernels/pathtrace.py); 5: path vertices with bent shading normals shaded as Cycles 3.4 does
     # 6: extra paths by the square root of each point's noise in the rmse metrics' units, pooled over neighbours
     # 7: camera points cast a denser pixel grid when sky fills the image (kernels/surface_points.camera_points)
-    StageDef("reference", 7, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
+    # 8: dark points share the first pass's paths again (kernels/reference.DARK_BUDGET), and a pilot within two
+    # standard errors of the dark threshold counts as dark (zdm2's 4 dark points: 1,024 -> 98,304 paths each)
+    StageDef("reference", 8, tuple(f"evaluate.{f}" for f in REFERENCE_FIELDS) + ("seed",), ("ingest",),
              timeout=7200),
     # 2: metrics at the reference's points (with standard errors), previews on its G-buffers; 3: the noise bias
     # removed from rmse and indirect_relative_rmse (workers/kernels/point_metrics.py); 4: their standard errors by

@@ -10,7 +10,11 @@ Grammar (one gate per ``--fail-on``; repeat the option for more)::
 
 A gate **fails** when its comparison holds for a metric it names (it says what to fail on), and also when it
 names no metric of the bake (a typo, or evaluate off: a gate that cannot be checked never passes silently).
-A pattern is checked against every metric it matches.
+A pattern is checked against every metric it matches (``<metric>_stderr`` only when the pattern ends so). Each
+value is shown with its standard error (the reference's noise, ``<metric>_stderr``) where the bake has one, and a
+verdict within :data:`NOISE_SIGMAS` standard errors of the threshold says so: the gate still decides on the value,
+but the user learns that the reference's noise could flip it (a mode whose error is below that noise, see
+docs/architecture.md "Evaluate").
 
 Metrics (:func:`manifest_metrics`; what the server's catalog holds for a bake): the evaluate stage's
 ``stats.metrics`` — ``<mode>.rmse``, ``<mode>.leak``, ``<mode>.mean_ratio``, ``<mode>.indirect_relative_rmse``,
@@ -42,6 +46,11 @@ _RE = re.compile(r"^\s*(?P<metric>[A-Za-z0-9_.*\-]+)\s*(?P<op>>=|<=|==|!=|>|<)\s
                  r"(?P<num>[+-]?(?:\d+\.?\d*|\.\d+)(?:[eE][+-]?\d+)?)\s*$")
 
 
+NOISE_SIGMAS = 2.0
+"""A gate's verdict on a metric within this many of its standard errors (the reference's noise) of the threshold is
+called out as uncertain in its description (it still passes or fails on the value)."""
+
+
 class GateError(ValueError):
     """A gate that does not parse (the message quotes it and the grammar)."""
 
@@ -55,19 +64,34 @@ class Gate:
     # filled by check():
     matched: dict = field(default_factory=dict)     # metric -> value
     failing: dict = field(default_factory=dict)     # metric -> value where the comparison holds
+    stderr: dict = field(default_factory=dict)      # metric -> its standard error (``<metric>_stderr``), if any
 
     @property
     def failed(self) -> bool:
         return bool(self.failing) or not self.matched
 
+    @property
+    def uncertain(self) -> list[str]:
+        """The matched metrics within :data:`NOISE_SIGMAS` standard errors of the threshold: the reference's own
+        noise could change the verdict (more reference paths, another seed)."""
+        return [k for k, v in self.matched.items()
+                if self.stderr.get(k) and abs(v - self.value) < NOISE_SIGMAS * self.stderr[k]]
+
+    def _value(self, k: str, v: float) -> str:
+        se = self.stderr.get(k)
+        return f"{k} = {v:.6g}" + (f" ± {se:.2g}" if se else "")
+
     def describe(self) -> str:
         if not self.matched:
             return f"{self.text}: no metric {self.metric!r} in this bake (is evaluate enabled?)"
+        near = self.uncertain
+        note = (f"; within {NOISE_SIGMAS:g} standard errors of {self.value:g}: {', '.join(near)} (the reference's "
+                f"noise could change this verdict)") if near else ""
         if self.failing:
-            vals = ", ".join(f"{k} = {v:.6g}" for k, v in self.failing.items())
-            return f"{self.text}: {vals}"
-        vals = ", ".join(f"{k} = {v:.6g}" for k, v in self.matched.items())
-        return f"{self.text}: passed ({vals})"
+            vals = ", ".join(self._value(k, v) for k, v in self.failing.items())
+            return f"{self.text}: {vals}{note}"
+        vals = ", ".join(self._value(k, v) for k, v in self.matched.items())
+        return f"{self.text}: passed ({vals}){note}"
 
 
 def parse_gate(text: str) -> Gate:
@@ -89,7 +113,9 @@ def check(gates: list[Gate], metrics: dict[str, float]) -> list[Gate]:
     for g in gates:
         names = [k for k in metrics if fnmatch.fnmatchcase(k, g.metric)] if any(c in g.metric for c in "*?[") \
             else ([g.metric] if g.metric in metrics else [])
+        names = [k for k in names if not k.endswith("_stderr") or g.metric.endswith("_stderr")]
         g.matched = {k: metrics[k] for k in sorted(names)}
+        g.stderr = {k: metrics[f"{k}_stderr"] for k in g.matched if f"{k}_stderr" in metrics}
         g.failing = {k: v for k, v in g.matched.items() if _OPS[g.op](v, g.value)}
     return [g for g in gates if g.failed]
 
@@ -114,7 +140,7 @@ def junit_xml(gates: list[Gate], manifest: dict, metrics: dict[str, float] | Non
             f = ET.SubElement(case, "failure", type="gate" if g.matched else "missing_metric",
                               message=g.describe())
             f.text = g.describe()
-        ET.SubElement(case, "system-out").text = "\n".join(f"{k} = {v:.6g}" for k, v in g.matched.items())
+        ET.SubElement(case, "system-out").text = "\n".join(g._value(k, v) for k, v in g.matched.items())
     modes = _modes(manifest)
     msuite = ET.SubElement(root, "testsuite", name="kiln.modes", tests=str(len(modes)), errors="0")
     n_failed = 0

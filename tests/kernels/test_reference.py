@@ -153,3 +153,28 @@ def test_refinement_chosen_on_a_pilot_leaves_values_and_errors_unbiased():
     assert mean < 0.7 and err_ratio > 2.0, (mean, err_ratio)
     mean, err_ratio = refined(pilot=True)
     assert abs(mean - 1) < 0.02 and abs(err_ratio - 1) < 0.1, (mean, err_ratio)
+
+
+def test_refine_points_gives_few_dark_points_a_share_of_the_paths():
+    """Dark points share DARK_BUDGET × N × spp paths (a power-of-two multiple of spp each, at least max_spp, at most
+    dark_max): 2 dark points among 1,000 get far more than max_spp, many get max_spp. A point whose pilot reads it
+    above the dark threshold but within two standard errors of it (and at most twice the threshold) counts as dark;
+    one as bright but certain does not."""
+    from workers.kernels.reference import DARK_BUDGET, DARK_FRACTION, refine_points
+
+    n, spp = 1000, 64
+    e = np.ones((n, 3))
+    e[:2] = 0.001                                            # dark
+    e[2] = 1.5 * DARK_FRACTION                               # above the threshold, but noisy: ± 1 x threshold
+    e[3] = 1.5 * DARK_FRACTION                               # the same, certain
+    s = np.full((n, 3), 1e-4)
+    s[2] = DARK_FRACTION
+    trace = lambda idx, k: (np.full((len(idx), 3), 0.001), np.full((len(idx), 3), 1e-4))  # noqa: E731
+    paths = refine_points(trace, np.zeros((n, 3)), e, s, spp, 1024, budget=0.0)[2]
+    share = spp + DARK_BUDGET * n * spp / 3
+    want = spp * 2 ** int(np.floor(np.log2(share / spp)))
+    assert want > 1024 and paths[0] == paths[1] == paths[2] == want and paths[3] == spp
+    assert refine_points(trace, np.zeros((n, 3)), e, s, spp, 1024, budget=0.0, dark_max=2048)[2][0] == 2048
+    many = e.copy()
+    many[: n // 2] = 0.001                                   # half the points dark: max_spp each
+    assert set(refine_points(trace, np.zeros((n, 3)), many, s, spp, 1024, budget=0.0)[2][: n // 2]) == {1024}

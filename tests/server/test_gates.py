@@ -96,3 +96,17 @@ def test_cli_fail_on_exit_7_and_junit(tmp_path, scene_files):
 
 if __name__ == "__main__":  # pragma: no cover
     sys.exit(pytest.main([__file__, "-q"]))
+
+
+def test_gates_show_the_reference_noise():
+    """A value is shown with its standard error, and a verdict within 2 standard errors of the threshold says the
+    reference's noise could change it; ``*.rmse*`` does not gate the standard errors themselves."""
+    m = {"ddgi.rmse": 0.0025, "ddgi.rmse_stderr": 0.001, "leaking.rmse": 0.1, "leaking.rmse_stderr": 0.0003}
+    near, far, pattern = parse_gate("ddgi.rmse > 0.002"), parse_gate("leaking.rmse > 0.05"), parse_gate("*.rmse* > 1")
+    assert [g.text for g in check([near, far, pattern], m)] == ["ddgi.rmse > 0.002", "leaking.rmse > 0.05"]
+    assert near.uncertain == ["ddgi.rmse"] and "ddgi.rmse = 0.0025 ± 0.001" in near.describe()
+    assert "noise could change this verdict" in near.describe()
+    assert far.uncertain == [] and "± 0.0003" in far.describe() and "noise" not in far.describe()
+    assert sorted(pattern.matched) == ["ddgi.rmse", "leaking.rmse"]
+    root = ET.fromstring(junit_xml([near], {"stages": [], "artifacts": []}, m))
+    assert "ddgi.rmse = 0.0025 ± 0.001" in root.find(".//testcase/system-out").text

@@ -85,6 +85,16 @@ denominator's noise added in quadrature. ``leak``, ``indirect_excess`` and ``mea
 "Standard errors", paired (both tests against the same replicas and dark set). Two bakes that read the same have a
 delta of 0 ± 0.
 
+What a smaller standard error costs (:func:`paths_for_stderr`)
+--------------------------------------------------------------
+With k times the reference's paths at every point the standard errors become ``s/√k``. The bootstrap metrics'
+errors fall as ``1/√k``; the debiased rmse's variance has a part in ``1/k`` (the error times the noise) and one in
+``1/k²`` (the noise squared); where a mode's error is below the reference's noise the second dominates, and
+halving its relative error takes 2x the paths (4x where the first dominates) — but from far: two-rooms' ddgi, tone-mapped
+``rmse`` 0.0037 against a noise of about 0.007 per point and channel, reads ± 16% and would need about 25x the paths
+for 2% (tests/bench/bench_evaluate.py ``--cost`` prints it per metric). The function says what k a target takes;
+the stage does not spend it.
+
 Regions (:func:`region_ratios`): for named groups of check points, the ratio of the group's mean luminance to
 the reference's, with its bootstrap standard error the same way.
 
@@ -99,8 +109,8 @@ import numpy as np
 
 from workers.kernels import metrics as MT
 
-__all__ = ["point_metrics", "metrics_with_stderr", "paired_delta_stderr", "reference_mean_stderr", "region_ratios",
-           "radiance", "point_summary", "check_point_report", "METRICS", "REPLICAS"]
+__all__ = ["point_metrics", "metrics_with_stderr", "paths_for_stderr", "paired_delta_stderr", "reference_mean_stderr",
+           "region_ratios", "radiance", "point_summary", "check_point_report", "METRICS", "REPLICAS"]
 
 METRICS = ("rmse", "indirect_relative_rmse", "leak", "indirect_excess", "mean_ratio")
 REPLICAS = 128
@@ -266,6 +276,78 @@ def metrics_with_stderr(test, ref, err, e_direct, albedo, emission, *, replicas:
         sd_num = _debiased_rmse_stderr(t - r, s, mse)
         sd_den = _mean_norm_stderr(r, s)              # and the denominator's noise, in quadrature
         out["indirect_relative_rmse_stderr"] = math.hypot(sd_num / den, out["indirect_relative_rmse"] * sd_den / den)
+    return out
+
+
+def _debiased_terms(diff, noise, dof: int = NOISE_DOF) -> tuple[float, float]:
+    """The two parts of ``Var(Σ_i |d_i − u_i z_i|² − |û_i|²)`` (:func:`_debiased_rmse_stderr`), estimated from the
+    noisy errors ``diff`` and standard errors ``noise`` (N, C): ``(A, B)`` with ``A = 4 Σ(d·u)²`` (the error times
+    the noise: falls as 1/k with k times the paths) and ``B = 2 (1 + 1/ν) Σ|u|⁴`` (the noise squared: 1/k²); their
+    sum is the variance :func:`_debiased_rmse_stderr` uses (``A`` clamped at 0)."""
+    d, u = np.asarray(diff, np.float64), np.asarray(noise, np.float64)
+    u4 = np.sum(u * u, axis=1) ** 2
+    b = 2.0 * (dof + 1) / (dof + 2) * float(u4.sum())                         # E|û|⁴ = |u|⁴ (ν + 2)/ν
+    a = 4.0 * float(np.sum(np.sum(d * u, axis=1) ** 2 - dof / (dof + 2) * u4))  # E(d̂·û)² ≈ (d·u)² + |u|⁴
+    return max(a, 0.0), b
+
+
+def _root_paths(a: float, b: float, scale: float, extra: float, target: float) -> float | None:
+    """The smallest k with ``(a/k + b/k²)/scale + extra/k <= target²``: the relative variance of a debiased root
+    (``scale = 4 r⁴ (N·C)²``) plus a linear part's (``extra``), at k times the reference's paths."""
+    a1, b1 = a / scale + extra, b / scale
+    t2 = target * target
+    if b1 <= 0:
+        return a1 / t2 if a1 > 0 else 0.0
+    x = (-a1 + math.sqrt(a1 * a1 + 4.0 * b1 * t2)) / (2.0 * b1)               # x = 1/k
+    return 1.0 / x if x > 0 else None
+
+
+def paths_for_stderr(test, ref, err, e_direct, albedo, emission, *, target: float = 0.02,
+                     exposure: float | None = None, stderr: dict | None = None) -> dict:
+    """How many times the reference's paths (at every point) each metric of one test would need for its standard
+    error to be ``target`` of its value: ``{metric: k}`` (k < 1: already there; None: the value is 0 or undefined,
+    no relative error exists). Arguments as :func:`metrics_with_stderr`; ``stderr``: its result, if at hand.
+
+    A reference of k times the paths has standard errors ``s/√k``. The debiased ``rmse`` and
+    ``indirect_relative_rmse`` (module doc, "Standard errors of the debiased rmse") have a variance of two parts,
+    ``A/k + B/k²`` (:func:`_debiased_terms`: the error times the noise, and the noise squared — which dominates
+    where a mode's error is below the reference's noise), solved for k at the value measured now (the debiased
+    value does not move with k in expectation). The bootstrap metrics (``leak``, ``indirect_excess``,
+    ``mean_ratio``) scale as ``1/√k``: ``k = (stderr / value / target)²`` — for the leak a lower bound where the
+    reference's noise at the dark points makes much of its value (a mean absolute difference is not debiased, so it
+    falls as the noise does). This says what the reference would cost (tests/bench/bench_evaluate.py ``--cost``),
+    not what the stage does."""
+    r = np.asarray(ref, np.float64)
+    if len(r) == 0:
+        return {k: None for k in METRICS}
+    d, a, e = (np.asarray(x, np.float64) for x in (e_direct, albedo, emission))
+    t, s = np.asarray(test, np.float64), np.asarray(err, np.float64)
+    if exposure is None:
+        exposure = MT.exposure_for(_img(radiance(d, r, a, e)))
+    m = stderr or metrics_with_stderr(t, r, s, d, a, e, exposure=exposure)
+    out = {}
+    for k in ("leak", "indirect_excess", "mean_ratio"):
+        v, se = m.get(k), m.get(f"{k}_stderr")
+        out[k] = (se / abs(v) / target) ** 2 if v and se is not None else None
+    v_irr, v_tm = _noise_variance(r, s, d, a, e, exposure)
+    n = len(r)
+    rv = m.get("rmse")
+    if rv:
+        lt = MT.tonemap(radiance(d, t, a, e), exposure).astype(np.float64)
+        lr = MT.tonemap(radiance(d, r, a, e), exposure).astype(np.float64)
+        A, B = _debiased_terms(lt - lr, np.sqrt(v_tm))
+        out["rmse"] = _root_paths(A, B, 4.0 * rv ** 4 * (3 * n) ** 2, 0.0, target)
+    else:
+        out["rmse"] = None
+    rel = m.get("indirect_relative_rmse")
+    den = float(np.mean(np.linalg.norm(r, axis=-1)))
+    if rel and den > 0:
+        A, B = _debiased_terms(t - r, s)
+        root = rel * den
+        out["indirect_relative_rmse"] = _root_paths(A, B, 4.0 * root ** 4 * n * n, (_mean_norm_stderr(r, s) / den) ** 2,
+                                                    target)
+    else:
+        out["indirect_relative_rmse"] = None
     return out
 
 

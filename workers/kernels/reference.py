@@ -129,6 +129,13 @@ DARK_FRACTION = 2 * MT.LEAK_TAU
 REFINE_BUDGET = 1.0
 """At most this many times the first pass's paths are spent on noisy points (dark points not counted)."""
 
+DARK_BUDGET = 1.0
+"""Dark points share this many times the first pass's paths (N × spp) among them, each at least ``dark_spp`` and at
+most :data:`DARK_MAX_SPP` (:func:`refine_points`): where they are few, each gets many more paths than ``dark_spp``."""
+
+DARK_MAX_SPP = 131072
+"""The most paths a dark point gets from :data:`DARK_BUDGET` (more only when ``dark_spp`` asks)."""
+
 POOL_NEIGHBOURS = 16
 """:func:`refine_points` judges a point's noise by the pilot's paths at this many nearest surface points (itself
 included) that face its way (normals within 25.8°: :data:`POOL_COS`)."""
@@ -146,7 +153,8 @@ def pilot_spp(spp: int) -> int:
 
 
 def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *, budget: float = REFINE_BUDGET,
-                  pilot=None, surface: dict | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                  pilot=None, surface: dict | None = None, dark_budget: float = DARK_BUDGET,
+                  dark_max: int = DARK_MAX_SPP) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """More paths where the reference's noise weighs most on the metrics, so that no metric is decided by a few noisy
     points.
 
@@ -157,7 +165,13 @@ def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *
     (two-rooms, 192 paths: 1% of the points held 44% of the ``rmse`` noise's fourth power, most of them dim points
     at 30-60% relative noise that kept their 192 paths). So after the first pass of ``spp`` paths:
 
-    * **dark** points (luminance at most :data:`DARK_FRACTION` of the mean) get ``max_spp`` paths in all;
+    * **dark** points (luminance at most :data:`DARK_FRACTION` of the mean, or at most twice that and within two
+      standard errors of it: a pilot of 48 paths that caught one rare bright path reads a dark point bright) share
+      ``dark_budget × N × spp`` paths, each ``spp·2^k`` in all, at least ``max_spp`` and at most ``dark_max`` (or
+      ``max_spp`` if more). Only the dark points carry the leak metrics' noise, and where they are few each needs
+      many paths: zdm2-sauerbraten (a sun and a sky) has 4 of 2,048, whose leak metrics at 1,024 paths each read
+      ± 13-38% (a heavy tail: one point ± 34% of its value) — and a mean absolute difference is not debiased, so
+      that noise was most of the accurate modes' leak values;
     * every other point gets ``n = spp·2^k`` paths, the least k with ``n >= c·w`` (at most ``max_spp``), for a weight
       ``w = max((v_E / mean v_E)^½, (v_C / mean v_C)^½)``: ``v_E`` a path's variance of the point's luminance
       irradiance, ``v_C`` of its tone-mapped exitant radiance (the delta method of
@@ -205,7 +219,8 @@ def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *
                                                         np.asarray(pilot[1], np.float64), int(pilot[2]))
     y = MT.luminance(e_c)
     mean = float(y.mean())
-    dark = (y <= DARK_FRACTION * mean) if mean > 0 else np.zeros(n_pts, bool)
+    thr, sy = DARK_FRACTION * mean, np.abs(s_c @ MT.REC709)
+    dark = ((y <= thr) | ((y - 2.0 * sy <= thr) & (y <= 2.0 * thr))) if mean > 0 else np.zeros(n_pts, bool)
     variances = [(s_c @ MT.REC709) ** 2 * n_c]
     surface = surface or {}
     if surface.get("albedo") is not None and surface.get("emission") is not None:
@@ -242,7 +257,10 @@ def refine_points(trace, e_direct, e_indirect, stderr, spp: int, max_spp: int, *
             else:
                 lo = mid
         want = want_at(math.exp(lo))
-    want[dark] = max_spp
+    if dark.any():                             # the dark points' share: a power-of-two multiple of spp each
+        share = spp + float(dark_budget) * n_pts * spp / int(dark.sum())
+        share = min(share, max(int(dark_max), max_spp))
+        want[dark] = max(max_spp, int(spp * 2.0 ** math.floor(math.log2(share / spp) + 1e-9)))
     for n in np.unique(want[want > spp]):
         idx = np.flatnonzero(want == n)
         n1, n2 = spp, int(n) - spp
