@@ -77,7 +77,8 @@ class Gate:
         return [k for k, v in self.matched.items()
                 if self.stderr.get(k) and abs(v - self.value) < NOISE_SIGMAS * self.stderr[k]]
 
-    def _value(self, k: str, v: float) -> str:
+    def show(self, k: str, v: float) -> str:
+        """``metric = value ± stderr`` (the standard error where the bake has one)."""
         se = self.stderr.get(k)
         return f"{k} = {v:.6g}" + (f" ± {se:.2g}" if se else "")
 
@@ -88,9 +89,9 @@ class Gate:
         note = (f"; within {NOISE_SIGMAS:g} standard errors of {self.value:g}: {', '.join(near)} (the reference's "
                 f"noise could change this verdict)") if near else ""
         if self.failing:
-            vals = ", ".join(self._value(k, v) for k, v in self.failing.items())
+            vals = ", ".join(self.show(k, v) for k, v in self.failing.items())
             return f"{self.text}: {vals}{note}"
-        vals = ", ".join(self._value(k, v) for k, v in self.matched.items())
+        vals = ", ".join(self.show(k, v) for k, v in self.matched.items())
         return f"{self.text}: passed ({vals}){note}"
 
 
@@ -140,7 +141,7 @@ def junit_xml(gates: list[Gate], manifest: dict, metrics: dict[str, float] | Non
             f = ET.SubElement(case, "failure", type="gate" if g.matched else "missing_metric",
                               message=g.describe())
             f.text = g.describe()
-        ET.SubElement(case, "system-out").text = "\n".join(g._value(k, v) for k, v in g.matched.items())
+        ET.SubElement(case, "system-out").text = "\n".join(g.show(k, v) for k, v in g.matched.items())
     modes = _modes(manifest)
     msuite = ET.SubElement(root, "testsuite", name="kiln.modes", tests=str(len(modes)), errors="0")
     n_failed = 0
